@@ -1,0 +1,1 @@
+"""rangereg's front ends: the command line and the viser workbench, thin layers over ``core``."""

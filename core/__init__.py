@@ -1,0 +1,13 @@
+"""rangereg's registration engine (Luck, Hoff, Underwood and Little, ICRA 2000), never drawing."""
+
+from .errors import InputError
+from .events import Cancelled, Event
+from .io import load_conf, load_scan, read_transform, save_scan
+from .problem import ProblemConfig, prepare, relative_guess
+from .register import METHODS, Config, Result, register
+from .scan import Scan
+from .surface import Surface
+
+__all__ = ["Cancelled", "Config", "Event", "InputError", "METHODS", "ProblemConfig", "Result", "Scan",
+           "Surface", "load_conf", "load_scan", "prepare", "read_transform", "register", "relative_guess",
+           "save_scan"]

@@ -1,0 +1,60 @@
+"""The robust error function (paper section 2.2, eq. 1-2), shared by ICP, annealing, slices and GUI.
+
+    E(T) = (1/N) sum_i w_i d_i^2,   d_i = |C(T(p_i), Q) - T(p_i)|,   t = 2 median(d_i^2),
+    w_i = 1 if d_i^2 < t else t / d_i^2.
+
+So w_i d_i^2 = min(d_i^2, t): an outlier adds the constant t, never zero, so a whole surface can
+not be tagged as outliers to lower the score (the paper's corner example).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .surface import Surface
+from .transforms import apply
+
+
+def robust_weights(d2: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weights (N,) for squared distances (N,) and the threshold t = 2 median(d2) (paper eq. 2)."""
+    t = 2.0 * float(np.median(d2))
+    w = np.ones_like(d2)
+    far = d2 >= t
+    if t > 0:
+        w[far] = t / d2[far]
+    else:  # a perfect fit of at least half the points: the others add t = 0
+        w[far & (d2 > 0)] = 0.0
+    return w, t
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorTerms:
+    """One evaluation: E, moved points (N, 3), their closest surface points (N, 3), d2 (N,), w (N,), t."""
+
+    error: float
+    moved: np.ndarray
+    closest: np.ndarray
+    d2: np.ndarray
+    weights: np.ndarray
+    t: float
+
+
+class RobustError:
+    """E(T) for fixed source points (N, 3, source frame) against a target surface; counts evaluations."""
+
+    def __init__(self, points: np.ndarray, surface: Surface):
+        self.points = np.asarray(points, dtype=np.float64)
+        self.surface = surface
+        self.evaluations = 0
+
+    def terms(self, T_target_source: np.ndarray) -> ErrorTerms:
+        moved = apply(T_target_source, self.points)
+        closest, d2 = self.surface.closest(moved)
+        w, t = robust_weights(d2)
+        self.evaluations += 1
+        return ErrorTerms(float(np.mean(w * d2)), moved, closest, d2, w, t)
+
+    def __call__(self, T_target_source: np.ndarray) -> float:
+        return self.terms(T_target_source).error

@@ -1,0 +1,49 @@
+"""The optimiser's event stream: every ICP iteration and annealing move, for the GUI, the CLI's
+``--trace`` file and the benchmarks. A listener may raise :class:`Cancelled` to stop a run (the
+run then returns its best pose so far), or block to pause or single-step it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .transforms import to_params
+
+
+class Cancelled(Exception):
+    """Raised by a listener to stop the run; the run returns its best pose so far."""
+
+
+@dataclass(frozen=True, eq=False)
+class Event:
+    """One step. T: (4, 4) T_target_source; error: robust E (squared units); temperature: SA only."""
+
+    phase: str  # "icp" or "sa"
+    iteration: int  # 1-based count over the whole run (ICP + SA)
+    phase_iteration: int  # 1-based count within this phase's leg
+    leg: int  # which ICP or SA leg of the run, from 1
+    T: np.ndarray
+    error: float
+    temperature: float | None = None
+    accepted: bool = True
+    local_minimum: bool = False  # ICP ended here above the threshold
+
+    @property
+    def params(self) -> np.ndarray:
+        return to_params(self.T)
+
+    def to_json(self) -> dict:
+        return {"phase": self.phase, "iteration": self.iteration, "phase_iteration": self.phase_iteration,
+                "leg": self.leg, "params": self.params.tolist(), "transform": self.T.tolist(),
+                "error": self.error, "temperature": self.temperature, "accepted": self.accepted,
+                "local_minimum": self.local_minimum}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Event:
+        return cls(d["phase"], d["iteration"], d["phase_iteration"], d["leg"], np.asarray(d["transform"]),
+                   d["error"], d.get("temperature"), d.get("accepted", True), d.get("local_minimum", False))
+
+
+Listener = Callable[[Event], None]

@@ -1,0 +1,174 @@
+"""Overlap by frustum segmentation (paper section 2.1).
+
+The frustum of a scan is the pyramid from the sensor origin through the outline of the scan's
+points as seen from the sensor. The paper's frustum is convex (the outline is the convex hull of
+the projected points); the non-convex variant it left as future work follows the scan's real
+footprint: an occupancy mask of the projected points, closed over the sampling gaps.
+
+Given a guess ``T_a_b`` (B into A's frame), the points of B inside A's frustum and the points of A
+inside B's are the overlap that registration uses; points outside are culled before they can
+become outliers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from .errors import InputError
+from .scan import Scan
+from .transforms import apply, invert
+
+KINDS = ("convex", "nonconvex")
+
+
+@dataclass(frozen=True, eq=False)
+class Frustum:
+    """The viewing pyramid of one scan, in that scan's frame.
+
+    apex: (3,) sensor origin; basis: (3, 3) rows u, v, viewing axis; outline: (K, 2) convex outline
+    on the image plane (gnomonic coordinates, one unit in front of the sensor); far: depth (units)
+    used for drawing. ``mask`` (with ``mask_origin``, ``cell``) makes it non-convex.
+    """
+
+    apex: np.ndarray
+    basis: np.ndarray
+    outline: np.ndarray
+    equations: np.ndarray
+    far: float
+    mask: np.ndarray | None = None
+    mask_origin: np.ndarray | None = None
+    cell: float = 0.0
+
+    @property
+    def convex(self) -> bool:
+        return self.mask is None
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        local = (points - self.apex) @ self.basis.T
+        depth = local[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = local[:, :2] / depth[:, None]
+        return uv, depth
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: which (N, 3) points (this scan's frame) lie inside the frustum."""
+        uv, depth = self.project(np.asarray(points, dtype=np.float64))
+        front = depth > 0
+        inside = np.zeros(len(uv), dtype=bool)
+        if not front.any():
+            return inside
+        q = uv[front]
+        hull_ok = np.all(q @ self.equations[:, :2].T + self.equations[:, 2] <= 1e-12, axis=1)
+        if self.mask is not None:
+            ij = np.floor((q - self.mask_origin) / self.cell).astype(np.int64)
+            in_box = np.all((ij >= 0) & (ij < self.mask.shape), axis=1)
+            ok = np.zeros(len(q), dtype=bool)
+            ok[in_box] = self.mask[ij[in_box, 0], ij[in_box, 1]]
+            hull_ok &= ok
+        inside[np.flatnonzero(front)] = hull_ok
+        return inside
+
+    def wireframe(self) -> np.ndarray:
+        """(S, 2, 3) line segments for drawing: apex to each outline corner, and the far outline."""
+        far = self.outline_points(self.far)
+        spokes = np.stack([np.broadcast_to(self.apex, far.shape), far], axis=1)
+        ring = np.stack([far, np.roll(far, -1, axis=0)], axis=1)
+        return np.concatenate([spokes, ring])
+
+    def triangles(self) -> tuple[np.ndarray, np.ndarray]:
+        """The frustum's side faces as a mesh: vertices (K + 1, 3), faces (K, 3)."""
+        far = self.outline_points(self.far)
+        k = len(far)
+        verts = np.vstack([self.apex, far])
+        faces = np.array([[0, 1 + i, 1 + (i + 1) % k] for i in range(k)])
+        return verts, faces
+
+    def outline_points(self, depth: float) -> np.ndarray:
+        o = self.outline
+        return self.apex + depth * (o[:, :1] * self.basis[0] + o[:, 1:] * self.basis[1] + self.basis[2])
+
+
+def frustum_of(scan: Scan, kind: str = "convex") -> Frustum:
+    """Build the frustum of ``scan`` (``kind``: 'convex' as in the paper, or 'nonconvex')."""
+    if kind not in KINDS:
+        raise InputError(f"unknown frustum kind {kind!r}; use one of {', '.join(KINDS)}")
+    from .surface import view_projection
+
+    try:
+        uv, basis = view_projection(scan.points, scan.viewpoint)
+    except InputError as exc:
+        raise InputError(f"{scan.name}: {exc}") from None
+    try:
+        hull = ConvexHull(uv)
+    except (QhullError, ValueError):
+        raise InputError(f"{scan.name}: the scan is seen edge-on from its viewpoint; no frustum") from None
+    depth = (scan.points - scan.viewpoint) @ basis[2]
+    outline = uv[hull.vertices]
+    mask = origin = None
+    cell = 0.0
+    if kind == "nonconvex":
+        mask, origin, cell = _occupancy(uv)
+    return Frustum(apex=scan.viewpoint.copy(), basis=basis, outline=outline, equations=hull.equations,
+                   far=float(depth.max() * 1.05), mask=mask, mask_origin=origin, cell=cell)
+
+
+def _occupancy(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """A closed occupancy mask of projected points: cells 2 x the median projected spacing."""
+    sub = uv[:: max(1, len(uv) // 5000)]
+    d, _ = cKDTree(uv).query(sub, k=2)
+    cell = 2.0 * float(np.median(d[:, 1])) or 1e-9
+    origin = uv.min(0) - 2 * cell
+    ij = np.floor((uv - origin) / cell).astype(np.int64)
+    shape = ij.max(0) + 3
+    mask = np.zeros(shape, dtype=bool)
+    mask[ij[:, 0], ij[:, 1]] = True
+    mask = ndimage.binary_closing(mask, iterations=2)
+    mask = ndimage.binary_fill_holes(mask)
+    return mask, origin, cell
+
+
+@dataclass(frozen=True, eq=False)
+class Overlap:
+    """source_mask: (Ns,) source points inside the target's frustum; target_mask: (Nt,) the reverse."""
+
+    source_mask: np.ndarray
+    target_mask: np.ndarray
+
+    @property
+    def source_fraction(self) -> float:
+        return float(self.source_mask.mean())
+
+    @property
+    def target_fraction(self) -> float:
+        return float(self.target_mask.mean())
+
+    def __repr__(self) -> str:
+        return (f"Overlap(source {self.source_mask.sum()}/{len(self.source_mask)} = {self.source_fraction:.0%}, "
+                f"target {self.target_mask.sum()}/{len(self.target_mask)} = {self.target_fraction:.0%})")
+
+
+def segment_overlap(source: Scan, target: Scan, T_target_source: np.ndarray, kind: str = "convex",
+                    frusta: tuple[Frustum, Frustum] | None = None) -> Overlap:
+    """Segment the overlap both ways under the guess ``T_target_source``."""
+    f_src, f_tgt = frusta if frusta is not None else (frustum_of(source, kind), frustum_of(target, kind))
+    src_in_tgt = f_tgt.contains(apply(T_target_source, source.points))
+    tgt_in_src = f_src.contains(apply(invert(T_target_source), target.points))
+    return Overlap(src_in_tgt, tgt_in_src)
+
+
+def visible_from(target_surface, viewpoint: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:
+    """(N,) bool: points (target frame) that the target's sensor could have seen.
+
+    Beyond the paper: a point inside the frustum but more than ``margin`` behind the target's
+    surface along the sensor ray is hidden from that sensor, so it has no partner there. Rays
+    that hit nothing passed through a hole in the target. ``margin`` (units) should cover the
+    uncertainty of the guess, so that a wrong guess does not cut true overlap.
+    """
+    rays = points - viewpoint
+    dist = np.linalg.norm(rays, axis=1)
+    hit = target_surface.first_hit(np.broadcast_to(viewpoint, points.shape), rays / dist[:, None])
+    return np.isfinite(hit) & (dist <= hit + margin)

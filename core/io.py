@@ -1,0 +1,335 @@
+"""Loading and saving scans: PLY (with Stanford range grids), PCD, XYZ/TXT/CSV, OBJ/STL/OFF meshes,
+Stanford ``.conf`` poses and our JSON sidecar (viewpoint, units, ground truth)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .errors import InputError
+from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
+from .scan import RangeGrid, Scan, clean_points
+from .viewpoint import check_viewpoint, estimate_viewpoint
+
+POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
+MESH_FORMATS = (".obj", ".stl", ".off")
+FORMATS = POINT_FORMATS + MESH_FORMATS
+
+
+def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str | None = None) -> Scan:
+    """Read a scan file. ``viewpoint`` (3,) overrides any stored or estimated one.
+
+    Raises InputError with a message naming the file for anything unreadable or degenerate.
+    """
+    path = Path(path)
+    what = str(path)
+    if not path.exists():
+        raise InputError(f"{what}: no such file")
+    if path.is_dir():
+        raise InputError(f"{what}: is a folder, not a scan file")
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise InputError(f"{what}: unsupported format {suffix or '(no extension)'!r}; "
+                         f"use one of {', '.join(FORMATS)}")
+    if path.stat().st_size == 0:
+        raise InputError(f"{what}: the file is empty")
+    stored_vp, grid, faces = None, None, None
+    try:
+        if suffix == ".ply":
+            raw, grid_idx, faces = _load_ply(path)
+        elif suffix == ".pcd":
+            raw, stored_vp, grid_idx = _load_pcd(path)
+        elif suffix in MESH_FORMATS:
+            raw, faces = _load_mesh(path)
+            grid_idx = None
+        else:
+            raw = _load_text(path)
+            grid_idx = None
+    except InputError:
+        raise
+    except (PlyError, ValueError, KeyError, IndexError, OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{what}: cannot read it as {suffix[1:].upper()} ({exc})") from None
+    points, keep = clean_points(raw, what)
+    dropped = int((~keep).sum())
+    remap = np.cumsum(keep) - 1
+    if grid_idx is not None:
+        g = grid_idx.copy()
+        occupied = g >= 0
+        valid = occupied.copy()
+        valid[occupied] = keep[g[occupied]]
+        g[~valid] = -1
+        g[valid] = remap[g[valid]]
+        grid = RangeGrid(g)
+    if faces is not None:
+        faces = faces[np.all(keep[faces], axis=1)]
+        faces = remap[faces]
+    side = _read_sidecar(path)
+    pose = side.get("pose")
+    if pose is None:
+        pose = _pose_from_conf_beside(path)
+    units = side.get("units") or _guess_units(points)
+    vp, estimated = (stored_vp, False)
+    if side.get("viewpoint") is not None:
+        vp = np.asarray(side["viewpoint"], dtype=np.float64)
+    if viewpoint is not None:
+        vp, estimated = np.asarray(viewpoint, dtype=np.float64).reshape(3), False
+        check_viewpoint(points, vp, grid, faces, what)
+    elif vp is None:
+        vp, estimated = estimate_viewpoint(points, grid, faces), True
+    scan = Scan(points=points, viewpoint=vp, name=name or path.stem, units=units,
+                viewpoint_estimated=estimated, grid=grid, faces=faces,
+                pose=None if pose is None else np.asarray(pose, dtype=np.float64),
+                guess=None if side.get("guess") is None else np.asarray(side["guess"], dtype=np.float64),
+                dropped=dropped, source=str(path))
+    return scan
+
+
+def _load_ply(path: Path):
+    data, info = read_ply(path)
+    if "vertex" not in data:
+        raise InputError(f"{path}: the PLY file has no vertex element")
+    v = data["vertex"]
+    if not all(k in v for k in "xyz"):
+        raise InputError(f"{path}: the PLY vertices have no x, y, z properties")
+    pts = np.c_[v["x"], v["y"], v["z"]].astype(np.float64)
+    grid_idx = None
+    if "range_grid" in data:
+        counts, flat = next(iter(data["range_grid"].values()))
+        rows, cols = int(info.get("num_rows", 0)), int(info.get("num_cols", 0))
+        if rows * cols != len(counts):
+            raise InputError(f"{path}: range_grid has {len(counts)} cells but the header says {rows} x {cols}")
+        g = np.full(len(counts), -1, dtype=np.int64)
+        first = np.cumsum(counts) - counts
+        has = counts > 0
+        g[has] = flat[first[has]]
+        if g.max(initial=-1) >= len(pts):
+            raise InputError(f"{path}: range_grid refers to vertex {g.max()} of {len(pts)}")
+        grid_idx = g.reshape(rows, cols)
+    faces = None
+    if "face" in data and data["face"]:
+        counts, flat = next(iter(data["face"].values()))
+        faces = _triangulate_polygons(counts, flat)
+        if faces.size and faces.max() >= len(pts):
+            raise InputError(f"{path}: a face refers to vertex {faces.max()} of {len(pts)}")
+    return pts, grid_idx, faces
+
+
+def _triangulate_polygons(counts, flat) -> np.ndarray:
+    if len(counts) and np.all(counts == 3):
+        return flat.reshape(-1, 3)
+    tris, pos = [], 0
+    for k in counts:
+        poly = flat[pos:pos + k]
+        tris += [(poly[0], poly[i], poly[i + 1]) for i in range(1, k - 1)]
+        pos += k
+    return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+
+
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4",
+              ("I", 8): "i8", ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
+
+
+def _load_pcd(path: Path):
+    raw = path.read_bytes()
+    header, pos = {}, 0
+    while True:
+        nl = raw.find(b"\n", pos)
+        if nl < 0:
+            raise InputError(f"{path}: not a PCD file (no DATA line)")
+        line = raw[pos:nl].decode("ascii", errors="replace").strip()
+        pos = nl + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *vals = line.split()
+        header[key.upper()] = vals
+        if key.upper() == "DATA":
+            break
+    fields = header.get("FIELDS")
+    if not fields or not all(f in fields for f in "xyz"):
+        raise InputError(f"{path}: the PCD file has no x y z fields")
+    n = int(header.get("POINTS", [0])[0]) or int(header["WIDTH"][0]) * int(header.get("HEIGHT", ["1"])[0])
+    sizes = [int(s) for s in header.get("SIZE", ["4"] * len(fields))]
+    types = header.get("TYPE", ["F"] * len(fields))
+    counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
+    mode = header["DATA"][0].lower()
+    if mode == "ascii":
+        text = raw[pos:].decode("ascii").split()
+        arr = np.array(text, dtype=np.float64).reshape(n, sum(counts))
+        offs = np.cumsum([0] + counts)
+        pts = np.c_[[arr[:, offs[fields.index(a)]] for a in "xyz"]].T
+    elif mode == "binary":
+        dt = np.dtype([(f, "<" + _PCD_TYPES[(t, s)], (c,)) if c > 1 else (f, "<" + _PCD_TYPES[(t, s)])
+                       for f, s, t, c in zip(fields, sizes, types, counts)])
+        arr = np.frombuffer(raw, dtype=dt, count=n, offset=pos)
+        pts = np.c_[arr["x"], arr["y"], arr["z"]].astype(np.float64)
+    elif mode == "binary_compressed":
+        import open3d as o3d
+
+        pts = np.asarray(o3d.io.read_point_cloud(str(path), format="pcd").points, dtype=np.float64)
+        n = len(pts)
+    else:
+        raise InputError(f"{path}: unsupported PCD DATA mode {mode!r}")
+    vp = None
+    if "VIEWPOINT" in header:
+        tx, ty, tz, qw, qx, qy, qz = (float(x) for x in header["VIEWPOINT"])
+        if (tx, ty, tz) != (0.0, 0.0, 0.0) or (qw, qx, qy, qz) != (1.0, 0.0, 0.0, 0.0) or True:
+            vp = np.array([tx, ty, tz])
+    grid_idx = None
+    w, h = int(header.get("WIDTH", [n])[0]), int(header.get("HEIGHT", ["1"])[0])
+    if h > 1 and w * h == len(pts) and mode != "binary_compressed":
+        grid_idx = np.arange(len(pts)).reshape(h, w)
+        grid_idx = np.where(np.all(np.isfinite(pts), axis=1).reshape(h, w), grid_idx, -1)
+    return pts, vp, grid_idx
+
+
+def _load_text(path: Path) -> np.ndarray:
+    rows = []
+    for lineno, line in enumerate(path.read_text(errors="strict").splitlines(), 1):
+        s = line.strip()
+        if not s or s[0] in "#/%":
+            continue
+        tok = re.split(r"[,;\s]+", s)
+        try:
+            vals = [float(t) for t in tok[:3]]
+        except ValueError:
+            if not rows:  # a header line such as "x,y,z"
+                continue
+            raise InputError(f"{path}: line {lineno} is not 'x y z' numbers: {s[:60]!r}") from None
+        if len(vals) < 3:
+            raise InputError(f"{path}: line {lineno} has {len(vals)} numbers, expected x y z")
+        rows.append(vals)
+    if not rows:
+        raise InputError(f"{path}: holds no x y z lines")
+    return np.asarray(rows, dtype=np.float64)
+
+
+def _load_mesh(path: Path):
+    import trimesh
+
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many kinds on corrupt files
+        raise InputError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
+    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    if len(verts) == 0:
+        raise InputError(f"{path}: the mesh has no vertices")
+    return verts, faces if len(faces) else None
+
+
+def _guess_units(points: np.ndarray) -> str:
+    size = float(np.linalg.norm(points.max(0) - points.min(0)))
+    return "m" if size < 20 else "mm"
+
+
+def sidecar_path(path: Path) -> Path:
+    return Path(path).with_suffix(".json")
+
+
+def _read_sidecar(path: Path) -> dict:
+    side = sidecar_path(path)
+    if not side.exists():
+        return {}
+    try:
+        data = json.loads(side.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{side}: the sidecar is not valid JSON ({exc})") from None
+    return data if isinstance(data, dict) else {}
+
+
+def load_conf(path: str | Path) -> dict[str, np.ndarray]:
+    """Stanford ``.conf`` -> {scan name (file stem): T_world_scan (4, 4)}.
+
+    Each ``bmesh NAME tx ty tz qx qy qz qw`` line is read with the convention measured on the bunny
+    data (see its README): ``x_world = R(q*) x_scan + t`` with the CONJUGATE quaternion.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    poses = {}
+    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+        tok = line.split()
+        if not tok or tok[0] != "bmesh":
+            continue
+        if len(tok) != 9:
+            raise InputError(f"{path}: line {lineno} should be 'bmesh NAME tx ty tz qx qy qz qw'")
+        try:
+            tx, ty, tz, qx, qy, qz, qw = map(float, tok[2:])
+        except ValueError:
+            raise InputError(f"{path}: line {lineno} holds a value that is not a number") from None
+        q = np.array([-qx, -qy, -qz, qw])
+        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
+            raise InputError(f"{path}: line {lineno} has a zero or invalid quaternion")
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+        T[:3, 3] = (tx, ty, tz)
+        poses[Path(tok[1]).stem] = T
+    if not poses:
+        raise InputError(f"{path}: no 'bmesh' lines: not a Stanford .conf file")
+    return poses
+
+
+def _pose_from_conf_beside(path: Path):
+    for conf in sorted(path.parent.glob("*.conf")):
+        try:
+            poses = load_conf(conf)
+        except InputError:
+            continue
+        if path.stem in poses:
+            return poses[path.stem]
+    return None
+
+
+def write_sidecar(path: Path, scan: Scan, **extra) -> None:
+    data = {"name": scan.name, "units": scan.units, "viewpoint": scan.viewpoint.tolist()}
+    if scan.pose is not None:
+        data["pose"] = scan.pose.tolist()
+    if scan.guess is not None:
+        data["guess"] = scan.guess.tolist()
+    data.update(extra)
+    sidecar_path(path).write_text(json.dumps(data, indent=1) + "\n")
+
+
+def save_scan(path: str | Path, scan: Scan) -> None:
+    """Write a scan as PLY (a Stanford range-grid PLY when it has a grid) plus its JSON sidecar."""
+    path = Path(path)
+    if scan.grid is not None:
+        write_range_grid_ply(path, scan.points, scan.grid.index, comments=(f"rangereg scan {scan.name}",))
+    else:
+        write_ply(path, scan.points, scan.faces)
+    write_sidecar(path, scan)
+
+
+def read_transform(path: str | Path) -> np.ndarray:
+    """A 4 x 4 transform from 16 numbers (row-major, whitespace or commas) or JSON with ``transform``."""
+    from .transforms import check_rigid
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    text = path.read_text(errors="replace").strip()
+    if text.startswith("{"):
+        try:
+            data = json.loads(text)
+            values = np.asarray(data["transform"], dtype=np.float64)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: expected JSON with a 'transform' 4 x 4 list ({exc})") from None
+    else:
+        try:
+            values = np.array([float(t) for t in re.split(r"[,\s\[\]]+", text) if t], dtype=np.float64)
+        except ValueError:
+            raise InputError(f"{path}: expected 16 numbers (a row-major 4 x 4 matrix)") from None
+    if values.size != 16:
+        raise InputError(f"{path}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
+    try:
+        return check_rigid(values.reshape(4, 4), f"{path}")
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
+def write_transform(path: str | Path, T: np.ndarray, **extra) -> None:
+    Path(path).write_text(json.dumps({"transform": np.asarray(T).tolist(), **extra}, indent=1) + "\n")

@@ -1,0 +1,82 @@
+"""The error landscape (paper Fig. 3 and 7): E over a grid of two of the six pose parameters
+around a pose, the other four held fixed, and a run's path projected onto it.
+
+Parameters are the local step of :func:`core.transforms.perturb` about the moving scan's
+overlap centroid: ``tx, ty, tz`` in the scan's units, ``rx, ry, rz`` in degrees.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .problem import Problem
+from .transforms import PARAM_NAMES
+
+
+@dataclass(frozen=True, eq=False)
+class Slice:
+    """values: (steps, steps) E with [i, j] at (axis_a[i], axis_b[j]); axes in units or degrees."""
+
+    params: tuple[str, str]
+    axis_a: np.ndarray
+    axis_b: np.ndarray
+    values: np.ndarray
+    T_center: np.ndarray
+
+    def __repr__(self) -> str:
+        return (f"Slice({self.params[0]} x {self.params[1]}, {len(self.axis_a)} x {len(self.axis_b)}, "
+                f"E from {np.nanmin(self.values):.4g} to {np.nanmax(self.values):.4g})")
+
+
+def parse_params(text: str) -> tuple[str, str]:
+    names = tuple(t.strip() for t in text.split(","))
+    if len(names) != 2 or any(n not in PARAM_NAMES for n in names) or names[0] == names[1]:
+        raise InputError(f"--params needs two different names from {', '.join(PARAM_NAMES)}, got {text!r}")
+    return names  # type: ignore[return-value]
+
+
+def default_span(problem: Problem, name: str) -> float:
+    """Half-width covering the initial uncertainty: units for translations, degrees for rotations."""
+    return problem.translation_uncertainty if name.startswith("t") else float(np.degrees(problem.rotation_uncertainty))
+
+
+def delta_vector(problem: Problem, values: dict[str, float]) -> np.ndarray:
+    """Search coordinates (6,) for named parameter values (units, degrees)."""
+    x = np.zeros(6)
+    for name, v in values.items():
+        i = PARAM_NAMES.index(name)
+        x[i] = v / problem.scale if i < 3 else np.radians(v)
+    return x
+
+
+def project(problem: Problem, T_center: np.ndarray, params: tuple[str, str], poses: list[np.ndarray]) -> np.ndarray:
+    """(K, 2) coordinates of poses on the slice's axes (units or degrees)."""
+    out = []
+    for T in poses:
+        x = problem.coords(T, T_center)
+        out.append([x[i] * problem.scale if i < 3 else np.degrees(x[i]) for i in map(PARAM_NAMES.index, params)])
+    return np.asarray(out).reshape(-1, 2)
+
+
+def compute_slice(problem: Problem, T_center: np.ndarray, params: tuple[str, str], spans: tuple[float, float],
+                  steps: int = 61, progress: Callable[[float], None] | None = None) -> Slice:
+    """E on a ``steps`` x ``steps`` grid over +-spans of two parameters around ``T_center``."""
+    if steps < 2:
+        raise InputError(f"steps must be at least 2, got {steps}")
+    if steps > 1001:
+        raise InputError(f"steps must be at most 1001, got {steps}")
+    if not all(np.isfinite(s) and s > 0 for s in spans):
+        raise InputError(f"spans must be positive numbers, got {spans}")
+    a = np.linspace(-spans[0], spans[0], steps)
+    b = np.linspace(-spans[1], spans[1], steps)
+    values = np.empty((steps, steps))
+    for i, va in enumerate(a):
+        for j, vb in enumerate(b):
+            values[i, j] = problem.error(problem.pose(T_center, delta_vector(problem, {params[0]: va, params[1]: vb})))
+        if progress is not None:
+            progress((i + 1) / steps)
+    return Slice(params, a, b, values, T_center)

@@ -1,0 +1,205 @@
+"""A small PLY reader and writer (ASCII and binary) that keeps Stanford's ``range_grid`` element.
+
+Generic readers (Open3D, trimesh) drop the range grid, which is the scanner's own neighbourhood
+structure, so we read PLY ourselves. Elements come back as dicts of numpy arrays; a list property
+comes back as ``(counts, flat_values)``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+
+
+class PlyError(ValueError):
+    pass
+
+
+def _parse_header(raw: bytes):
+    end = raw.find(b"end_header")
+    if not raw.startswith(b"ply") or end < 0:
+        raise PlyError("not a PLY file (no 'ply' magic or no end_header)")
+    nl = raw.find(b"\n", end)
+    body_start = nl + 1 if nl >= 0 else len(raw)
+    lines = raw[:end].decode("ascii", errors="replace").splitlines()
+    fmt, elements, obj_info, comments = None, [], {}, []
+    for line in lines[1:]:
+        tok = line.split()
+        if not tok:
+            continue
+        if tok[0] == "format":
+            fmt = tok[1]
+        elif tok[0] == "element":
+            elements.append([tok[1], int(tok[2]), []])
+        elif tok[0] == "property":
+            if not elements:
+                raise PlyError("property before any element")
+            if tok[1] == "list":
+                elements[-1][2].append((tok[4], "list", _TYPES[tok[2]], _TYPES[tok[3]]))
+            else:
+                if tok[1] not in _TYPES:
+                    raise PlyError(f"unknown property type {tok[1]!r}")
+                elements[-1][2].append((tok[2], _TYPES[tok[1]]))
+        elif tok[0] == "obj_info" and len(tok) >= 3:
+            obj_info[tok[1]] = tok[2]
+        elif tok[0] == "comment":
+            comments.append(line[8:])
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise PlyError(f"unsupported PLY format {fmt!r}")
+    return fmt, elements, obj_info, comments, body_start
+
+
+def read_ply(path: Path) -> tuple[dict, dict]:
+    """Read a PLY file -> ({element: {property: array or (counts, values)}}, obj_info)."""
+    raw = Path(path).read_bytes()
+    try:
+        fmt, elements, obj_info, _, start = _parse_header(raw)
+    except (KeyError, IndexError) as exc:
+        raise PlyError(f"malformed PLY header ({exc})") from None
+    out: dict = {}
+    if fmt == "ascii":
+        tokens = raw[start:].split()
+        try:
+            values = np.array(tokens, dtype=np.float64)
+        except ValueError:
+            raise PlyError("the data section holds something that is not a number") from None
+        pos = 0
+        for name, count, props in elements:
+            if all(len(p) == 2 for p in props):
+                n = count * len(props)
+                if pos + n > len(values):
+                    raise PlyError(f"file ends inside element {name!r}")
+                block = values[pos:pos + n].reshape(count, len(props))
+                out[name] = {p[0]: block[:, i].astype(p[1]) for i, p in enumerate(props)}
+                pos += n
+            else:
+                out[name], pos = _ascii_rows(values, pos, count, props, name)
+        return out, obj_info
+    order = "<" if fmt == "binary_little_endian" else ">"
+    buf = memoryview(raw)[start:]
+    pos = 0
+    for name, count, props in elements:
+        if all(len(p) == 2 for p in props):
+            dt = np.dtype([(p[0], order + p[1]) for p in props])
+            if pos + dt.itemsize * count > len(buf):
+                raise PlyError(f"file ends inside element {name!r}")
+            arr = np.frombuffer(buf, dtype=dt, count=count, offset=pos)
+            out[name] = {p[0]: arr[p[0]].astype(p[1]) for p in props}
+            pos += dt.itemsize * count
+        else:
+            out[name], pos = _binary_rows(buf, pos, count, props, order, name)
+    return out, obj_info
+
+
+def _ascii_rows(values, pos, count, props, name):
+    cols: dict = {p[0]: [] for p in props}
+    try:
+        for _ in range(count):
+            for p in props:
+                if len(p) == 2:
+                    cols[p[0]].append(values[pos])
+                    pos += 1
+                else:
+                    k = int(values[pos])
+                    cols[p[0]].append(values[pos + 1:pos + 1 + k])
+                    pos += 1 + k
+    except IndexError:
+        raise PlyError(f"file ends inside element {name!r}") from None
+    if pos > len(values):
+        raise PlyError(f"file ends inside element {name!r}")
+    return _pack(cols, props), pos
+
+
+def _binary_rows(buf, pos, count, props, order, name):
+    # Fast path: one list property of constant length (triangle faces).
+    if len(props) == 1 and count > 0:
+        _, _, ct, it = props[0]
+        cdt, idt = np.dtype(order + ct), np.dtype(order + it)
+        k = int(np.frombuffer(buf, dtype=cdt, count=1, offset=pos)[0])
+        dt = np.dtype([("n", cdt), ("v", idt, (k,))]) if k > 0 else None
+        if dt is not None and pos + dt.itemsize * count <= len(buf):
+            arr = np.frombuffer(buf, dtype=dt, count=count, offset=pos)
+            if np.all(arr["n"] == k):
+                counts = np.full(count, k, dtype=np.int64)
+                return {props[0][0]: (counts, arr["v"].reshape(-1).astype(np.int64))}, pos + dt.itemsize * count
+    cols: dict = {p[0]: [] for p in props}
+    try:
+        for _ in range(count):
+            for p in props:
+                if len(p) == 2:
+                    dt = np.dtype(order + p[1])
+                    cols[p[0]].append(np.frombuffer(buf, dtype=dt, count=1, offset=pos)[0])
+                    pos += dt.itemsize
+                else:
+                    cdt, idt = np.dtype(order + p[2]), np.dtype(order + p[3])
+                    k = int(np.frombuffer(buf, dtype=cdt, count=1, offset=pos)[0])
+                    pos += cdt.itemsize
+                    cols[p[0]].append(np.frombuffer(buf, dtype=idt, count=k, offset=pos))
+                    pos += idt.itemsize * k
+    except ValueError:
+        raise PlyError(f"file ends inside element {name!r}") from None
+    return _pack(cols, props), pos
+
+
+def _pack(cols, props):
+    out = {}
+    for p in props:
+        if len(p) == 2:
+            out[p[0]] = np.asarray(cols[p[0]], dtype=p[1])
+        else:
+            rows = cols[p[0]]
+            counts = np.array([len(r) for r in rows], dtype=np.int64)
+            flat = np.concatenate(rows).astype(np.int64) if len(rows) and counts.sum() else np.zeros(0, np.int64)
+            out[p[0]] = (counts, flat)
+    return out
+
+
+def write_ply(path: Path, points: np.ndarray, faces: np.ndarray | None = None,
+              colors: np.ndarray | None = None, comments: tuple[str, ...] = ()) -> None:
+    """Write binary little-endian PLY: float32 vertices, optional uint8 colours and triangles."""
+    pts = np.asarray(points, dtype=np.float32)
+    header = ["ply", "format binary_little_endian 1.0"] + [f"comment {c}" for c in comments]
+    header += [f"element vertex {len(pts)}", "property float x", "property float y", "property float z"]
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colors is not None:
+        header += ["property uchar red", "property uchar green", "property uchar blue"]
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    vert = np.empty(len(pts), dtype=fields)
+    vert["x"], vert["y"], vert["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    if colors is not None:
+        c = np.asarray(colors, dtype=np.uint8)
+        vert["red"], vert["green"], vert["blue"] = c[:, 0], c[:, 1], c[:, 2]
+    body = [vert.tobytes()]
+    if faces is not None:
+        f = np.asarray(faces, dtype=np.int64)
+        header += [f"element face {len(f)}", "property list uchar int vertex_indices"]
+        fa = np.empty(len(f), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+        fa["n"], fa["v"] = 3, f
+        body.append(fa.tobytes())
+    header.append("end_header")
+    Path(path).write_bytes(("\n".join(header) + "\n").encode() + b"".join(body))
+
+
+def write_range_grid_ply(path: Path, points: np.ndarray, grid_index: np.ndarray, comments: tuple[str, ...] = ()) -> None:
+    """Write an ASCII Stanford range-grid PLY (vertices + ``range_grid``), readable by Stanford tools."""
+    rows, cols = grid_index.shape
+    lines = ["ply", "format ascii 1.0"] + [f"comment {c}" for c in comments]
+    lines += [f"obj_info num_cols {cols}", f"obj_info num_rows {rows}", f"element vertex {len(points)}",
+              "property float x", "property float y", "property float z",
+              f"element range_grid {rows * cols}", "property list uchar int vertex_indices", "end_header"]
+    body = [f"{x:.6g} {y:.6g} {z:.6g}" for x, y, z in np.asarray(points)]
+    body += ["0" if i < 0 else f"1 {i}" for i in grid_index.reshape(-1)]
+    Path(path).write_text("\n".join(lines + body) + "\n")
+
+
+if __name__ == "__main__":  # pragma: no cover - debugging aid
+    data, info = read_ply(Path(sys.argv[1]))
+    print({k: {p: (v.shape if isinstance(v, np.ndarray) else v[0].shape) for p, v in e.items()} for k, e in data.items()}, info)

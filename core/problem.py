@@ -1,0 +1,115 @@
+"""Everything a registration run needs, prepared once: surfaces, overlap, sample, error, scaling.
+
+The pose search space of annealing and of error slices is the local step of
+:func:`core.transforms.perturb` about the moving scan's overlap centroid, scaled so that one unit
+of any coordinate is a comparable motion: translations are divided by ``scale`` (the RMS radius of
+the sampled overlap points about their centroid) and rotations are in radians, so a unit rotation
+also moves the points by about ``scale``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .error import RobustError
+from .errors import InputError
+from .frustum import KINDS, Overlap, segment_overlap, visible_from
+from .scan import Scan, flatness
+from .surface import Surface
+from .transforms import apply, check_rigid, delta_between, invert, perturb
+
+
+@dataclass(frozen=True)
+class ProblemConfig:
+    max_points: int = 300  # source overlap points the error uses (paper: 165-341)
+    frustum: str = "convex"  # or "nonconvex"
+    visibility: bool = True  # also drop points hidden behind the target's surface (beyond the paper)
+    rotation_uncertainty_deg: float = 15.0  # how wrong the initial guess may be
+    translation_uncertainty: float | None = None  # units; None: 15 % of the target's size
+    seed: int = 0
+
+    def validate(self) -> None:
+        if self.max_points < 3:
+            raise InputError(f"max_points must be at least 3, got {self.max_points}")
+        if self.frustum not in KINDS:
+            raise InputError(f"frustum must be one of {', '.join(KINDS)}, got {self.frustum!r}")
+        if not 0 < self.rotation_uncertainty_deg <= 180:
+            raise InputError(f"rotation uncertainty must be in (0, 180] degrees, got {self.rotation_uncertainty_deg}")
+        if self.translation_uncertainty is not None and not self.translation_uncertainty > 0:
+            raise InputError(f"translation uncertainty must be positive, got {self.translation_uncertainty}")
+
+
+@dataclass(eq=False)
+class Problem:
+    """source, target: scans; T_init: (4, 4) T_target_source guess; points: (M, 3) sampled source
+    overlap (source frame); center: (3,) their centroid (source frame); scale: units per search unit."""
+
+    source: Scan
+    target: Scan
+    surface: Surface
+    T_init: np.ndarray
+    overlap: Overlap
+    used: np.ndarray  # (Ns,) bool: source points in the error's overlap set (frustum + visibility)
+    points: np.ndarray
+    center: np.ndarray
+    scale: float
+    rotation_uncertainty: float  # radians
+    translation_uncertainty: float  # units
+    error: RobustError = field(init=False)
+
+    def __post_init__(self):
+        self.error = RobustError(self.points, self.surface)
+
+    @property
+    def steps(self) -> np.ndarray:
+        """(6,) the initial uncertainty in search units (a simplex that covers it)."""
+        return np.r_[np.full(3, self.translation_uncertainty / self.scale), np.full(3, self.rotation_uncertainty)]
+
+    def pose(self, T_base: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """The pose at search coordinates x (6,) around T_base."""
+        x = np.asarray(x, dtype=np.float64)
+        return perturb(T_base, np.r_[x[:3] * self.scale, x[3:]], apply(T_base, self.center[None])[0])
+
+    def coords(self, T: np.ndarray, T_base: np.ndarray) -> np.ndarray:
+        """Search coordinates (6,) of pose T around T_base (inverse of :meth:`pose`)."""
+        d = delta_between(T, T_base, apply(T_base, self.center[None])[0])
+        return np.r_[d[:3] / self.scale, d[3:]]
+
+
+def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: ProblemConfig = ProblemConfig(),
+            surface: Surface | None = None) -> Problem:
+    """Triangulate the target, cut the overlap under ``T_init`` and sample the source points."""
+    config.validate()
+    T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
+    for s in (source, target):
+        if flatness(s.points) < 1e-3:
+            raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
+    surface = surface if surface is not None else Surface.from_scan(target)
+    overlap = segment_overlap(source, target, T_init, config.frustum)
+    t_unc = config.translation_uncertainty if config.translation_uncertainty is not None else 0.15 * target.size
+    r_unc = np.radians(config.rotation_uncertainty_deg)
+    used = overlap.source_mask.copy()
+    if config.visibility and used.any():
+        radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
+        moved = apply(T_init, source.points[used])
+        used[np.flatnonzero(used)] = visible_from(surface, target.viewpoint, moved, t_unc + r_unc * radius)
+    if used.sum() < 3:
+        raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess "
+                         f"({used.sum()} of {len(used)} points of {source.name} fall in {target.name}'s view)")
+    idx = np.flatnonzero(used)
+    rng = np.random.default_rng(config.seed)
+    if len(idx) > config.max_points:
+        idx = np.sort(rng.choice(idx, config.max_points, replace=False))
+    points = source.points[idx]
+    center = points.mean(0)
+    scale = float(np.sqrt(np.mean(np.sum((points - center) ** 2, axis=1)))) or 1.0
+    return Problem(source, target, surface, T_init, overlap, used, points, center, scale, r_unc, t_unc)
+
+
+def relative_guess(source: Scan, target: Scan) -> np.ndarray:
+    """T_target_source from the scans' stored rough poses (``guess``), else the identity."""
+    if source.guess is not None and target.guess is not None:
+        return invert(target.guess) @ source.guess
+    return np.eye(4)

@@ -1,0 +1,235 @@
+"""The hybrid optimiser (paper Fig. 6) and its baselines, over one shared robust error.
+
+    hybrid:  ICP -> E < threshold? stop : anneal from there -> better point? ICP again : stop
+    icp:     ICP alone
+    sa:      simplex annealing alone, from the initial pose down to the minimum temperature
+    icp-restarts: ICP from random poses within the initial uncertainty until E < threshold or the
+             restart budget runs out (Besl and McKay's suggestion, paper section 3)
+
+Beyond the paper, off by default: ``polish`` (a final ICP with outliers dropped and no weights,
+paper section 4) and ``coarse_to_fine`` (the whole search first on smoothed scans, paper section 4).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .anneal import AnnealConfig, anneal
+from .errors import InputError
+from .events import Cancelled, Event, Listener
+from .icp import IcpConfig, icp
+from .noise import noise_floor
+from .problem import Problem, ProblemConfig, prepare
+from .scan import Scan
+from .transforms import random_perturbation
+
+METHODS = ("hybrid", "icp", "sa", "icp-restarts")
+THRESHOLD_FACTOR = 1.5
+MIN_GAIN = 0.01  # annealing hands back a point at least 1 % below ICP's (no ping-pong on a plateau)
+SEARCH_BOUND = 2.0  # annealing searches within this many times the initial uncertainty of the guess  # threshold = this x the error two noisy samplings of one surface give
+
+
+@dataclass(frozen=True)
+class Config:
+    method: str = "hybrid"
+    threshold: float | None = None  # None: estimated from the scans' noise; 0: search until SA gives up
+    seed: int = 0
+    problem: ProblemConfig = field(default_factory=ProblemConfig)
+    icp: IcpConfig = field(default_factory=IcpConfig)
+    anneal: AnnealConfig = field(default_factory=AnnealConfig)
+    sa_alone: AnnealConfig = field(default_factory=lambda: AnnealConfig(t_min_ratio=1e-5))
+    restarts: int = 40  # icp-restarts budget (number of ICP runs)
+    polish: bool = False
+    coarse_to_fine: bool = False
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise InputError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if self.threshold is not None and not (np.isfinite(self.threshold) and self.threshold >= 0):
+            raise InputError(f"threshold must be a number >= 0, got {self.threshold}")
+        for a in (self.anneal, self.sa_alone):
+            if not 0 < a.cooling < 1:
+                raise InputError(f"cooling must be between 0 and 1, got {a.cooling}")
+            if not 0 < a.t_min_ratio < 1:
+                raise InputError(f"the minimum temperature ratio must be between 0 and 1, got {a.t_min_ratio}")
+            if a.moves_per_temperature < 1 or a.max_evaluations < 7:
+                raise InputError("annealing needs at least 1 move per temperature and 7 evaluations")
+            if a.t_start is not None and not a.t_start > 0:
+                raise InputError(f"the start temperature must be positive, got {a.t_start}")
+        if self.icp.max_iterations < 1 or not self.icp.tolerance >= 0:
+            raise InputError("ICP needs at least 1 iteration and a tolerance >= 0")
+        if self.restarts < 1:
+            raise InputError(f"restarts must be at least 1, got {self.restarts}")
+        self.problem.validate()
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """transform: (4, 4) T_target_source; error: final robust E (squared units)."""
+
+    transform: np.ndarray
+    error: float
+    iterations: dict
+    local_minima: int
+    evaluations: int
+    seconds: float
+    method: str
+    threshold: float
+    stop_reason: str
+
+    def __repr__(self) -> str:
+        it = self.iterations
+        return (f"Result({self.method}: E={self.error:.6g}, iterations icp={it['icp']} sa={it['sa']}, "
+                f"local_minima={self.local_minima}, {self.seconds:.2f} s, stopped: {self.stop_reason})")
+
+    def to_json(self) -> dict:
+        return {"transform": self.transform.tolist(), "error": self.error, "iterations": dict(self.iterations),
+                "local_minima": self.local_minima, "evaluations": self.evaluations, "seconds": self.seconds,
+                "method": self.method, "threshold": self.threshold, "stop_reason": self.stop_reason}
+
+
+def estimate_threshold(problem: Problem, seed: int = 0) -> float:
+    """E expected at perfect registration: two noisy samplings of one surface (see core.noise)."""
+    rng = np.random.default_rng(seed)
+    floors = [noise_floor(s, rng, len(problem.points)) for s in (problem.source, problem.target)]
+    return THRESHOLD_FACTOR * float(np.mean(floors))
+
+
+class _Run:
+    """One optimisation: counts iterations, emits events, keeps the best pose."""
+
+    def __init__(self, problem: Problem, config: Config, listener: Listener | None):
+        self.p, self.cfg, self.listener = problem, config, listener
+        self.rng = np.random.default_rng(config.seed)
+        self.n = {"icp": 0, "sa": 0}
+        self.legs = {"icp": 0, "sa": 0}
+        self.local_minima = 0
+        self.best_T, self.best_E = problem.T_init, np.inf
+
+    def emit(self, phase, T, E, temperature=None, accepted=True, local_minimum=False, count=True):
+        if count:
+            self.n[phase] += 1
+        if E < self.best_E:
+            self.best_T, self.best_E = T, E
+        if self.listener is not None:
+            self.listener(Event(phase, self.n["icp"] + self.n["sa"], self.n[phase], self.legs[phase], T, E,
+                                temperature, accepted, local_minimum))
+
+    def icp(self, T, icp_config=None):
+        self.legs["icp"] += 1
+        start = self.n["icp"]
+        res = icp(self.p.error, T, icp_config or self.cfg.icp, lambda T_, E: self.emit("icp", T_, E))
+        if self.n["icp"] == start:  # no step taken: still report where ICP stands
+            self.emit("icp", res.T, res.error, count=False)
+        return res.T, res.error
+
+    def sa(self, T_base, E_base, stop_below, config):
+        self.legs["sa"] += 1
+        p = self.p
+        limit = SEARCH_BOUND * p.steps
+
+        def f(x):
+            T = p.pose(T_base, x)
+            # Annealing may roam, but only over poses the initial guess allows (paper section 2.1
+            # assumes the guess is good enough); farther out E is taken as infinite.
+            c = p.coords(T, p.T_init)
+            if np.linalg.norm(c[:3]) > limit[0] or np.linalg.norm(c[3:]) > limit[3]:
+                return np.inf
+            return p.error(T)
+
+        def report(x, y, temp, accepted):
+            if np.isfinite(y):
+                self.emit("sa", p.pose(T_base, x), y, temp, accepted)
+
+        res = anneal(f, np.zeros(6), p.steps, self.rng, config, stop_below=stop_below, on_eval=report, f0=E_base)
+        return p.pose(T_base, res.x), res.value, res.improved
+
+    def mark_local_minimum(self, T, E):
+        self.local_minima += 1
+        self.emit("icp", T, E, local_minimum=True, count=False)
+
+
+def _hybrid(run: _Run, threshold: float) -> str:
+    T = run.p.T_init
+    while True:
+        T, E = run.icp(T)
+        if E < threshold:
+            return "error below threshold"
+        run.mark_local_minimum(T, E)
+        T_sa, E_sa, better = run.sa(T, E, E * (1 - MIN_GAIN), run.cfg.anneal)
+        if not better:
+            return "annealing found no better point"
+        T = T_sa
+
+
+def _icp_alone(run: _Run, threshold: float) -> str:
+    T, E = run.icp(run.p.T_init)
+    if E >= threshold:
+        run.mark_local_minimum(T, E)
+        return "ICP converged above the threshold"
+    return "error below threshold"
+
+
+def _sa_alone(run: _Run, threshold: float) -> str:
+    E0 = run.p.error(run.p.T_init)
+    run.sa(run.p.T_init, E0, None, run.cfg.sa_alone)
+    return "minimum temperature reached"
+
+
+def _icp_restarts(run: _Run, threshold: float) -> str:
+    p = run.p
+    for k in range(run.cfg.restarts):
+        T0 = p.T_init
+        if k > 0:
+            t, r = random_perturbation(run.rng, 1.0, 1.0)
+            x = np.r_[t * run.rng.uniform(0, 1) * p.steps[0], r * run.rng.uniform(0, 1) * p.steps[3]]
+            T0 = p.pose(p.T_init, x)
+        T, E = run.icp(T0)
+        if E < threshold:
+            return f"error below threshold after {k + 1} ICP runs"
+        run.mark_local_minimum(T, E)
+    return f"restart budget ({run.cfg.restarts} ICP runs) spent"
+
+
+_METHODS = {"hybrid": _hybrid, "icp": _icp_alone, "sa": _sa_alone, "icp-restarts": _icp_restarts}
+
+
+def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: Config = Config(),
+             listener: Listener | None = None, problem: Problem | None = None) -> Result:
+    """Register ``source`` onto ``target`` from the guess ``T_init`` (T_target_source, default identity).
+
+    ``listener`` receives every :class:`Event`; it may raise :class:`Cancelled` to stop early.
+    """
+    config.validate()
+    t0 = time.perf_counter()
+    problem = problem or prepare(source, target, T_init, replace(config.problem, seed=config.seed))
+    threshold = config.threshold if config.threshold is not None else estimate_threshold(problem, config.seed)
+    evals0 = problem.error.evaluations
+    if config.coarse_to_fine:
+        from .smooth import smoothed_problem
+
+        coarse = smoothed_problem(problem)
+        first = register(source, target, problem.T_init, replace(config, coarse_to_fine=False, threshold=0.0),
+                         listener, coarse)
+        problem = replace_init(problem, first.transform)
+    run = _Run(problem, config, listener)
+    try:
+        reason = _METHODS[config.method](run, threshold)
+        if config.polish:
+            run.icp(run.best_T, replace(config.icp, unweighted=True))
+    except Cancelled:
+        reason = "cancelled"
+    T = run.best_T
+    E = problem.error(T)
+    return Result(T, E, dict(run.n), run.local_minima, problem.error.evaluations - evals0,
+                  time.perf_counter() - t0, config.method, threshold, reason)
+
+
+def replace_init(problem: Problem, T_init: np.ndarray) -> Problem:
+    """The same prepared problem (same overlap and sample) started from another pose."""
+    return Problem(problem.source, problem.target, problem.surface, T_init, problem.overlap, problem.used,
+                   problem.points, problem.center, problem.scale, problem.rotation_uncertainty,
+                   problem.translation_uncertainty)

@@ -1,0 +1,109 @@
+"""A range scan: its points, the sensor viewpoint, an optional range grid and ground truth.
+
+Points are stored in the scan's own frame (the sensor's, for a real scanner). ``pose`` is the
+ground-truth ``T_world_scan`` when known; ``guess`` a rough ``T_world_scan`` such as dead reckoning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .errors import InputError
+
+
+@dataclass(frozen=True, eq=False)
+class RangeGrid:
+    """The scanner's range image: ``index[r, c]`` is the vertex held by cell (r, c), or -1.
+
+    Convention (Stanford's, measured on the bunny scans, and an OpenGL camera's): columns run along
+    the sensor's x, rows along its y, the sensor looks along -z, so ``cross(d/dcol, d/drow)``
+    points towards the sensor.
+    """
+
+    index: np.ndarray  # (rows, cols) int64
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.index.shape
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """points: (N, 3) float64 in ``units``; viewpoint: (3,) sensor origin in the same frame."""
+
+    points: np.ndarray
+    viewpoint: np.ndarray
+    name: str = "scan"
+    units: str = "unknown"
+    viewpoint_estimated: bool = False
+    grid: RangeGrid | None = None
+    faces: np.ndarray | None = None  # (M, 3) int64, a surface stored in the file
+    pose: np.ndarray | None = None  # ground truth T_world_scan
+    guess: np.ndarray | None = None  # rough T_world_scan (e.g. odometry)
+    dropped: int = 0  # non-finite points dropped on loading
+    source: str = ""  # the file it came from
+    meta: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        grid = "x".join(map(str, self.grid.shape)) if self.grid is not None else "no"
+        return (f"Scan({self.name!r}, {len(self.points)} points, units={self.units}, grid={grid}, "
+                f"viewpoint={np.round(self.viewpoint, 4).tolist()}{' (estimated)' if self.viewpoint_estimated else ''})")
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        return cKDTree(self.points)
+
+    @cached_property
+    def spacing(self) -> float:
+        """Median distance from a point to its nearest neighbour, in ``units``."""
+        n = min(len(self.points), 5000)
+        idx = np.linspace(0, len(self.points) - 1, n).astype(int)
+        d, _ = self.tree.query(self.points[idx], k=2)
+        return float(np.median(d[:, 1]))
+
+    @property
+    def size(self) -> float:
+        """Diagonal of the bounding box, in ``units``."""
+        return float(np.linalg.norm(self.points.max(0) - self.points.min(0)))
+
+    @property
+    def centroid(self) -> np.ndarray:
+        return self.points.mean(0)
+
+    def with_viewpoint(self, viewpoint: np.ndarray, estimated: bool = False) -> Scan:
+        v = np.asarray(viewpoint, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(v)):
+            raise InputError(f"{self.name}: the viewpoint {v.tolist()} is not finite")
+        return replace(self, viewpoint=v, viewpoint_estimated=estimated)
+
+
+def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Drop non-finite rows; refuse fewer than 3 points or points on a line.
+
+    Returns the kept (N, 3) float64 points and the boolean mask of kept rows.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise InputError(f"{what}: expected x y z points, got an array of shape {pts.shape}")
+    keep = np.all(np.isfinite(pts), axis=1)
+    pts = pts[keep]
+    dropped = int((~keep).sum())
+    note = f" ({dropped} NaN/inf points dropped)" if dropped else ""
+    if len(pts) < 3:
+        raise InputError(f"{what}: only {len(pts)} usable points{note}; a scan needs at least 3")
+    centred = pts - pts.mean(0)
+    s = np.linalg.svd(centred[:: max(1, len(pts) // 20000)], compute_uv=False)
+    if s[0] == 0 or s[1] / s[0] < 1e-6:
+        raise InputError(f"{what}: all {len(pts)} points lie on a line (or one spot){note}; cannot make a surface")
+    return pts, keep
+
+
+def flatness(points: np.ndarray) -> float:
+    """Smallest over largest principal spread of (N, 3) points: ~0 for a plane."""
+    centred = points - points.mean(0)
+    s = np.linalg.svd(centred[:: max(1, len(points) // 20000)], compute_uv=False)
+    return float(s[2] / s[0])

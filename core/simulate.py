@@ -1,0 +1,188 @@
+"""A simulated range scanner and the paper's test scenes (corner, wing, bowl), in millimetres.
+
+The scanner casts a (rows x cols) grid of rays from its pose over a field of view onto a scene
+mesh (Open3D raycasting), jitters the ray directions (non-uniform spacing), adds Gaussian range
+noise and replaces a fraction of the returns with spurious points on no surface. The sensor frame
+is an OpenGL camera's: x right, y up, looking along -z, so its range grid follows Stanford's
+convention (see :class:`core.scan.RangeGrid`). Points are written in the sensor frame; the scan's
+``pose`` is the true ``T_world_sensor``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scan import RangeGrid, Scan
+from .transforms import apply, from_params, invert, random_perturbation
+
+FOOT = 304.8  # mm
+
+
+@dataclass(frozen=True)
+class Scanner:
+    """fov_deg: (horizontal, vertical) degrees; noise: range sigma (mm); outliers: fraction of returns."""
+
+    rows: int = 80
+    cols: int = 80
+    fov_deg: tuple[float, float] = (40.0, 40.0)
+    noise: float = 0.8
+    outliers: float = 0.03
+    jitter: float = 0.35  # ray direction jitter, in cells
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """T_world_sensor of a sensor at ``eye`` looking at ``target`` (OpenGL camera axes)."""
+    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
+    back = eye - target
+    back /= np.linalg.norm(back)
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([right, np.cross(back, right), back], axis=1)
+    T[:3, 3] = eye
+    return T
+
+
+def scan_mesh(vertices: np.ndarray, faces: np.ndarray, T_world_sensor: np.ndarray, scanner: Scanner,
+              rng: np.random.Generator, name: str = "scan") -> Scan:
+    """Simulate one scan of the mesh (vertices (V, 3) mm, faces (F, 3)) from ``T_world_sensor``."""
+    import open3d as o3d
+
+    r, c = np.meshgrid(np.arange(scanner.rows), np.arange(scanner.cols), indexing="ij")
+    jr = rng.uniform(-scanner.jitter, scanner.jitter, r.shape)
+    jc = rng.uniform(-scanner.jitter, scanner.jitter, c.shape)
+    tx, ty = np.tan(np.radians(scanner.fov_deg[0]) / 2), np.tan(np.radians(scanner.fov_deg[1]) / 2)
+    dirs = np.stack([tx * (2 * (c + 0.5 + jc) / scanner.cols - 1),
+                     ty * (2 * (r + 0.5 + jr) / scanner.rows - 1), -np.ones(r.shape)], axis=-1).reshape(-1, 3)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    world_dirs = dirs @ T_world_sensor[:3, :3].T
+    origin = np.broadcast_to(T_world_sensor[:3, 3], world_dirs.shape)
+    scene = o3d.t.geometry.RaycastingScene()
+    mesh = o3d.t.geometry.TriangleMesh()
+    mesh.vertex.positions = o3d.core.Tensor(vertices.astype(np.float32))
+    mesh.triangle.indices = o3d.core.Tensor(faces.astype(np.int32))
+    scene.add_triangles(mesh)
+    hit = scene.cast_rays(o3d.core.Tensor(np.hstack([origin, world_dirs]).astype(np.float32)))["t_hit"].numpy()
+    hit = hit.astype(np.float64)
+    ok = np.isfinite(hit)
+    rng_ = hit + rng.normal(0.0, scanner.noise, hit.shape)
+    spurious = ok & (rng.random(hit.shape) < scanner.outliers)
+    rng_[spurious] = hit[spurious] * rng.uniform(0.6, 0.95, spurious.sum())
+    points = dirs[ok] * rng_[ok, None]
+    index = np.full(hit.shape, -1, dtype=np.int64)
+    index[ok] = np.arange(ok.sum())
+    return Scan(points=points, viewpoint=np.zeros(3), name=name, units="mm", grid=RangeGrid(index.reshape(r.shape)),
+                pose=T_world_sensor.copy(), meta={"spurious": int(spurious.sum())})
+
+
+def height_field(fn, half: float, n: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate z = fn(x, y) over [-half, half]^2 (optionally a disc) on an n x n grid."""
+    xs = np.linspace(-half, half, n)
+    x, y = np.meshgrid(xs, xs, indexing="ij")
+    verts = np.stack([x, y, fn(x, y)], axis=-1).reshape(-1, 3)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    faces = np.concatenate([np.c_[a.ravel(), b.ravel(), c.ravel()], np.c_[b.ravel(), d.ravel(), c.ravel()]])
+    if radius is not None:
+        inside = np.hypot(verts[:, 0], verts[:, 1]) <= radius
+        faces = faces[np.all(inside[faces], axis=1)]
+    return verts, faces
+
+
+def corner_mesh(size: float = 4 * FOOT) -> tuple[np.ndarray, np.ndarray]:
+    """Three orthogonal square planes meeting at the origin (the inside of a room corner)."""
+    L = size
+    verts = np.array([[0, 0, 0], [L, 0, 0], [L, L, 0], [0, L, 0],  # floor z = 0
+                      [0, 0, L], [L, 0, L], [0, L, L]], dtype=np.float64)
+    faces = np.array([[0, 1, 2], [0, 2, 3],          # z = 0
+                      [0, 4, 5], [0, 5, 1],          # y = 0
+                      [0, 3, 6], [0, 6, 4]])         # x = 0
+    return verts, faces
+
+
+def wing_mesh(size: float = 3 * FOOT) -> tuple[np.ndarray, np.ndarray]:
+    """A gently curved panel with a wing-like (non-circular) profile across x and almost no
+    curvature along y: its overlap is ambiguous along y (paper Fig. 8)."""
+    h = size / 2
+    return height_field(lambda x, y: 110.0 * (x / h) ** 2 - 45.0 * (x / h) ** 3 - (y * y) / (2 * 40000.0), h, 121)
+
+
+def bowl_mesh(radius: float = 300.0, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """A bowl (paper Fig. 11) whose wall carries many small dimples."""
+    rng = np.random.default_rng(seed)
+    n_dimples = 90
+    rr = radius * np.sqrt(rng.uniform(0.05, 0.95, n_dimples))
+    th = rng.uniform(0, 2 * np.pi, n_dimples)
+    cx, cy = rr * np.cos(th), rr * np.sin(th)
+
+    def z(x, y):
+        h = (x * x + y * y) / (2 * radius)
+        for px, py in zip(cx, cy):
+            h = h - 6.0 * np.exp(-((x - px) ** 2 + (y - py) ** 2) / (2 * 14.0 ** 2))
+        return h
+
+    return height_field(z, radius, 241, radius=radius)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    mesh: object
+    eyes: tuple
+    targets: tuple
+    scanner: Scanner
+    spread_deg: float  # the paper's starting spread: 5 deg and 250 mm for the 4 ft corner,
+    spread: float      # scaled to the scene's size
+    size: float
+
+
+def _specs() -> dict[str, SceneSpec]:
+    corner = 4 * FOOT
+    return {
+        "corner": SceneSpec(corner_mesh, ((1750, 1150, 1350), (1150, 1750, 1300)),
+                            ((250, 520, 420), (520, 250, 420)), Scanner(rows=85, cols=85, fov_deg=(52, 52)),
+                            5.0, 250.0, corner),
+        "wing": SceneSpec(wing_mesh, ((-180, -120, 1500), (180, 120, 1450)), ((-110, -80, -40), (110, 80, -40)),
+                          Scanner(rows=60, cols=60, fov_deg=(26, 26), noise=0.8), 5.0, 250.0 * 3 / 4, 3 * FOOT),
+        "bowl": SceneSpec(bowl_mesh, ((-150, -60, 900), (150, 60, 880)), ((-60, 0, 60), (60, 0, 60)),
+                          Scanner(rows=75, cols=75, fov_deg=(36, 36), noise=0.5), 5.0, 250.0 * 600 / corner, 600.0),
+    }
+
+
+SCENES = tuple(_specs())
+
+
+def make_scene(name: str, seed: int = 0) -> tuple[Scan, Scan]:
+    """The two scans (target scan1, source scan2) of a named scene, each with its true ``pose`` and a
+    rough ``guess`` (scan1's exact, scan2's perturbed by the paper's spread, scaled to the scene)."""
+    specs = _specs()
+    if name not in specs:
+        from .errors import InputError
+
+        raise InputError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+    spec = specs[name]
+    rng = np.random.default_rng(seed)
+    verts, faces = spec.mesh()
+    scans = []
+    for i, (eye, target) in enumerate(zip(spec.eyes, spec.targets), 1):
+        scans.append(scan_mesh(verts, faces, look_at(eye, target), spec.scanner, rng, name=f"{name}-scan{i}"))
+    a, b = scans
+    t, r = random_perturbation(rng, spec.spread_deg, spec.spread)
+    center = apply(b.pose, b.points.mean(0)[None])[0]
+    D = from_params(np.r_[t, 0, 0, 0]) @ _rotate_about(r, center)
+    from dataclasses import replace
+
+    a = replace(a, guess=a.pose.copy(), meta={**a.meta, "scene": name, "size": spec.size})
+    b = replace(b, guess=D @ b.pose, meta={**b.meta, "scene": name, "size": spec.size})
+    return a, b
+
+
+def _rotate_about(rotvec, center):
+    R = from_params(np.r_[0, 0, 0, rotvec])
+    return from_params(np.r_[center, 0, 0, 0]) @ R @ from_params(np.r_[-center, 0, 0, 0])
+
+
+def true_transform(source: Scan, target: Scan) -> np.ndarray:
+    """T_target_source from the scans' ground-truth poses."""
+    return invert(target.pose) @ source.pose

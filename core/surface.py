@@ -1,0 +1,159 @@
+"""Surfaces (paper section 2): triangulate a scan, then find closest points on it.
+
+A surface comes from the range grid when there is one (neighbouring occupied cells make
+triangles), else from a 2.5-D Delaunay triangulation of the points as seen from the viewpoint.
+Either way, triangles with an edge longer than ``EDGE_FACTOR`` times the local point spacing are
+dropped, so a surface never bridges a depth jump or a hole. Faces are wound so that their normals
+face the sensor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+from scipy.spatial import Delaunay, QhullError, cKDTree
+
+from .errors import InputError
+from .scan import Scan
+
+EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of its endpoints
+SPACING_NEIGHBOURS = 4
+
+
+def local_spacing(points: np.ndarray) -> np.ndarray:
+    """(N,) mean distance from each point to its ``SPACING_NEIGHBOURS`` nearest neighbours."""
+    k = min(SPACING_NEIGHBOURS + 1, len(points))
+    d, _ = cKDTree(points).query(points, k=k)
+    return d[:, 1:].mean(axis=1)
+
+
+def edge_bound(spacing: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(M, 3) longest allowed length of each triangle edge: EDGE_FACTOR x the larger endpoint spacing."""
+    s = spacing[faces]
+    return EDGE_FACTOR * np.maximum(s, np.roll(s, -1, axis=1))
+
+
+def edge_lengths(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(M, 3) lengths of edges (v0v1, v1v2, v2v0)."""
+    p = points[faces]
+    return np.linalg.norm(p - np.roll(p, -1, axis=1), axis=2)
+
+
+def view_projection(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gnomonic projection of (N, 3) points as seen from ``viewpoint``.
+
+    Returns (N, 2) coordinates on the plane one unit in front of the sensor, perpendicular to the
+    mean viewing direction, and that (3, 3) basis (rows: u, v, axis). Points must lie in front.
+    """
+    rays = points - viewpoint
+    axis = rays.mean(0)
+    axis /= np.linalg.norm(axis)
+    helper = np.eye(3)[np.argmin(np.abs(axis))]
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    basis = np.stack([u, v, axis])
+    local = rays @ basis.T
+    depth = local[:, 2]
+    if np.any(depth <= 1e-12 * np.abs(local).max()):
+        raise InputError("some points lie beside or behind the viewpoint; check the sensor position")
+    return local[:, :2] / depth[:, None], basis
+
+
+def triangulate(scan: Scan) -> np.ndarray:
+    """(M, 3) int64 faces over ``scan.points``; see the module notes."""
+    pts = scan.points
+    if scan.grid is not None:
+        faces = _grid_faces(scan.grid.index)
+    else:
+        try:
+            uv, _ = view_projection(pts, scan.viewpoint)
+        except InputError as exc:
+            raise InputError(f"{scan.name}: {exc}") from None
+        try:
+            faces = Delaunay(uv, qhull_options="Qbb Qc Qz Q12").simplices.astype(np.int64)
+        except (QhullError, ValueError):
+            raise InputError(f"{scan.name}: the points are too thin to triangulate as seen from the viewpoint "
+                             f"{np.round(scan.viewpoint, 4).tolist()} (seen edge-on?)") from None
+    if len(faces):
+        spacing = local_spacing(pts)
+        faces = faces[np.all(edge_lengths(pts, faces) <= edge_bound(spacing, faces), axis=1)]
+    if len(faces) == 0:
+        raise InputError(f"{scan.name}: no surface could be built (every triangle bridged a gap)")
+    return _face_sensor(pts, faces, scan.viewpoint)
+
+
+def _grid_faces(idx: np.ndarray) -> np.ndarray:
+    a, b = idx[:-1, :-1], idx[:-1, 1:]
+    c, d = idx[1:, :-1], idx[1:, 1:]
+    tris = []
+    full = (a >= 0) & (b >= 0) & (c >= 0) & (d >= 0)
+    tris += [np.c_[a[full], b[full], c[full]], np.c_[b[full], d[full], c[full]]]
+    for p, q, r, missing in ((a, b, c, d), (b, d, c, a), (d, c, a, b), (c, a, b, d)):
+        m = (p >= 0) & (q >= 0) & (r >= 0) & (missing < 0)
+        tris.append(np.c_[p[m], q[m], r[m]])
+    return np.concatenate(tris).astype(np.int64)
+
+
+def _face_sensor(points, faces, viewpoint):
+    p = points[faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    flip = np.einsum("ij,ij->i", n, viewpoint - p[:, 0]) < 0
+    faces = faces.copy()
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    return faces
+
+
+@dataclass(eq=False)
+class Surface:
+    """A triangle mesh with fast closest-point queries (Open3D's RaycastingScene).
+
+    vertices: (V, 3) float64; faces: (F, 3) int64. Queries run in float32 about the mesh's own
+    centre, which keeps millimetre precision for scenes far from the origin.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    offset: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        self.offset = self.vertices.mean(0)
+
+    @classmethod
+    def from_scan(cls, scan: Scan) -> Surface:
+        faces = scan.faces if scan.faces is not None and len(scan.faces) else triangulate(scan)
+        return cls(scan.points, faces)
+
+    @cached_property
+    def _scene(self):
+        import open3d as o3d
+
+        scene = o3d.t.geometry.RaycastingScene()
+        mesh = o3d.t.geometry.TriangleMesh()
+        mesh.vertex.positions = o3d.core.Tensor((self.vertices - self.offset).astype(np.float32))
+        mesh.triangle.indices = o3d.core.Tensor(self.faces.astype(np.int32))
+        scene.add_triangles(mesh)
+        return scene
+
+    def closest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest surface points (N, 3) float64 and squared distances (N,) for (N, 3) queries."""
+        import open3d as o3d
+
+        q = np.ascontiguousarray(query - self.offset, dtype=np.float32)
+        ans = self._scene.compute_closest_points(o3d.core.Tensor(q))
+        c = ans["points"].numpy().astype(np.float64)
+        d2 = np.einsum("ij,ij->i", c - q, c - q)
+        return c + self.offset, d2
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """(N,) distance along each unit ray to the first triangle hit (inf when none)."""
+        import open3d as o3d
+
+        rays = np.hstack([origins - self.offset, directions]).astype(np.float32)
+        return self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+
+    @property
+    def n_triangles(self) -> int:
+        return len(self.faces)

@@ -21,9 +21,9 @@ import numpy as np
 class AnnealConfig:
     t_start: float | None = None  # None: the spread (max - min) of E over the first simplex ...
     t_start_cap: float | None = 1.0  # ... but at most this times E at the start point
-    t_min_ratio: float = 1e-3  # stop when the temperature falls below this fraction of the start
+    t_min_ratio: float = 1e-2  # stop when the temperature falls below this fraction of the start
     cooling: float = 0.9  # temperature factor after each block of moves
-    moves_per_temperature: int = 20
+    moves_per_temperature: int = 15
     max_evaluations: int = 20000
     ftol: float = 1e-6  # a simplex this flat (relative) waits for the next temperature
 

@@ -17,9 +17,12 @@ from .surface import Surface
 from .transforms import apply
 
 
-def robust_weights(d2: np.ndarray) -> tuple[np.ndarray, float]:
-    """Weights (N,) for squared distances (N,) and the threshold t = 2 median(d2) (paper eq. 2)."""
-    t = 2.0 * float(np.median(d2))
+def robust_weights(d2: np.ndarray, widen: float = 1.0) -> tuple[np.ndarray, float]:
+    """Weights (N,) for squared distances (N,) and the threshold t = 2 median(d2) (paper eq. 2).
+
+    ``widen`` > 1 multiplies t: a smoother error surface whose wells are wider (coarse-to-fine).
+    """
+    t = 2.0 * widen * float(np.median(d2))
     w = np.ones_like(d2)
     far = d2 >= t
     if t > 0:
@@ -44,15 +47,16 @@ class ErrorTerms:
 class RobustError:
     """E(T) for fixed source points (N, 3, source frame) against a target surface; counts evaluations."""
 
-    def __init__(self, points: np.ndarray, surface: Surface):
+    def __init__(self, points: np.ndarray, surface: Surface, widen: float = 1.0):
         self.points = np.asarray(points, dtype=np.float64)
         self.surface = surface
+        self.widen = widen
         self.evaluations = 0
 
     def terms(self, T_target_source: np.ndarray) -> ErrorTerms:
         moved = apply(T_target_source, self.points)
         closest, d2 = self.surface.closest(moved)
-        w, t = robust_weights(d2)
+        w, t = robust_weights(d2, self.widen)
         self.evaluations += 1
         return ErrorTerms(float(np.mean(w * d2)), moved, closest, d2, w, t)
 

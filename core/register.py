@@ -7,7 +7,9 @@
              restart budget runs out (Besl and McKay's suggestion, paper section 3)
 
 Beyond the paper, off by default: ``polish`` (a final ICP with outliers dropped and no weights,
-paper section 4) and ``coarse_to_fine`` (the whole search first on smoothed scans, paper section 4).
+paper section 4) and ``coarse_to_fine`` (paper section 4: the search first runs on a smoother error
+surface, here E with its outlier cap t widened 100 and then 10 times, so that a well whose walls
+are flat beyond sqrt(t) - a plane hovering off its partner - pulls from farther away).
 """
 
 from __future__ import annotations
@@ -27,9 +29,13 @@ from .scan import Scan
 from .transforms import random_perturbation
 
 METHODS = ("hybrid", "icp", "sa", "icp-restarts")
-THRESHOLD_FACTOR = 1.5
+THRESHOLD_FACTOR = 2.0  # threshold = this x the error two noisy samplings of one surface give
 MIN_GAIN = 0.01  # annealing hands back a point at least 1 % below ICP's (no ping-pong on a plateau)
-SEARCH_BOUND = 2.0  # annealing searches within this many times the initial uncertainty of the guess  # threshold = this x the error two noisy samplings of one surface give
+RESEGMENT_ROTATION_DEG = 2.0  # uncertainty assumed once a registration has converged
+RESEGMENT_TRANSLATION = 0.02  # ... as a fraction of the target's size
+COARSE_TO_FINE = (100.0, 10.0, 1.0)  # widenings of the robust cap t, coarse first
+COARSE_THRESHOLD = 3.0  # coarse levels only need to come near: they stop below 3 x the threshold
+SEARCH_BOUND = 2.0  # annealing searches within this many times the initial uncertainty of the guess
 
 
 @dataclass(frozen=True)
@@ -40,10 +46,12 @@ class Config:
     problem: ProblemConfig = field(default_factory=ProblemConfig)
     icp: IcpConfig = field(default_factory=IcpConfig)
     anneal: AnnealConfig = field(default_factory=AnnealConfig)
-    sa_alone: AnnealConfig = field(default_factory=lambda: AnnealConfig(t_min_ratio=1e-5))
+    sa_alone: AnnealConfig = field(default_factory=lambda: AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25))
     restarts: int = 40  # icp-restarts budget (number of ICP runs)
+    simplex_scale: float = 1.0  # first simplex = this x the initial uncertainty
     polish: bool = False
     coarse_to_fine: bool = False
+    resegment: bool = True  # re-cut the overlap at the pose found and refine from there
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -107,6 +115,7 @@ class _Run:
         self.n = {"icp": 0, "sa": 0}
         self.legs = {"icp": 0, "sa": 0}
         self.local_minima = 0
+        self.start = problem.T_init  # where the method begins
         self.best_T, self.best_E = problem.T_init, np.inf
 
     def emit(self, phase, T, E, temperature=None, accepted=True, local_minimum=False, count=True):
@@ -144,7 +153,7 @@ class _Run:
             if np.isfinite(y):
                 self.emit("sa", p.pose(T_base, x), y, temp, accepted)
 
-        res = anneal(f, np.zeros(6), p.steps, self.rng, config, stop_below=stop_below, on_eval=report, f0=E_base)
+        res = anneal(f, np.zeros(6), self.cfg.simplex_scale * p.steps, self.rng, config, stop_below=stop_below, on_eval=report, f0=E_base)
         return p.pose(T_base, res.x), res.value, res.improved
 
     def mark_local_minimum(self, T, E):
@@ -153,7 +162,7 @@ class _Run:
 
 
 def _hybrid(run: _Run, threshold: float) -> str:
-    T = run.p.T_init
+    T = run.start
     while True:
         T, E = run.icp(T)
         if E < threshold:
@@ -166,7 +175,7 @@ def _hybrid(run: _Run, threshold: float) -> str:
 
 
 def _icp_alone(run: _Run, threshold: float) -> str:
-    T, E = run.icp(run.p.T_init)
+    T, E = run.icp(run.start)
     if E >= threshold:
         run.mark_local_minimum(T, E)
         return "ICP converged above the threshold"
@@ -174,19 +183,19 @@ def _icp_alone(run: _Run, threshold: float) -> str:
 
 
 def _sa_alone(run: _Run, threshold: float) -> str:
-    E0 = run.p.error(run.p.T_init)
-    run.sa(run.p.T_init, E0, None, run.cfg.sa_alone)
+    E0 = run.p.error(run.start)
+    run.sa(run.start, E0, None, run.cfg.sa_alone)
     return "minimum temperature reached"
 
 
 def _icp_restarts(run: _Run, threshold: float) -> str:
     p = run.p
     for k in range(run.cfg.restarts):
-        T0 = p.T_init
+        T0 = run.start
         if k > 0:
             t, r = random_perturbation(run.rng, 1.0, 1.0)
             x = np.r_[t * run.rng.uniform(0, 1) * p.steps[0], r * run.rng.uniform(0, 1) * p.steps[3]]
-            T0 = p.pose(p.T_init, x)
+            T0 = p.pose(run.start, x)
         T, E = run.icp(T0)
         if E < threshold:
             return f"error below threshold after {k + 1} ICP runs"
@@ -207,25 +216,42 @@ def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, confi
     t0 = time.perf_counter()
     problem = problem or prepare(source, target, T_init, replace(config.problem, seed=config.seed))
     threshold = config.threshold if config.threshold is not None else estimate_threshold(problem, config.seed)
-    evals0 = problem.error.evaluations
-    if config.coarse_to_fine:
-        from .smooth import smoothed_problem
-
-        coarse = smoothed_problem(problem)
-        first = register(source, target, problem.T_init, replace(config, coarse_to_fine=False, threshold=0.0),
-                         listener, coarse)
-        problem = replace_init(problem, first.transform)
+    problem.error.evaluations = 0
     run = _Run(problem, config, listener)
+    reason = ""
+    evaluations = 0
     try:
-        reason = _METHODS[config.method](run, threshold)
+        for widen in COARSE_TO_FINE if config.coarse_to_fine else (1.0,):
+            # Coarse-to-fine (paper section 4): the same search on a smoother error surface first.
+            problem.error.widen = widen
+            run.start, run.best_E = run.best_T, np.inf
+            reason = _METHODS[config.method](run, threshold if widen == 1.0 else COARSE_THRESHOLD * threshold)
+        problem.error.widen = 1.0
+        if config.resegment and reason != "cancelled":
+            # Section 2.1 cuts the overlap under the first guess; once the pose is better, so is the cut
+            # (fewer points without a partner, so the median-based E is trustworthy again). Refine there.
+            evaluations += problem.error.evaluations
+            problem = resegmented(problem, run.best_T, config)
+            run.p, run.start, run.best_E = problem, run.best_T, np.inf
+            reason = _METHODS[config.method](run, threshold)
         if config.polish:
             run.icp(run.best_T, replace(config.icp, unweighted=True))
     except Cancelled:
         reason = "cancelled"
+    finally:
+        problem.error.widen = 1.0
     T = run.best_T
     E = problem.error(T)
-    return Result(T, E, dict(run.n), run.local_minima, problem.error.evaluations - evals0,
-                  time.perf_counter() - t0, config.method, threshold, reason)
+    evaluations += problem.error.evaluations
+    return Result(T, E, dict(run.n), run.local_minima, evaluations, time.perf_counter() - t0, config.method,
+                  threshold, reason)
+
+
+def resegmented(problem: Problem, T: np.ndarray, config: Config) -> Problem:
+    """The overlap cut again at pose T, with the small uncertainty left after a registration."""
+    pc = replace(config.problem, seed=config.seed, rotation_uncertainty_deg=RESEGMENT_ROTATION_DEG,
+                 translation_uncertainty=RESEGMENT_TRANSLATION * problem.target.size)
+    return prepare(problem.source, problem.target, T, pc, surface=problem.surface)
 
 
 def replace_init(problem: Problem, T_init: np.ndarray) -> Problem:

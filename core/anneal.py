@@ -26,6 +26,7 @@ class AnnealConfig:
     moves_per_temperature: int = 15
     max_evaluations: int = 20000
     ftol: float = 1e-6  # a simplex this flat (relative) waits for the next temperature
+    restart: bool = True  # after each temperature, restart the simplex at the best point found
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,9 +90,20 @@ def anneal(f: Callable[[np.ndarray], float], x0: np.ndarray, steps: np.ndarray, 
             t0 = max(t0, 1e-12 * max(abs(y.min()), 1e-300))
         state["temp"] = t0
         t_min = t0 * config.t_min_ratio
+        steps = np.asarray(steps, dtype=np.float64)
         while state["temp"] >= t_min and state["evals"] < config.max_evaluations:
             _moves(p, y, fx, report, rng, state, config)
             state["temp"] *= config.cooling
+            if config.restart:
+                # Restart the simplex at the best point found, sized for the new temperature (thermal
+                # spread in a quadratic well goes as sqrt(T)); NR suggests such restarts for amebsa.
+                size = steps * np.sqrt(state["temp"] / t0)
+                p[:] = state["best_x"]
+                p[1:] += np.diag(size)
+                y[0] = state["best_y"]
+                for i in range(1, n + 1):
+                    y[i] = fx(p[i])
+                    report(p[i], y[i], True)
     except _Found:
         pass
     improved = stop_below is not None and state["best_y"] < stop_below

@@ -153,7 +153,8 @@ class _Run:
             if np.isfinite(y):
                 self.emit("sa", p.pose(T_base, x), y, temp, accepted)
 
-        res = anneal(f, np.zeros(6), self.cfg.simplex_scale * p.steps, self.rng, config, stop_below=stop_below, on_eval=report, f0=E_base)
+        res = anneal(f, np.zeros(6), self.cfg.simplex_scale * p.steps, self.rng, config, stop_below=stop_below,
+                     on_eval=report, f0=E_base)
         return p.pose(T_base, res.x), res.value, res.improved
 
     def mark_local_minimum(self, T, E):
@@ -252,10 +253,3 @@ def resegmented(problem: Problem, T: np.ndarray, config: Config) -> Problem:
     pc = replace(config.problem, seed=config.seed, rotation_uncertainty_deg=RESEGMENT_ROTATION_DEG,
                  translation_uncertainty=RESEGMENT_TRANSLATION * problem.target.size)
     return prepare(problem.source, problem.target, T, pc, surface=problem.surface)
-
-
-def replace_init(problem: Problem, T_init: np.ndarray) -> Problem:
-    """The same prepared problem (same overlap and sample) started from another pose."""
-    return Problem(problem.source, problem.target, problem.surface, T_init, problem.overlap, problem.used,
-                   problem.points, problem.center, problem.scale, problem.rotation_uncertainty,
-                   problem.translation_uncertainty)

@@ -1,0 +1,69 @@
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BUNNY = ROOT.parent / "shared" / "data" / "bunny"
+ASSETS = ROOT / "assets"
+
+
+@cache
+def _bunny(name: str):
+    from core.io import load_scan
+
+    return load_scan(BUNNY / f"{name}.ply")
+
+
+@pytest.fixture
+def bunny():
+    if not BUNNY.is_dir():
+        pytest.skip("the shared bunny scans (../shared/data/bunny) are absent")
+    return _bunny
+
+
+@cache
+def _scene(name: str, seed: int = 0):
+    from core.simulate import make_scene
+
+    return make_scene(name, seed)
+
+
+@pytest.fixture
+def scene():
+    return _scene
+
+
+def brute_closest(point: np.ndarray, tris: np.ndarray) -> float:
+    """Squared distance from a point (3,) to the nearest of triangles (M, 3, 3), by brute force
+    (Ericson, Real-Time Collision Detection 5.1.5, evaluated for every triangle)."""
+    best = np.inf
+    for a, b, c in tris:
+        ab, ac, ap = b - a, c - a, point - a
+        d1, d2 = ab @ ap, ac @ ap
+        if d1 <= 0 and d2 <= 0:
+            q = a
+        else:
+            bp = point - b
+            d3, d4 = ab @ bp, ac @ bp
+            cp = point - c
+            d5, d6 = ab @ cp, ac @ cp
+            vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
+            if d3 >= 0 and d4 <= d3:
+                q = b
+            elif vc <= 0 and d1 >= 0 and d3 <= 0:
+                q = a + d1 / (d1 - d3) * ab
+            elif d6 >= 0 and d5 <= d6:
+                q = c
+            elif vb <= 0 and d2 >= 0 and d6 <= 0:
+                q = a + d2 / (d2 - d6) * ac
+            elif va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
+                q = b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b)
+            else:
+                denom = 1.0 / (va + vb + vc)
+                q = a + ab * vb * denom + ac * vc * denom
+        best = min(best, float(np.sum((point - q) ** 2)))
+    return best

@@ -1,0 +1,104 @@
+"""Surfaces, closest points and frustums: property tests and brute force as the reference."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from core.frustum import frustum_of, segment_overlap
+from core.scan import Scan
+from core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
+from core.transforms import apply, from_params, invert
+from tests.conftest import brute_closest
+
+
+def _edges_within_bound(points, faces):
+    s = local_spacing(points)
+    L = edge_lengths(points, faces)
+    bound = EDGE_FACTOR * np.maximum(s[faces], s[np.roll(faces, -1, axis=1)])
+    return np.all(L <= bound + 1e-12)
+
+
+def test_grid_surface_edges_respect_the_culling_bound(bunny):
+    s = bunny("bun045")
+    faces = triangulate(s)
+    assert len(faces) > 70000
+    assert _edges_within_bound(s.points, faces)
+
+
+def test_delaunay_surface_never_bridges_a_depth_jump():
+    rng = np.random.default_rng(1)
+    near = np.c_[rng.uniform(-1, 0, (800, 2)), np.full(800, -5.0)]
+    far = np.c_[rng.uniform(0, 1, (800, 2)), np.full(800, -9.0)]  # a 4-unit depth jump at x = 0
+    pts = np.vstack([near, far]) + rng.normal(0, 0.002, (1600, 3))
+    scan = Scan(points=pts, viewpoint=np.zeros(3))
+    faces = triangulate(scan)
+    assert _edges_within_bound(pts, faces)
+    crosses = (pts[faces][:, :, 2] > -7).any(1) & (pts[faces][:, :, 2] < -7).any(1)
+    assert not crosses.any()
+    # faces are wound towards the sensor
+    p = pts[faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert np.all(np.einsum("ij,ij->i", n, -p[:, 0]) > 0)
+
+
+def test_closest_points_equal_brute_force(scene):
+    a, _ = scene("bowl")
+    surf = Surface.from_scan(a)
+    rng = np.random.default_rng(0)
+    q = a.points[rng.integers(0, len(a.points), 25)] + rng.normal(0, 8.0, (25, 3))
+    _, d2 = surf.closest(q)
+    tris = a.points[surf.faces]
+    for qi, di in zip(q, d2):
+        near = tris[np.min(np.linalg.norm(tris - qi, axis=2), axis=1) < np.sqrt(di) + 60]
+        assert abs(brute_closest(qi, near) - di) < 1e-3 * max(di, 1.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000))
+def test_frustum_containment_matches_its_planes(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(20, 200))
+    pts = np.c_[rng.uniform(-1, 1, (n, 2)), rng.uniform(-6, -4, n)]
+    scan = Scan(points=pts, viewpoint=np.zeros(3))
+    f = frustum_of(scan)
+    # Every scan point is inside its own frustum.
+    assert f.contains(pts).all()
+    # Reference: a point is inside iff it is in front of the sensor and on the inner side of every
+    # plane through the sensor and two consecutive outline corners.
+    corners = f.outline_points(1.0)
+    inner = corners.mean(0)
+    q = rng.uniform(-3, 3, (300, 3)) + np.array([0, 0, -3])
+    expect = np.ones(len(q), bool)
+    for c0, c1 in zip(corners, np.roll(corners, -1, axis=0)):
+        normal = np.cross(c0, c1)
+        if normal @ inner < 0:
+            normal = -normal
+        expect &= q @ normal >= -1e-9
+    expect &= q @ f.basis[2] > 0
+    got = f.contains(q)
+    margin = np.abs(q @ f.basis[2]) > 1e-6
+    assert np.array_equal(got[margin], expect[margin])
+
+
+def test_bunny_overlap_under_truth_and_90_degrees_off(bunny):
+    src, tgt = bunny("bun045"), bunny("bun000")
+    T = invert(tgt.pose) @ src.pose
+    good = segment_overlap(src, tgt, T)
+    assert good.source_fraction > 0.8 and good.target_fraction > 0.8
+    # The scans are views around the vertical (y) axis; a guess a further 90 degrees around it:
+    off = from_params([0, 0, 0, 0, np.pi / 2, 0]) @ T
+    bad = segment_overlap(src, tgt, off)
+    assert bad.source_fraction < good.source_fraction - 0.2
+
+
+def test_nonconvex_frustum_drops_what_the_convex_one_keeps():
+    # An L-shaped scan: the convex frustum covers the missing corner, the footprint does not.
+    u, v = np.meshgrid(np.linspace(-1, 1, 60), np.linspace(-1, 1, 60))
+    keep = ~((u > 0) & (v > 0))
+    pts = np.c_[u[keep], v[keep], np.full(keep.sum(), -5.0)]
+    scan = Scan(points=pts, viewpoint=np.zeros(3))
+    probe = np.array([[0.3, 0.3, -5.0], [-0.5, -0.5, -5.0]])
+    assert frustum_of(scan, "convex").contains(probe).tolist() == [True, True]
+    assert frustum_of(scan, "nonconvex").contains(probe).tolist() == [False, True]

@@ -1,0 +1,208 @@
+"""Loaders, writers, conf poses and the bad-input messages (foundation issue)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from core.errors import InputError
+from core.io import load_conf, load_scan, read_transform, save_scan
+from core.ply import write_ply
+from core.transforms import apply, invert
+
+
+def test_bunny_loads_with_grid_and_truth(bunny):
+    s = bunny("bun000")
+    assert len(s.points) == 40256
+    assert s.grid is not None and s.grid.shape == (400, 512)
+    assert (s.grid.index >= 0).sum() == 40256
+    assert s.units == "m"
+    assert s.viewpoint_estimated and s.viewpoint[2] > 0.5  # on +z, as the bunny README measured
+    np.testing.assert_allclose(s.pose, np.eye(4))
+
+
+def test_conf_poses_bring_bun045_onto_bun000(bunny):
+    a, b = bunny("bun000"), bunny("bun045")
+    gaps, _ = a.tree.query(apply(invert(a.pose) @ b.pose, b.points))
+    assert np.median(gaps) < 0.0005
+    # The plain (non-conjugate) quaternion would not align them: the convention matters.
+    poses = load_conf(a.source.replace("bun000.ply", "bun.conf"))
+    assert set(poses) == {"bun000", "bun045", "bun090", "bun315"}
+
+
+def _cube_points(n=500, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1, 1, (n, 3))
+    p[:, 2] = 0.2 * np.sin(p[:, 0] * 2) + 0.1 * p[:, 1] ** 2 - 3.0
+    return p
+
+
+@pytest.mark.parametrize("fmt", ["ply", "xyz", "txt", "csv"])
+def test_point_formats_round_trip(tmp_path, fmt):
+    pts = _cube_points()
+    path = tmp_path / f"s.{fmt}"
+    if fmt == "ply":
+        write_ply(path, pts)
+    else:
+        sep = "," if fmt == "csv" else " "
+        path.write_text(("x,y,z\n" if fmt == "csv" else "") + "\n".join(sep.join(f"{v:.6f}" for v in p) for p in pts))
+    s = load_scan(path)
+    np.testing.assert_allclose(s.points, pts, atol=1e-5)
+    assert s.viewpoint_estimated
+
+
+def test_ascii_ply_and_faces(tmp_path):
+    path = tmp_path / "m.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n1 1 0.1\n0 1 0\n4 0 1 2 3\n")
+    s = load_scan(path)
+    assert s.faces.shape == (2, 3)
+
+
+def test_pcd_viewpoint_and_binary(tmp_path):
+    pts = _cube_points(200).astype(np.float32)
+    head = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 200\nHEIGHT 1\n"
+            "VIEWPOINT 0 0 5 1 0 0 0\nPOINTS 200\n")
+    (tmp_path / "a.pcd").write_text(head + "DATA ascii\n" + "\n".join(" ".join(map(str, p)) for p in pts))
+    (tmp_path / "b.pcd").write_bytes((head + "DATA binary\n").encode() + pts.tobytes())
+    for name in ("a.pcd", "b.pcd"):
+        s = load_scan(tmp_path / name)
+        np.testing.assert_allclose(s.points, pts, atol=1e-5)
+        np.testing.assert_allclose(s.viewpoint, [0, 0, 5])
+        assert not s.viewpoint_estimated
+
+
+@pytest.mark.parametrize("fmt", ["obj", "stl", "off"])
+def test_mesh_formats_keep_faces(tmp_path, fmt):
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    path = tmp_path / f"m.{fmt}"
+    mesh.export(path)
+    s = load_scan(path)
+    assert s.faces is not None and len(s.faces) == len(mesh.faces)
+
+
+def test_save_and_reload_keeps_grid_viewpoint_and_truth(tmp_path, scene):
+    a, _ = scene("corner")
+    save_scan(tmp_path / "c.ply", a)
+    b = load_scan(tmp_path / "c.ply")
+    np.testing.assert_allclose(b.points, a.points, atol=1e-2)
+    np.testing.assert_array_equal(b.grid.index, a.grid.index)
+    np.testing.assert_allclose(b.pose, a.pose)
+    assert b.units == "mm" and not b.viewpoint_estimated
+
+
+def test_viewpoint_override(tmp_path):
+    pts = _cube_points()
+    write_ply(tmp_path / "s.ply", pts)
+    s = load_scan(tmp_path / "s.ply", viewpoint=np.array([0.0, 0.0, 10.0]))
+    assert not s.viewpoint_estimated and s.viewpoint[2] == 10
+
+
+@pytest.mark.parametrize("content, expect", [
+    (None, "no such file"),
+    (b"", "empty"),
+    (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend", "not a PLY"),
+    (b"ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n",
+     "ends inside"),
+])
+def test_bad_ply_files(tmp_path, content, expect):
+    path = tmp_path / "bad.ply"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(InputError, match=expect) as err:
+        load_scan(path)
+    assert str(path) in str(err.value)
+
+
+def test_unsupported_format(tmp_path):
+    (tmp_path / "a.docx").write_text("hello")
+    with pytest.raises(InputError, match="unsupported format"):
+        load_scan(tmp_path / "a.docx")
+
+
+def test_nan_points_dropped_and_counted(tmp_path):
+    pts = _cube_points(100)
+    pts[:7, 1] = np.nan
+    pts[7, 0] = np.inf
+    write_ply(tmp_path / "n.ply", pts)
+    s = load_scan(tmp_path / "n.ply")
+    assert len(s.points) == 92 and s.dropped == 8
+
+
+def test_too_few_and_collinear_points(tmp_path):
+    (tmp_path / "two.xyz").write_text("0 0 0\n1 1 1\nnan 0 0\n")
+    with pytest.raises(InputError, match="only 2 usable points.*1 NaN"):
+        load_scan(tmp_path / "two.xyz")
+    (tmp_path / "line.xyz").write_text("\n".join(f"{t} {2 * t} {3 * t}" for t in range(50)))
+    with pytest.raises(InputError, match="on a line"):
+        load_scan(tmp_path / "line.xyz")
+
+
+def test_text_garbage(tmp_path):
+    (tmp_path / "g.xyz").write_text("1 2 3\n4 5 banana\n")
+    with pytest.raises(InputError, match="line 2"):
+        load_scan(tmp_path / "g.xyz")
+
+
+def test_viewpoint_on_the_wrong_side(bunny):
+    s = bunny("bun000")
+    behind = s.centroid - (s.viewpoint - s.centroid)
+    with pytest.raises(InputError, match="wrong side"):
+        load_scan(s.source, viewpoint=behind)
+
+
+def test_flat_scan_is_refused_for_registration(tmp_path):
+    from core import prepare
+
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(0, 1, (300, 2)), np.zeros(300)]
+    write_ply(tmp_path / "flat.ply", pts)
+    s = load_scan(tmp_path / "flat.ply", viewpoint=np.array([0.5, 0.5, 3.0]))
+    with pytest.raises(InputError, match="flat"):
+        prepare(s, s)
+
+
+def test_edge_on_viewpoint_cannot_triangulate(tmp_path):
+    from core.surface import triangulate
+
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(0, 1, (300, 2)), np.zeros(300)]
+    write_ply(tmp_path / "flat.ply", pts)
+    s = load_scan(tmp_path / "flat.ply", viewpoint=np.array([5.0, 0.5, 0.0]))
+    with pytest.raises(InputError, match="too thin|beside or behind"):
+        triangulate(s)
+
+
+def test_read_transform_forms(tmp_path):
+    T = np.eye(4)
+    T[:3, 3] = [1, 2, 3]
+    (tmp_path / "t.txt").write_text(" ".join(map(str, T.ravel())))
+    (tmp_path / "t.json").write_text(json.dumps({"transform": T.tolist()}))
+    (tmp_path / "c.txt").write_text(",".join(map(str, T.ravel())))
+    for name in ("t.txt", "t.json", "c.txt"):
+        np.testing.assert_allclose(read_transform(tmp_path / name), T)
+    bad = T.copy()
+    bad[0, 0] = 2
+    (tmp_path / "bad.txt").write_text(" ".join(map(str, bad.ravel())))
+    with pytest.raises(InputError, match="not rigid"):
+        read_transform(tmp_path / "bad.txt")
+    (tmp_path / "sing.txt").write_text(" ".join(["0"] * 15 + ["1"]))
+    with pytest.raises(InputError, match="singular"):
+        read_transform(tmp_path / "sing.txt")
+    (tmp_path / "short.txt").write_text("1 2 3")
+    with pytest.raises(InputError, match="16 numbers"):
+        read_transform(tmp_path / "short.txt")
+
+
+def test_malformed_conf(tmp_path):
+    (tmp_path / "x.conf").write_text("bmesh a.ply 0 0 0 0 0\n")
+    with pytest.raises(InputError, match="line 1"):
+        load_conf(tmp_path / "x.conf")
+    (tmp_path / "y.conf").write_text("camera 0 0 0 0 0 0 1\n")
+    with pytest.raises(InputError, match="no 'bmesh'"):
+        load_conf(tmp_path / "y.conf")

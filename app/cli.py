@@ -126,6 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=_positive_int, default=8080)
     s.add_argument("--data-dir", help="folder whose scan files the page may open")
+    s.add_argument("--upload-cap-mb", type=_number, default=200.0, help="largest upload accepted (default 200 MB)")
 
     s = sub.add_parser("merge", help="register a set of scans and fuse them into one model",
                        description="Register overlapping pairs, make poses globally consistent, fuse one mesh.")

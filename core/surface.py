@@ -18,7 +18,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .errors import InputError
 from .scan import Scan
 
-EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of its endpoints
+EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
 
 
@@ -30,9 +30,13 @@ def local_spacing(points: np.ndarray) -> np.ndarray:
 
 
 def edge_bound(spacing: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(M, 3) longest allowed length of each triangle edge: EDGE_FACTOR x the larger endpoint spacing."""
+    """(M, 3) longest allowed length of each triangle edge: EDGE_FACTOR x the smaller endpoint spacing.
+
+    The smaller, because a spurious return floating off the surface is itself sparse: judged by its
+    own spacing, the long edges tying it to the surface would pass and leave a spike.
+    """
     s = spacing[faces]
-    return EDGE_FACTOR * np.maximum(s, np.roll(s, -1, axis=1))
+    return EDGE_FACTOR * np.minimum(s, np.roll(s, -1, axis=1))
 
 
 def edge_lengths(points: np.ndarray, faces: np.ndarray) -> np.ndarray:

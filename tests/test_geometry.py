@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from core.frustum import frustum_of, segment_overlap
 from core.scan import Scan
 from core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
-from core.transforms import apply, from_params, invert
+from core.transforms import from_params, invert
 from tests.conftest import brute_closest
 
 

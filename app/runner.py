@@ -1,0 +1,101 @@
+"""A registration run on a worker thread that the page can pause, resume, single-step or cancel.
+
+The optimiser calls its listener for every ICP iteration and annealing move (core.events); the
+listener here records the event and, when asked to, blocks (pause, step) or raises ``Cancelled``.
+All of that happens on the worker thread, so the server's event loop never waits on a run.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from core.events import Cancelled, Event
+from core.register import Result
+
+POLL = 0.05  # seconds a paused run sleeps between looks at its controls (Pause/Cancel act within 0.2 s)
+
+
+class Run:
+    """One registration on its own thread. ``work(listener)`` must return a core ``Result``."""
+
+    def __init__(self, work: Callable[[Callable[[Event], None]], Result], mode: str = "run",
+                 on_done: Callable[[Run], None] | None = None):
+        """mode: "run" (go), "step" (pause after the first event) or "phase" (pause after the first leg)."""
+        self.events: list[Event] = []
+        self.result: Result | None = None
+        self.failure: Exception | None = None
+        self._cond = threading.Condition()
+        self._mode = mode  # run | paused | step | phase
+        self._cancel = False
+        self._phase_at_request: tuple[str, int] | None = ("icp", 1)
+        self._work, self._on_done = work, on_done
+        self.thread = threading.Thread(target=self._main, daemon=True, name="rangereg-run")
+
+    def start(self) -> Run:
+        self.thread.start()
+        return self
+
+    @property
+    def running(self) -> bool:
+        return self.thread.is_alive()
+
+    @property
+    def paused(self) -> bool:
+        with self._cond:
+            return self._mode == "paused"
+
+    def pause(self) -> None:
+        self._set("paused")
+
+    def resume(self) -> None:
+        self._set("run")
+
+    def step(self) -> None:
+        """Let exactly one more event through (one ICP iteration or one annealing move), then pause."""
+        self._set("step")
+
+    def next_phase(self) -> None:
+        """Run to the end of the current ICP or SA leg, then pause."""
+        with self._cond:
+            last = self.events[-1] if self.events else None
+            self._phase_at_request = (last.phase, last.leg) if last else ("icp", 1)
+            self._mode = "phase"
+            self._cond.notify_all()
+
+    def cancel(self) -> None:
+        with self._cond:
+            self._cancel = True
+            self._cond.notify_all()
+
+    def join(self, timeout: float | None = None) -> None:
+        self.thread.join(timeout)
+
+    def _set(self, mode: str) -> None:
+        with self._cond:
+            self._mode = mode
+            self._cond.notify_all()
+
+    def _listener(self, e: Event) -> None:
+        self.events.append(e)
+        with self._cond:
+            if self._mode == "step":
+                self._mode = "paused"
+            elif self._mode == "phase":
+                phase, leg = self._phase_at_request
+                # the leg ended: ICP stopped in a local minimum, or a new leg began
+                if e.local_minimum or (e.phase, e.leg) != (phase, leg):
+                    self._mode = "paused"
+            while self._mode == "paused" and not self._cancel:
+                self._cond.wait(POLL)
+            if self._cancel:
+                raise Cancelled()
+
+    def _main(self) -> None:
+        try:
+            self.result = self._work(self._listener)
+        except Exception as exc:  # reported to the page by on_done; the session lives on
+            self.failure = exc
+        finally:
+            if self._on_done is not None:
+                self._on_done(self)

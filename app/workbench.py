@@ -1,0 +1,182 @@
+"""``rangereg serve``: the viser workbench. One server, one :class:`app.session.Session` per tab.
+
+It listens on 127.0.0.1 unless told otherwise (viser's own default is every interface), refuses a
+taken port instead of moving to another, fetches nothing from the internet and hides viser's share
+button (the share link would go through a public relay).
+"""
+
+from __future__ import annotations
+
+import errno
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+from core.errors import InputError
+from core.io import load_scan
+from core.scan import Scan
+from core.scenes import scene_paths
+from core.simulate import SCENES
+
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
+SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".obj", ".stl", ".off")
+MAX_LISTED_FILES = 500
+
+
+@dataclass(frozen=True)
+class Options:
+    source: str | None = None
+    target: str | None = None
+    scene: str = "corner"
+    host: str = "127.0.0.1"
+    port: int = 8080
+    data_dir: str | None = None
+    upload_cap_mb: float = 200.0
+
+
+@cache
+def _load_cached(path: str, mtime: float) -> Scan:
+    return load_scan(path)
+
+
+def _load(path: Path) -> Scan:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    return _load_cached(str(path.resolve()), path.stat().st_mtime)
+
+
+def check_port(host: str, port: int) -> None:
+    """Raise InputError when ``host:port`` cannot be bound (taken, or not an address of this machine)."""
+    if not 0 < port < 65536:
+        raise InputError(f"--port must be between 1 and 65535, got {port}")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise InputError(f"--host {host!r} is not a usable address ({exc.strerror})") from None
+    family, _, _, _, addr = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                raise InputError(f"port {port} on {host} is taken; choose another with --port") from None
+            raise InputError(f"cannot listen on {host}:{port} ({exc.strerror})") from None
+
+
+class Workbench:
+    def __init__(self, options: Options):
+        import viser
+
+        self.options = options
+        self.scene_names = list(SCENES)
+        self.upload_cap_mb = float(options.upload_cap_mb)
+        self.upload_cap = int(self.upload_cap_mb * 1e6)
+        self.data_dir = Path(options.data_dir).resolve() if options.data_dir else None
+        if self.data_dir is not None and not self.data_dir.is_dir():
+            raise InputError(f"--data-dir {options.data_dir}: no such folder")
+        # Check the first pair before the server starts: a bad file is one clear line, not a page error.
+        if options.source or options.target:
+            if not (options.source and options.target):
+                raise InputError("give both SOURCE and TARGET, or neither (the default scene opens)")
+            self.first_pair = (_load(Path(options.source)), _load(Path(options.target)))
+        else:
+            self.first_pair = self.scene_pair(options.scene)
+        check_port(options.host, options.port)
+        self.server = viser.ViserServer(host=options.host, port=options.port, label="rangereg", verbose=False)
+        self.server.gui.configure_theme(show_share_button=False, control_width="large", dark_mode=False)
+        self._refuse_big_uploads()
+        self.sessions: dict = {}
+        self.server.on_client_connect(self._connect)
+        self.server.on_client_disconnect(self._disconnect)
+
+    @property
+    def url(self) -> str:
+        host = self.options.host if self.options.host not in ("0.0.0.0", "::") else "127.0.0.1"
+        return f"http://{host}:{self.options.port}"
+
+    def scene_pair(self, name: str) -> tuple[Scan, Scan]:
+        if name not in SCENES:
+            raise InputError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+        src, tgt = scene_paths(ASSETS, name)
+        if not src.exists():
+            raise InputError(f"the bundled scene {name} is missing from {ASSETS}; run 'rangereg scenes'")
+        return _load(src), _load(tgt)
+
+    def data_files(self) -> list[str]:
+        """Scan files under --data-dir, relative to it."""
+        if self.data_dir is None:
+            return []
+        files = sorted(p for p in self.data_dir.rglob("*") if p.suffix.lower() in SCAN_SUFFIXES and p.is_file())
+        return [str(p.relative_to(self.data_dir)) for p in files[:MAX_LISTED_FILES]]
+
+    def load_data_file(self, relative: str) -> Scan:
+        """A file under --data-dir; nothing outside it is ever read."""
+        if self.data_dir is None:
+            raise InputError("the workbench was started without --data-dir")
+        path = (self.data_dir / relative).resolve()
+        if not path.is_relative_to(self.data_dir):
+            raise InputError(f"{relative}: outside the data folder")
+        return _load(path)
+
+    def _refuse_big_uploads(self) -> None:
+        """Drop an upload over the cap as soon as it announces its size, before its bytes arrive.
+
+        viser buffers uploads in memory; its upload state is private, so this is best effort, and
+        the session checks the size again when an upload completes.
+        """
+        from viser import _messages
+
+        gui = self.server.gui
+        states = getattr(gui, "_current_file_upload_states", None)
+        iface = getattr(gui, "_websock_interface", None)
+        if states is None or iface is None:
+            return
+
+        def on_start(client_id, message) -> None:
+            if message.size_bytes > self.upload_cap:
+                states.pop(message.transfer_uuid, None)
+                session = self.sessions.get(client_id)
+                if session is not None:
+                    session.notify("Upload refused", f"{message.filename}: {message.size_bytes / 1e6:.0f} MB is over "
+                                   f"the upload cap ({self.upload_cap_mb:g} MB)")
+
+        iface.register_handler(_messages.FileTransferStartUpload, on_start)
+
+    def _connect(self, client) -> None:
+        from app.session import Session
+
+        session = Session(self, client)
+        self.sessions[client.client_id] = session
+        try:
+            session.load_pair(*self.first_pair)
+        except InputError as exc:
+            session.notify("Could not open the scans", str(exc))
+
+    def _disconnect(self, client) -> None:
+        session = self.sessions.pop(client.client_id, None)
+        if session is not None:
+            session.close()
+
+
+def serve(a) -> int:
+    """Entry point of ``rangereg serve``; blocks until interrupted."""
+    options = Options(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port, data_dir=a.data_dir,
+                      upload_cap_mb=getattr(a, "upload_cap_mb", 200.0))
+    if options.upload_cap_mb <= 0:
+        raise InputError(f"--upload-cap-mb must be positive, got {options.upload_cap_mb}")
+    wb = Workbench(options)
+    print(f"rangereg workbench: {wb.url}  (Ctrl+C to stop)", flush=True)
+    stop = threading.Event()
+    try:
+        while not stop.is_set():
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        wb.server.stop()
+    return 0

@@ -1,0 +1,93 @@
+"""Model construction (paper sections 1-2, Fig. 2): fusing registered scans, merging a set of scans."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from core.errors import InputError
+from core.fuse import double_layer_fraction, fuse
+from core.merge import merge
+from core.surface import Surface
+from core.transforms import apply, invert, perturb, pose_error, random_perturbation
+from tests.conftest import ASSETS, BUNNY
+from tests.test_cli import rangereg
+
+
+@pytest.mark.parametrize("name", ["corner", "bowl"])
+def test_fused_two_scans_have_no_double_layer(scene, name):
+    from core.simulate import true_transform
+
+    target, source = scene(name)
+    T = true_transform(source, target)
+    model = fuse([target, source], [np.eye(4), T])
+    gap = float(np.median([target.spacing, source.spacing]))
+    # The measure itself must see a double layer: both scans' own surfaces left on top of each other.
+    s_t, s_s = Surface.from_scan(target), Surface.from_scan(source)
+    both_v = np.vstack([target.points, apply(T, source.points)])
+    both_f = np.vstack([s_t.faces, s_s.faces + len(target.points)])
+    assert double_layer_fraction(both_v, both_f, gap) > 0.3
+    assert double_layer_fraction(model.vertices, model.faces, gap) < 0.01
+    # Over the overlap one scan is kept, point by point; both scans contribute to the model.
+    share = np.bincount(model.owner, minlength=2)
+    assert share.min() > 0.2 * share.sum()
+    assert share.sum() < len(target.points) + len(source.points) - 1000
+    # The model covers the data: every kept sample has the mesh near it.
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(model.vertices).query(model.points)
+    assert np.quantile(d, 0.99) < 2 * gap
+
+
+def test_merge_cli_on_a_bundled_scene(tmp_path):
+    out = tmp_path / "model.ply"
+    r = rangereg("merge", str(ASSETS / "corner" / "scan1.ply"), str(ASSETS / "corner" / "scan2.ply"),
+                 "--out", str(out), "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert set(rep) >= {"poses", "pairs", "seconds", "rotation_error_deg", "translation_error", "model"}
+    assert np.allclose(rep["poses"][0], np.eye(4))
+    assert max(rep["rotation_error_deg"]) < 1.0 and max(rep["translation_error"]) < 0.01 * 1219
+    assert rep["model"]["double_layer_fraction"] < 0.01
+    from core.io import load_scan
+
+    mesh = load_scan(out)
+    assert mesh.faces is not None and len(mesh.faces) == rep["model"]["triangles"]
+
+
+def test_a_scan_that_overlaps_nothing_is_refused(scene):
+    target, source = scene("corner")
+    far = np.eye(4)
+    far[:3, 3] = 1e6
+    with pytest.raises(InputError, match="overlap"):
+        merge([target, source, target], [target.guess, source.guess, far @ target.guess], build_model=False)
+
+
+def test_merge_bad_conf_gets_one_line(tmp_path):
+    a, b = str(ASSETS / "corner" / "scan1.ply"), str(ASSETS / "corner" / "scan2.ply")
+    bad = tmp_path / "bad.conf"
+    bad.write_text("camera 0 0 0 0 0 0 1\nbmesh scan1.ply 0 0 zero 0 0 0 1\n")
+    other = tmp_path / "other.conf"
+    other.write_text("bmesh elsewhere.ply 0 0 0 0 0 0 1\n")
+    for conf, words in ((bad, "not a number"), (other, "no pose for"), (tmp_path / "none.conf", "no such file")):
+        r = rangereg("merge", a, b, "--init", str(conf))
+        assert r.returncode == 2
+        assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+def test_bunny_set_comes_back_to_the_conf_poses(bunny):
+    scans = [bunny(n) for n in ("bun000", "bun045", "bun090", "bun315")]
+    rng = np.random.default_rng(0)
+    initial = []
+    for s in scans:  # each .conf pose perturbed by 10 degrees and 20 mm about the scan's centre
+        t, r = random_perturbation(rng, 10.0, 0.020)
+        initial.append(perturb(s.pose, np.r_[t, r], apply(s.pose, s.points.mean(0)[None])[0]))
+    res = merge(scans, initial)
+    for s, T in zip(scans, res.poses):
+        rot, tr = pose_error(T, invert(scans[0].pose) @ s.pose, s.points.mean(0))
+        assert rot < 1.0 and tr < 0.002, (s.name, rot, tr)
+    assert double_layer_fraction(res.model.vertices, res.model.faces, scans[0].spacing) < 0.02
+    assert BUNNY.is_dir()

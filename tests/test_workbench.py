@@ -1,0 +1,190 @@
+"""The workbench in a real browser: Debian's Chromium driven by Playwright, against `rangereg serve`."""
+
+from __future__ import annotations
+
+import io
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROOT
+
+pytestmark = pytest.mark.browser
+CHROMIUM = Path("/usr/bin/chromium")
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync"]
+ARTIFACTS = ROOT / "artifacts"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server():
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if "rangereg workbench:" in line:
+            break
+        if proc.poll() is not None:
+            pytest.fail(f"the server did not start: {proc.stdout.read()}")
+    yield f"http://127.0.0.1:{port}", port
+    proc.terminate()
+    proc.wait(10)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not CHROMIUM.exists():
+        pytest.skip("Debian's chromium is not installed (scripts/install --browser)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+        yield b
+        b.close()
+
+
+def open_page(browser, url):
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    page.goto(url)
+    page.get_by_text("Initial E =").wait_for(timeout=60_000)
+    page.wait_for_function("() => document.body.innerText.includes('overlap')", timeout=60_000)
+    return page
+
+
+def initial_E(page) -> float:
+    return float(re.search(r"Initial E = ([0-9.eE+-]+)", page.get_by_text("Initial E =").inner_text()).group(1))
+
+
+def pose_fields(page) -> np.ndarray:
+    names = ("tx", "ty", "tz", "rx (deg)", "ry (deg)", "rz (deg)")
+    return np.array([float(page.get_by_label(n, exact=True).input_value()) for n in names])
+
+
+def canvas_pixels(page) -> np.ndarray:
+    from PIL import Image
+
+    png = page.locator("canvas").first.screenshot()
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def wait_finished(page, timeout=120.0) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        text = page.locator("body").inner_text()
+        m = re.search(r"Finished: ([^\n]+)", text)
+        if m:
+            return m.group(1)
+        time.sleep(0.2)
+    raise AssertionError("the run did not finish")
+
+
+def test_scene_renders_and_hybrid_finishes_below_threshold(server, browser):
+    page = open_page(browser, server[0])
+    time.sleep(2.0)  # let the points arrive and draw
+    px = canvas_pixels(page)
+    assert len(np.unique(px.reshape(-1, 3), axis=0)) > 50, "blank canvas"
+    page.get_by_role("button", name="Run hybrid", exact=True).click()
+    line = wait_finished(page)
+    m = re.search(r"E = ([0-9.eE+-]+) \((below|above) the threshold ([0-9.eE+-]+)\)", line)
+    assert m, line
+    assert float(m.group(1)) < float(m.group(3)) and m.group(2) == "below"
+    ARTIFACTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / "workbench-finished.png"))
+    page.close()
+
+
+def _gizmo_pixel(px: np.ndarray) -> tuple[int, int] | None:
+    """A pixel of the gizmo's red (x) handles: a crimson (about 250, 45, 105) no scan colour has."""
+    r, g, b = (px[..., k].astype(int) for k in range(3))
+    mask = (r > 220) & (g < 70) & (b > 80) & (b < 130)
+    mask[:, -450:] = False  # the control panel
+    mask[-120:, :120] = False  # the orientation axes in the corner
+    ys, xs = np.nonzero(mask)
+    if len(xs) < 20:
+        return None
+    k = np.argmax(np.hypot(xs - xs.mean(), ys - ys.mean()))  # the tip of the handle: far from the centre
+    return int(xs[k]), int(ys[k])
+
+
+def test_dragging_the_gizmo_changes_the_initial_error(server, browser):
+    page = open_page(browser, server[0])
+    for box in ("Frustums", "Overlap points", "Path"):
+        page.get_by_label(box, exact=True).first.uncheck()
+    time.sleep(1.5)
+    E_before = initial_E(page)
+    pose_before = pose_fields(page)
+    box = page.locator("canvas").first.bounding_box()
+    hit = _gizmo_pixel(canvas_pixels(page))
+    assert hit is not None, "the gizmo is not on screen"
+    x, y = box["x"] + hit[0], box["y"] + hit[1]
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(x + 8 * k, y + 3 * k)
+        time.sleep(0.05)
+    page.mouse.up()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and initial_E(page) == E_before:
+        time.sleep(0.2)
+    assert initial_E(page) != E_before
+    assert not np.allclose(pose_fields(page), pose_before)  # the typed parameters follow the gizmo
+    page.close()
+
+
+def test_two_tabs_are_independent(server, browser):
+    a, b = open_page(browser, server[0]), open_page(browser, server[0])
+    E_a, E_b = initial_E(a), initial_E(b)
+    assert E_a == pytest.approx(E_b)
+    tx = a.get_by_label("tx", exact=True)
+    tx.fill(str(float(tx.input_value()) + 40.0))
+    a.get_by_role("button", name="Apply pose", exact=True).click()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and initial_E(a) == E_a:
+        time.sleep(0.2)
+    assert initial_E(a) != E_a
+    a.get_by_role("button", name="Run SA", exact=True).click()  # a long run in tab A ...
+    time.sleep(1.0)
+    assert initial_E(b) == pytest.approx(E_b)  # ... moves nothing in tab B, whose page still answers
+    b.get_by_role("button", name="Run ICP", exact=True).click()
+    assert "below" in wait_finished(b, 60)
+    assert "running" in a.locator("body").inner_text() and "Finished" not in a.locator("body").inner_text()
+    a.get_by_role("button", name="Cancel", exact=True).click()
+    assert "cancelled" in wait_finished(a, 10)
+    a.close()
+    b.close()
+
+
+def test_bad_setting_is_a_notification_and_the_session_lives_on(server, browser):
+    page = open_page(browser, server[0])
+    page.get_by_text("Settings", exact=True).click()
+    # viser's text fields carry a label whose "for" names no element: find the input in its row
+    thr = page.locator("label", has_text=re.compile(r"^Threshold$")).first.locator("xpath=ancestor::div[2]").locator("input")
+    thr.fill("banana")
+    thr.press("Enter")
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    page.get_by_text("threshold must be a number").first.wait_for(timeout=10_000)
+    thr.fill("auto")
+    thr.press("Enter")
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    assert "E =" in wait_finished(page, 60)
+    page.close()
+
+
+def test_taken_port_is_refused(server):
+    r = subprocess.run([sys.executable, "-m", "app.cli", "serve", "--port", str(server[1])], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "taken" in r.stderr and "Traceback" not in r.stderr

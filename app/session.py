@@ -2,7 +2,7 @@
 
 Everything the page does calls core: loading (core.io), the overlap (core.problem), the runs
 (core.register through app.runner), the slice (core.landscape), the model (core.fuse). Work runs
-on threads of its own; a refresher thread pushes the run's progress to the page at ~12 Hz inside
+on threads of its own; a refresher thread pushes the run's progress to the page at ~15 Hz inside
 ``client.atomic()``, moving the scan by its node's pose, never by re-sending its points.
 """
 
@@ -28,9 +28,7 @@ from app.views import (
     TARGET_OVERLAP_RGB,
     TARGET_RGB,
     Display,
-    path_arrays,
-    path_segments,
-    plot_series,
+    Trail,
     ply_bytes,
     png_bytes,
     slice_figure,
@@ -48,7 +46,7 @@ from core.surface import Surface
 from core.transforms import PARAM_NAMES, apply, check_rigid, from_params, invert, to_params
 from core.viewpoint import check_viewpoint
 
-REFRESH = 0.08  # seconds between pushes of a run's progress (>= 10 Hz)
+REFRESH = 0.05  # seconds between pushes of a run's progress (aiming at >= 10 Hz)
 SLICE_REFRESH = 1.0  # seconds between redraws of the path on the slice during a run
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts"}
 
@@ -417,7 +415,7 @@ class Session:
         with self.client.atomic():
             self.n_path.points = np.zeros((0, 2, 3), np.float32)
             self.n_minima.points = np.zeros((0, 3), np.float32)
-            self.h.plot.data = plot_series([], self.E0)
+            self.h.plot.data = Trail(self.display, []).plot(self.E0)
 
     def _show_pose_fields(self, T: np.ndarray) -> None:
         p = to_params(T)
@@ -541,22 +539,29 @@ class Session:
                     return
                 time.sleep(0.5)
 
+    @property
+    def trail(self) -> Trail:
+        """The drawing arrays of the current run's events (a new run, a new trail)."""
+        if getattr(self, "_trail", None) is None or self._trail.events is not self.events:
+            self._trail = Trail(self.display, self.events)
+        return self._trail
+
     def _push(self, running: bool) -> None:
-        events = self.events
-        n = len(events)
-        if n == self.pushed and running:
+        trail = self.trail
+        before = trail.n
+        n = trail.update()
+        if n == before and running:
             self._update_status()
             return
         self.pushed = n
-        if n:
-            self.T = events[-1].T if running else self.T
-        pos, phases, minima = path_arrays(self.display, events[:n])
-        seg, rgb = path_segments(pos, phases)
+        if n and running:
+            self.T = self.events[n - 1].T
+        seg, rgb = trail.segments()
         with self.client.atomic():
             self._move_source(self.T, gizmo=False)
             self.n_path.points, self.n_path.colors = seg, rgb
-            self.n_minima.points = pos[minima] if minima.any() else np.zeros((0, 3), np.float32)
-            self.h.plot.data = plot_series(events[:n], self.E0)
+            self.n_minima.points = trail.pos[trail.minimum] if trail.minimum.any() else np.zeros((0, 3), np.float32)
+            self.h.plot.data = trail.plot(self.E0)
             self._update_status()
         if self.slice is not None and time.monotonic() - self.slice_drawn_at > SLICE_REFRESH:
             self._draw_slice()
@@ -567,10 +572,9 @@ class Session:
         return float(self.problem.error(self.T_init)) if self.problem is not None else float("nan")
 
     def _update_status(self) -> None:
-        ev = self.events
-        last = ev[-1] if ev else None
-        n_icp = sum(1 for e in ev if e.phase == "icp" and not e.local_minimum)
-        n_sa = sum(1 for e in ev if e.phase == "sa")
+        trail = self.trail
+        last = self.events[trail.n - 1] if trail.n else None
+        n_icp, n_sa, n_min = trail.counts
         state = "running" if self.running and not self.run.paused else ("paused" if self.running else "idle")
         E0 = self.E0
         thr = f"{self.threshold:.4g}" if self.threshold is not None else "auto"
@@ -578,7 +582,7 @@ class Session:
         lines = [f"**{self.source.name if self.source else '-'} → {self.target.name if self.target else '-'}** "
                  f"({units}) · overlap {self.problem.used.sum() if self.problem else 0} points",
                  f"Method **{self.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**",
-                 f"Iterations: ICP {n_icp}, SA {n_sa} · local minima {sum(1 for e in ev if e.local_minimum)}",
+                 f"Iterations: ICP {n_icp}, SA {n_sa} · local minima {n_min}",
                  f"E = {last.error:.6g}" if last else f"E = {E0:.6g} (initial)",
                  f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None else "Temperature -",
                  f"Threshold {thr}"]

@@ -55,40 +55,66 @@ class Display:
         return T
 
 
-def path_arrays(display: Display, events: list[Event]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Node positions (K, 3), phases (K,) and local-minimum flags (K,) along a run's events."""
-    if not events:
-        return np.zeros((0, 3), np.float32), np.zeros(0, "<U3"), np.zeros(0, bool)
-    Ts = np.stack([e.T for e in events])
-    ref = np.einsum("kij,j->ki", Ts[:, :3, :3], display.source_centre) + Ts[:, :3, 3]
-    return (display.points(ref), np.array([e.phase for e in events]), np.array([e.local_minimum for e in events]))
+class Trail:
+    """A run's events as arrays for drawing, extended incrementally (each event is converted once).
 
-
-def path_segments(pos: np.ndarray, phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Line segments (S, 2, 3) and colours (S, 2, 3) for a path, thinned to MAX_PATH_POINTS."""
-    if len(pos) < 2:
-        return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
-    keep = np.unique(np.r_[np.linspace(0, len(pos) - 1, min(len(pos), MAX_PATH_POINTS)).astype(int), len(pos) - 1])
-    pos, phases = pos[keep], phases[keep]
-    seg = np.stack([pos[:-1], pos[1:]], axis=1)
-    rgb = np.array([PHASE_RGB.get(p, (128, 128, 128)) for p in phases[1:]], np.uint8)
-    return seg, np.repeat(rgb[:, None, :], 2, axis=1)
-
-
-def plot_series(events: list[Event], E0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(iteration, E during ICP, E during SA) for the uPlot chart; the other phase is NaN (a gap).
-
-    Both series start at iteration 0 with E at the initial pose (``E0``), the start both share; a
-    series of NaN only would leave the chart blank.
+    pos: (K, 3) float32 node positions on the page; sa, minimum: (K,) bool; iteration, error: (K,).
     """
-    keep = np.unique(np.linspace(0, len(events) - 1, min(len(events), MAX_PLOT_POINTS)).astype(int)) if events else []
-    it = np.r_[0.0, [events[k].iteration for k in keep]]
-    # an ICP "local minimum" mark repeats the last iteration: nudge it so x stays increasing
-    it = np.maximum.accumulate(it + np.arange(len(it)) * 1e-6)
-    err = np.r_[E0, [events[k].error for k in keep]]
-    is_icp = np.array([True] + [events[k].phase == "icp" for k in keep], bool)
-    is_sa = np.r_[True, ~is_icp[1:]]
-    return it, np.where(is_icp, err, np.nan), np.where(is_sa, err, np.nan)
+
+    def __init__(self, display: Display, events: list[Event]):
+        self.display, self.events, self.n = display, events, 0
+        self.pos = np.zeros((0, 3), np.float32)
+        self.sa = np.zeros(0, bool)
+        self.minimum = np.zeros(0, bool)
+        self.iteration = np.zeros(0)
+        self.error = np.zeros(0)
+
+    def update(self) -> int:
+        """Take in the events that arrived since the last call; returns how many there are now."""
+        n = len(self.events)
+        new = self.events[self.n:n]
+        if new:
+            Ts = np.stack([e.T for e in new])
+            ref = np.einsum("kij,j->ki", Ts[:, :3, :3], self.display.source_centre) + Ts[:, :3, 3]
+            self.pos = np.concatenate([self.pos, self.display.points(ref)])
+            self.sa = np.r_[self.sa, [e.phase == "sa" for e in new]].astype(bool)
+            self.minimum = np.r_[self.minimum, [e.local_minimum for e in new]].astype(bool)
+            self.iteration = np.r_[self.iteration, [e.iteration for e in new]]
+            self.error = np.r_[self.error, [e.error for e in new]]
+            self.n = n
+        return n
+
+    @property
+    def counts(self) -> tuple[int, int, int]:
+        """(ICP iterations, SA moves, local minima) so far."""
+        n_min = int(self.minimum.sum())
+        return int((~self.sa).sum()) - n_min, int(self.sa.sum()), n_min
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Line segments (S, 2, 3) and colours (S, 2, 3) for the path, thinned to MAX_PATH_POINTS."""
+        pos = self.pos
+        if len(pos) < 2:
+            return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
+        keep = np.unique(np.r_[np.linspace(0, len(pos) - 1, min(len(pos), MAX_PATH_POINTS)).astype(int), len(pos) - 1])
+        seg = np.stack([pos[keep][:-1], pos[keep][1:]], axis=1)
+        rgb = np.where(self.sa[keep][1:, None], np.array(PHASE_RGB["sa"]), np.array(PHASE_RGB["icp"])).astype(np.uint8)
+        return seg, np.repeat(rgb[:, None, :], 2, axis=1)
+
+    def plot(self, E0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(iteration, E during ICP, E during SA) for the uPlot chart; the other phase is NaN (a gap).
+
+        Both series start at iteration 0 with E at the initial pose (``E0``), the start both share; a
+        series of NaN only would leave the chart blank.
+        """
+        keep = np.unique(np.linspace(0, self.n - 1, min(self.n, MAX_PLOT_POINTS)).astype(int)) if self.n else []
+        it = np.r_[0.0, self.iteration[keep]]
+        # an ICP "local minimum" mark repeats the last iteration: nudge it so x stays increasing
+        it = np.maximum.accumulate(it + np.arange(len(it)) * 1e-6)
+        err = np.r_[E0, self.error[keep]]
+        sa = np.r_[False, self.sa[keep]]
+        icp = np.r_[True, ~self.sa[keep]]
+        sa[0] = True
+        return it, np.where(icp, err, np.nan), np.where(sa, err, np.nan)
 
 
 def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None, current: np.ndarray | None,

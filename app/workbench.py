@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import socket
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -169,6 +170,9 @@ def serve(a) -> int:
                       upload_cap_mb=getattr(a, "upload_cap_mb", 200.0))
     if options.upload_cap_mb <= 0:
         raise InputError(f"--upload-cap-mb must be positive, got {options.upload_cap_mb}")
+    # The optimiser's worker thread is busy Python; a short switch interval lets the server's threads
+    # (events, page pushes) take the GIL within milliseconds, so Pause and the 10 Hz path stay live.
+    sys.setswitchinterval(0.001)
     wb = Workbench(options)
     print(f"rangereg workbench: {wb.url}  (Ctrl+C to stop)", flush=True)
     stop = threading.Event()

@@ -1,0 +1,66 @@
+"""How often the workbench page updates during a run, with two 40,000-point bunny scans loaded.
+
+    python benchmarks/workbench_rate.py [BUNNY_DIR]
+
+Starts `rangereg serve bun045.ply bun000.ply` on a free port, opens it in headless Chromium,
+presses "Run SA" (a long run), and counts in the browser how often the status panel (redrawn with
+the path on every push) changes over 5 s; also times a click on "Pause" until the page says
+"paused" (the page must stay interactive). Target: >= 10 updates per second.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync"]
+COUNT_JS = """() => new Promise(done => {
+  const el = [...document.querySelectorAll('p')].find(p => p.innerText.includes('Iterations:'));
+  let n = 0; const obs = new MutationObserver(() => n++);
+  obs.observe(el.parentElement, {subtree: true, childList: true, characterData: true});
+  setTimeout(() => { obs.disconnect(); done(n); }, 5000);
+})"""
+
+
+def main() -> None:
+    from playwright.sync_api import sync_playwright
+
+    folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", str(folder / "bun045.ply"), str(folder / "bun000.ply"),
+                             "--port", str(port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        while "rangereg workbench:" not in proc.stdout.readline():
+            if proc.poll() is not None:
+                raise SystemExit("the server did not start")
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            t0 = time.perf_counter()
+            page.goto(f"http://127.0.0.1:{port}")
+            page.get_by_text("Initial E =").wait_for(timeout=120_000)
+            print(f"page ready with both scans in {time.perf_counter() - t0:.1f} s")
+            page.get_by_role("button", name="Run SA", exact=True).click()
+            time.sleep(1.0)
+            n = page.evaluate(COUNT_JS)
+            print(f"status/path updates during the run: {n / 5.0:.1f} per second")
+            t0 = time.perf_counter()
+            page.get_by_role("button", name="Pause", exact=True).click()
+            page.wait_for_function("() => document.body.innerText.includes('paused')", timeout=10_000)
+            print(f"Pause click to 'paused' on the page: {(time.perf_counter() - t0) * 1e3:.0f} ms")
+            page.get_by_role("button", name="Cancel", exact=True).click()
+            browser.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+if __name__ == "__main__":
+    main()

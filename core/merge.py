@@ -139,11 +139,10 @@ def _pose_graph(n, pairs, initial, chain, scans):
     for T in world:
         graph.nodes.append(reg.PoseGraphNode(T))
     scale = float(np.median([s.spacing for s in scans]))
+    clouds = [o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s.points)) for s in scans]
     for p in pairs:
         # Open3D's edge convention: the transformation maps source (j) into target (i).
-        pcd_i = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scans[p.i].points))
-        pcd_j = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scans[p.j].points))
-        info = reg.get_information_matrix_from_point_clouds(pcd_j, pcd_i, 3.0 * scale, p.T_i_j)
+        info = reg.get_information_matrix_from_point_clouds(clouds[p.j], clouds[p.i], 3.0 * scale, p.T_i_j)
         # Spanning-tree edges are trusted; the others are loop closures the optimiser may prune.
         graph.edges.append(reg.PoseGraphEdge(p.j, p.i, p.T_i_j, info, uncertain=(p.i, p.j) not in tree))
     option = reg.GlobalOptimizationOption(max_correspondence_distance=3.0 * scale, edge_prune_threshold=0.25,

@@ -46,7 +46,9 @@ from core.surface import Surface
 from core.transforms import PARAM_NAMES, apply, check_rigid, from_params, invert, to_params
 from core.viewpoint import check_viewpoint
 
-REFRESH = 0.05  # seconds between pushes of a run's progress (aiming at >= 10 Hz)
+REFRESH = 0.07  # seconds between pushes of a run's progress: ~14 Hz, >= 10 Hz and no faster than a
+# software-rendered page draws, so pushes never queue up in the browser (Pause shows at once)
+RUN_POINTS = 6000  # while a run moves the scan, each cloud is drawn with at most this many points
 SLICE_REFRESH = 1.0  # seconds between redraws of the path on the slice during a run
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts"}
 
@@ -63,6 +65,8 @@ class Session:
         self.T_file = self.T_init = self.T = np.eye(4)
         self.T_truth: np.ndarray | None = None
         self.problem = None
+        self.lod: dict[str, np.ndarray] = {}  # scan node -> indices of the points drawn during a run
+        self.run_drawing = False
         self.threshold: float | None = None
         self.run: Run | None = None
         self.run_method = ""
@@ -162,9 +166,9 @@ class Session:
             h.run[label].on_click(lambda e, m=method: self._guarded(self.start_run, m))
         h.step.on_click(lambda e: self._guarded(self.step))
         h.next_phase.on_click(lambda e: self._guarded(self.next_phase))
-        h.pause.on_click(lambda e: self.run and self.run.pause())
-        h.resume.on_click(lambda e: self.run and self.run.resume())
-        h.cancel.on_click(lambda e: self.run and self.run.cancel())
+        h.pause.on_click(lambda e: self._control("pause"))
+        h.resume.on_click(lambda e: self._control("resume"))
+        h.cancel.on_click(lambda e: self._control("cancel"))
         h.reset.on_click(lambda e: self._guarded(self.reset))
         h.apply_pose.on_click(lambda e: self._guarded(self._apply_typed_pose))
         h.reset_file.on_click(lambda e: self._guarded(self.set_initial, self.T_file))
@@ -173,8 +177,9 @@ class Session:
         h.upload_source.on_upload(lambda e: self._guarded(self._uploaded, "source", e.target.value))
         h.upload_target.on_upload(lambda e: self._guarded(self._uploaded, "target", e.target.value))
         h.apply_vp.on_click(lambda e: self._guarded(self._apply_viewpoints))
-        for box in (h.show_frustums, h.show_overlap, h.show_surfaces, h.show_path, h.show_model):
+        for box in (h.show_frustums, h.show_surfaces, h.show_path, h.show_model):
             box.on_update(lambda e: self._guarded(self._apply_visibility))
+        h.show_overlap.on_update(lambda e: self._guarded(self._draw_overlap))
         h.frustum.on_update(lambda e: self._guarded(self._reprepare))
         h.max_points.on_update(lambda e: self._guarded(self._reprepare))
         h.compute_slice.on_click(lambda e: self._guarded(self.start_slice))
@@ -300,12 +305,18 @@ class Session:
                 except Exception:  # already gone with its parent
                     pass
             self.nodes.clear()
-            self.n_target = sc.add_point_cloud("/target/points", d.points(tgt.points), TARGET_RGB, point_size=size,
-                                               precision="float32")
             wxyz, pos = d.node_pose(self.T)
             self.n_source = sc.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
-            sc.add_point_cloud("/source/points", d.source_local(src.points), SOURCE_RGB, point_size=size,
-                               precision="float32")
+            # Every cloud twice: all points, and a fixed subset drawn while a run moves the scan (the
+            # page redraws on every pose push; software WebGL draws ~1.3 M points/s on 2 cores).
+            self.lod = {}
+            for name, pts in (("/target", d.points(tgt.points)), ("/source", d.source_local(src.points))):
+                sc.add_point_cloud(f"{name}/points", pts, self._colours(name), point_size=size, precision="float32")
+                if len(pts) > RUN_POINTS:
+                    keep = np.sort(np.random.default_rng(0).choice(len(pts), RUN_POINTS, replace=False))
+                    self.lod[name] = keep
+                    sc.add_point_cloud(f"{name}/points_run", pts[keep], self._colours(name)[keep], point_size=size,
+                                       precision="float32", point_shading="flat", visible=False)
             self.n_gizmo = sc.add_transform_controls("/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
                                                      translation_limits=((-1e6, 1e6),) * 3)
             self.n_gizmo.on_update(lambda e: self._dragged())
@@ -336,14 +347,27 @@ class Session:
                                      d.source_local(f_src.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
                                      SOURCE_RGB, thickness=1.5, thickness_units="screen")
 
+    def _colours(self, name: str) -> np.ndarray:
+        """(N, 3) uint8 per-point colours of a scan: the overlap points highlighted when shown."""
+        src = name == "/source"
+        scan = self.source if src else self.target
+        rgb = np.empty((len(scan.points), 3), np.uint8)
+        rgb[:] = SOURCE_RGB if src else TARGET_RGB
+        p = self.problem
+        if p is not None and self.h.show_overlap.value and (p.source is self.source and p.target is self.target):
+            rgb[p.used if src else p.overlap.target_mask] = (
+                SOURCE_OVERLAP_RGB if src else TARGET_OVERLAP_RGB)
+        return rgb
+
     def _draw_overlap(self) -> None:
-        d, p = self.display, self.problem
-        size = 1.2 * min(self.source.spacing, self.target.spacing) / d.size
-        self.scene.add_point_cloud("/source/overlap", d.source_local(self.source.points[p.used]), SOURCE_OVERLAP_RGB,
-                                   point_size=size, precision="float32", visible=self.h.show_overlap.value)
-        self.scene.add_point_cloud("/target/overlap", d.points(self.target.points[p.overlap.target_mask]),
-                                   TARGET_OVERLAP_RGB, point_size=size, precision="float32",
-                                   visible=self.h.show_overlap.value)
+        """Recolour the clouds (colours only: the points stay where they are on the page)."""
+        with self.client.atomic():
+            for name in ("/target", "/source"):
+                rgb = self._colours(name)
+                if f"{name}/points" in self.nodes:
+                    self.nodes[f"{name}/points"].colors = rgb
+                if name in self.lod:
+                    self.nodes[f"{name}/points_run"].colors = rgb[self.lod[name]]
 
     def _draw_surfaces(self) -> None:
         d = self.display
@@ -357,11 +381,15 @@ class Session:
         h = self.h
         show_model = bool(h.show_model.value and self.model is not None)
         with self.client.atomic():
-            self._set_visible(("/target/frustum", "/source/frustum"), h.show_frustums.value and not show_model)
-            self._set_visible(("/target/overlap", "/source/overlap"), h.show_overlap.value and not show_model)
+            # Frustum wireframes cost a software-rendered page half its frame rate: off while a run draws.
+            self._set_visible(("/target/frustum", "/source/frustum"),
+                              h.show_frustums.value and not show_model and not self.run_drawing)
             self._set_visible(("/target/surface", "/source/surface"), h.show_surfaces.value and not show_model)
             self._set_visible(("/path", "/minima"), h.show_path.value)
-            self._set_visible(("/target/points", "/source/points"), not show_model)
+            for name in ("/target", "/source"):
+                light = self.run_drawing and name in self.lod
+                self._set_visible((f"{name}/points",), not show_model and not light)
+                self._set_visible((f"{name}/points_run",), not show_model and light)
             self._set_visible(("/model",), show_model)
 
     def _set_visible(self, names, visible: bool) -> None:
@@ -471,6 +499,14 @@ class Session:
         self._set_controls(running=True)
         self.run.start()
 
+    def _control(self, action: str) -> None:
+        """Pause, resume or cancel the run, and say so on the page at once (not at the next push)."""
+        if self.run is None:
+            return
+        getattr(self.run, action)()
+        if self.running:
+            self._update_status()
+
     def step(self) -> None:
         if self.running:
             self.run.step()
@@ -506,6 +542,8 @@ class Session:
 
     def _set_controls(self, running: bool) -> None:
         h = self.h
+        self.run_drawing = running
+        self._apply_visibility()
         for b in [*h.run.values(), h.apply_pose, h.reset_file, h.reset_truth, h.open_scene, h.upload_source,
                   h.upload_target, h.apply_vp, h.merge, h.frustum, h.max_points]:
             b.disabled = running
@@ -678,7 +716,7 @@ class Session:
 
     # ---- exports ---------------------------------------------------------------------------------------------
     def _download(self, name: str, data: bytes) -> None:
-        self.client.send_file_download(name, data)
+        self.client.send_file_download(name, data, save_immediately=True)
 
     def _export_transform(self) -> None:
         r = getattr(self, "result", None)

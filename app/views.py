@@ -20,7 +20,7 @@ TARGET_OVERLAP_RGB = (120, 230, 255)
 SOURCE_OVERLAP_RGB = (255, 225, 60)
 PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200)}
 MINIMUM_RGB = (230, 30, 30)
-MAX_PATH_POINTS = 3000  # the drawn path is thinned to this many points (the trace keeps them all)
+MAX_PATH_POINTS = 1500  # the drawn path is thinned to this many points (the trace keeps them all)
 MAX_PLOT_POINTS = 2000
 
 

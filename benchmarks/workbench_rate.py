@@ -4,8 +4,10 @@
 
 Starts `rangereg serve bun045.ply bun000.ply` on a free port, opens it in headless Chromium,
 presses "Run SA" (a long run), and counts in the browser how often the status panel (redrawn with
-the path on every push) changes over 5 s; also times a click on "Pause" until the page says
-"paused" (the page must stay interactive). Target: >= 10 updates per second.
+the path on every push) changes over 5 s, and how many frames the page draws meanwhile; then
+clicks "Pause" from inside the page and times, in the page, until it says "paused" (Playwright's
+own click waits for the busy page to look stable, which is not what a user waits for). Targets:
+>= 10 updates per second, Pause within 0.2 s.
 """
 
 from __future__ import annotations
@@ -19,6 +21,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
          "--disable-component-update", "--disable-sync"]
+PAUSE_JS = """() => new Promise(done => {
+  const button = [...document.querySelectorAll('button')].find(b => b.innerText.trim() === 'Pause');
+  const t0 = performance.now();
+  const obs = new MutationObserver(() => {
+    if (document.body.innerText.includes('paused')) { obs.disconnect(); done(performance.now() - t0); }
+  });
+  obs.observe(document.body, {subtree: true, childList: true, characterData: true});
+  button.click();
+})"""
+FRAMES_JS = """() => new Promise(done => {
+  let n = 0; const t0 = performance.now();
+  const tick = () => { n++; if (performance.now() - t0 < 3000) requestAnimationFrame(tick); else done(n / 3); };
+  requestAnimationFrame(tick);
+})"""
 COUNT_JS = """() => new Promise(done => {
   const el = [...document.querySelectorAll('p')].find(p => p.innerText.includes('Iterations:'));
   let n = 0; const obs = new MutationObserver(() => n++);
@@ -51,10 +67,8 @@ def main() -> None:
             time.sleep(1.0)
             n = page.evaluate(COUNT_JS)
             print(f"status/path updates during the run: {n / 5.0:.1f} per second")
-            t0 = time.perf_counter()
-            page.get_by_role("button", name="Pause", exact=True).click()
-            page.wait_for_function("() => document.body.innerText.includes('paused')", timeout=10_000)
-            print(f"Pause click to 'paused' on the page: {(time.perf_counter() - t0) * 1e3:.0f} ms")
+            print(f"frames the page draws during the run: {page.evaluate(FRAMES_JS):.1f} per second")
+            print(f"Pause click to 'paused' on the page: {page.evaluate(PAUSE_JS):.0f} ms")
             page.get_by_role("button", name="Cancel", exact=True).click()
             browser.close()
     finally:

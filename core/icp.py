@@ -7,6 +7,10 @@ apply. It stops when E changes by less than ``tolerance`` (relative, either way)
 Point-to-point ICP creeps along shallow valleys (planes sliding past each other). As Besl and
 McKay's accelerated ICP (paper ref. [5], section IV) does, when the last steps point the same
 way we also try the step taken 2, 4, 8... times over and keep the longest that lowers E.
+
+Optionally ICP is kept inside a region of poses (``inside``): the hybrid searches only where the
+initial guess allows (paper section 2.1), so an ICP step that would leave it ends the leg there,
+a local minimum on the region's wall, and annealing takes over from a pose it may search around.
 """
 
 from __future__ import annotations
@@ -57,8 +61,12 @@ def _step_vector(dT: np.ndarray, center: np.ndarray, radius: float) -> np.ndarra
 
 
 def icp(error: RobustError, T_start: np.ndarray, config: IcpConfig = IcpConfig(),
-        on_iteration: Callable[[np.ndarray, float], None] | None = None) -> IcpResult:
-    """Run ICP from ``T_start`` (4, 4) T_target_source; ``on_iteration(T, E)`` after each step."""
+        on_iteration: Callable[[np.ndarray, float], None] | None = None,
+        inside: Callable[[np.ndarray], bool] | None = None) -> IcpResult:
+    """Run ICP from ``T_start`` (4, 4) T_target_source; ``on_iteration(T, E)`` after each step.
+
+    ``inside(T)``, when given, bounds the walk: a step to a pose outside ends ICP where it stands.
+    """
     terms = error.terms(T_start)
     T, best_T, best_E = T_start, T_start, terms.error
     it = 0
@@ -72,12 +80,16 @@ def icp(error: RobustError, T_start: np.ndarray, config: IcpConfig = IcpConfig()
         radius = float(np.sqrt(np.mean(np.sum((terms.moved - center) ** 2, axis=1)))) or 1.0
         v = _step_vector(dT, center, radius)
         T_new = dT @ T
+        if inside is not None and not inside(T_new):
+            break
         new = error.terms(T_new)
         if config.accelerate and previous is not None and np.linalg.norm(v) > 0:
             cos = v @ previous / (np.linalg.norm(v) * np.linalg.norm(previous) + 1e-300)
             s = 2.0
             while cos > 0.9 and s <= 64 and new.error < terms.error:
                 T_try = _scaled_step(dT, center, s) @ T
+                if inside is not None and not inside(T_try):
+                    break
                 tried = error.terms(T_try)
                 if tried.error >= new.error:
                     break

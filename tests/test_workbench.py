@@ -188,3 +188,61 @@ def test_taken_port_is_refused(server):
     r = subprocess.run([sys.executable, "-m", "app.cli", "serve", "--port", str(server[1])], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "taken" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.fixture(scope="module")
+def data_server(tmp_path_factory):
+    """A server with --data-dir (the corner scans renamed) and a tiny upload cap."""
+    import shutil
+
+    folder = tmp_path_factory.mktemp("data")
+    for src, dst in (("scan1", "left"), ("scan2", "right")):
+        for ext in (".ply", ".json"):
+            shutil.copy(ROOT / "assets" / "corner" / f"{src}{ext}", folder / f"{dst}{ext}")
+    (folder.parent / "outside.ply").write_bytes((ROOT / "assets" / "corner" / "scan1.ply").read_bytes())
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--data-dir", str(folder),
+                             "--upload-cap-mb", "0.05"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    while "rangereg workbench:" not in proc.stdout.readline():
+        if proc.poll() is not None:
+            pytest.fail(f"the server did not start: {proc.stdout.read()}")
+    yield f"http://127.0.0.1:{port}", folder
+    proc.terminate()
+    proc.wait(10)
+
+
+def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
+    import json
+
+    url, folder = data_server
+    page = open_page(browser, url)
+    # files from --data-dir, and nothing outside it, are offered; opening them shows them
+    body = page.locator("body").inner_text()
+    assert "outside" not in body
+    page.get_by_role("button", name="Open files", exact=True).click()
+    page.wait_for_function("() => document.body.innerText.includes('right → left')", timeout=60_000)
+    # an upload above the cap is refused with a reason, and the session keeps its scans
+    page.locator("input[type=file]").first.set_input_files(str(folder / "right.ply"))
+    page.get_by_text("over the upload cap").first.wait_for(timeout=20_000)
+    assert "right → left" in page.locator("body").inner_text()
+    # register, then merge into one model
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    assert "below" in wait_finished(page, 60)
+    page.get_by_role("button", name="Merge", exact=True).click()
+    page.get_by_text(re.compile(r"\d+ vertices, \d+ triangles")).first.wait_for(timeout=120_000)
+    # every export arrives as a download in the browser
+    page.get_by_text("Export", exact=True).click()
+
+    def download(label: str) -> bytes:
+        with page.expect_download(timeout=60_000) as d:
+            page.get_by_role("button", name=label, exact=True).click()
+        return Path(d.value.path()).read_bytes()
+
+    T = np.array(json.loads(download("Transform (JSON)"))["transform"])
+    assert T.shape == (4, 4) and np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+    lines = download("Trace (JSON lines)").decode().splitlines()
+    assert lines and all(json.loads(line)["phase"] in ("icp", "sa") for line in lines)
+    assert download("Registered scans (PLY)").startswith(b"ply")
+    assert download("Model (PLY)").startswith(b"ply")
+    page.close()

@@ -562,6 +562,11 @@ class Session:
             time.sleep(REFRESH)
             try:
                 running = self.running
+                # the light view only while the scan moves: a paused run shows every point again
+                light = running and not self.run.paused
+                if light != self.run_drawing and self.source is not None:
+                    self.run_drawing = light
+                    self._apply_visibility()
                 if self.source is not None and (running or was_running or self.pushed != len(self.events)):
                     self._push(running)
                     if was_running and not running:

@@ -134,13 +134,16 @@ def test_nan_points_dropped_and_counted(tmp_path):
     assert len(s.points) == 92 and s.dropped == 8
 
 
+def _refused(reader, path, text: str, match: str) -> None:
+    """Write ``text`` to ``path`` and check ``reader`` refuses it with a message matching ``match``."""
+    path.write_text(text)
+    with pytest.raises(InputError, match=match):
+        reader(path)
+
+
 def test_too_few_and_collinear_points(tmp_path):
-    (tmp_path / "two.xyz").write_text("0 0 0\n1 1 1\nnan 0 0\n")
-    with pytest.raises(InputError, match="only 2 usable points.*1 NaN"):
-        load_scan(tmp_path / "two.xyz")
-    (tmp_path / "line.xyz").write_text("\n".join(f"{t} {2 * t} {3 * t}" for t in range(50)))
-    with pytest.raises(InputError, match="on a line"):
-        load_scan(tmp_path / "line.xyz")
+    _refused(load_scan, tmp_path / "two.xyz", "0 0 0\n1 1 1\nnan 0 0\n", "only 2 usable points.*1 NaN")
+    _refused(load_scan, tmp_path / "line.xyz", "\n".join(f"{t} {2 * t} {3 * t}" for t in range(50)), "on a line")
 
 
 def test_text_garbage(tmp_path):
@@ -200,9 +203,5 @@ def test_read_transform_forms(tmp_path):
 
 
 def test_malformed_conf(tmp_path):
-    (tmp_path / "x.conf").write_text("bmesh a.ply 0 0 0 0 0\n")
-    with pytest.raises(InputError, match="line 1"):
-        load_conf(tmp_path / "x.conf")
-    (tmp_path / "y.conf").write_text("camera 0 0 0 0 0 0 1\n")
-    with pytest.raises(InputError, match="no 'bmesh'"):
-        load_conf(tmp_path / "y.conf")
+    _refused(load_conf, tmp_path / "x.conf", "bmesh a.ply 0 0 0 0 0\n", "line 1")
+    _refused(load_conf, tmp_path / "y.conf", "camera 0 0 0 0 0 0 1\n", "no 'bmesh'")

@@ -28,6 +28,7 @@ from core.transforms import invert, perturb, pose_error, random_perturbation
 BUNNY_PAIRS = (("bun045", "bun000"), ("bun315", "bun000"), ("bun090", "bun045"), ("bun090", "bun000"))
 SCENE_START = {"corner": 250.0, "wing": 250.0 * 3 / 4, "bowl": 250.0 * 600 / 1219.2}  # mm, 5 deg rotation
 SWEEP = ((5.0, 0.010), (15.0, 0.025), (30.0, 0.050), (60.0, 0.075))  # degrees, metres
+SWEEP_METHODS = ("hybrid", "basin-hopping", "open3d-icp", "open3d-fpfh-ransac")
 EXTRAS = {"hybrid+polish": dict(method="hybrid", polish=True),
           "hybrid+coarse-to-fine": dict(method="hybrid", coarse_to_fine=True)}
 
@@ -132,7 +133,7 @@ def main(a) -> int:
     if a.sweep:
         return sweep(a)
     runs = a.runs or (2 if a.quick else 10)
-    methods = ("hybrid", "icp") if a.quick else METHODS + tuple(EXTRAS)
+    methods = ("hybrid", "icp", "basin-hopping") if a.quick else METHODS + tuple(EXTRAS)
     rows, notes = [], []
     say = lambda msg: sys.stderr.write(msg + "\n")  # noqa: E731
     cases = scene_cases()
@@ -140,13 +141,13 @@ def main(a) -> int:
     if not bunny:
         notes.append(f"(no bunny scans at {a.bunny}: scenes only)")
     for case in cases + bunny:
-        case_methods = methods if case in cases or not a.quick else ("hybrid",)
+        case_methods = methods if case in cases or not a.quick else ("hybrid", "basin-hopping")
         if case in bunny and not a.quick:
-            case_methods = ("hybrid", "icp", "icp-restarts", "hybrid+coarse-to-fine")
+            case_methods = ("hybrid", "icp", "icp-restarts", "basin-hopping", "hybrid+coarse-to-fine")
         for method in case_methods:
             results = [run_method(case, method, T0, k) for k, T0 in enumerate(starts(case, runs))]
             row = summarise(case.name, method, results)
-            if case in bunny and method == "hybrid":
+            if case in bunny and method in ("hybrid", "basin-hopping"):
                 row.update(truth_check(case, results))
             rows.append(row)
             say(f"  {case.name:16s} {method:22s} success {row['success_rate']:.0%}  "
@@ -154,7 +155,7 @@ def main(a) -> int:
     print(table(rows))
     for r in rows:
         if r.get("runs_where_E_prefers_a_wrong_pose"):
-            notes.append(f"{r['scene']}: in {r['runs_where_E_prefers_a_wrong_pose']} failed hybrid run(s) E(found) < "
+            notes.append(f"{r['scene']}: in {r['runs_where_E_prefers_a_wrong_pose']} failed {r['method']} run(s) E(found) < "
                          "E(truth): the error, not the search, is at fault there")
     print("\n".join(notes))
     if a.json:
@@ -210,10 +211,11 @@ def sweep(a) -> int:
     for rot, trans in SWEEP:
         for case in bunny_cases(folder, pairs, rot, trans):
             voxel = 2.0 * case.target.spacing
-            found = {"hybrid": [], "open3d-icp": [], "open3d-fpfh-ransac": []}
+            found = {method: [] for method in SWEEP_METHODS}
             for k, T0 in enumerate(starts(case, runs, seed=int(rot))):
-                t0 = time.perf_counter()
-                found["hybrid"].append((run_method(case, "hybrid", T0, k)["T"], time.perf_counter() - t0))
+                for method in ("hybrid", "basin-hopping"):
+                    t0 = time.perf_counter()
+                    found[method].append((run_method(case, method, T0, k)["T"], time.perf_counter() - t0))
                 t0 = time.perf_counter()
                 found["open3d-icp"].append((open3d_icp(case, T0, voxel), time.perf_counter() - t0))
                 t0 = time.perf_counter()
@@ -227,7 +229,7 @@ def sweep(a) -> int:
                 sys.stderr.write(f"  {rows[-1]['offset']:16s} {case.name:16s} {method:20s} {np.mean(ok):.0%}\n")
     print("| offset | method | success (all pairs) | median s |\n|---|---|---|---|")
     for off in dict.fromkeys(r["offset"] for r in rows):
-        for method in ("hybrid", "open3d-icp", "open3d-fpfh-ransac"):
+        for method in SWEEP_METHODS:
             sel = [r for r in rows if r["offset"] == off and r["method"] == method]
             rate = sum(r["success_rate"] * r["runs"] for r in sel) / sum(r["runs"] for r in sel)
             print(f"| {off} | {method} | {rate:.0%} | {np.median([r['median_seconds'] for r in sel]):.2f} |")

@@ -93,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")
     s.add_argument("--coarse-to-fine", action="store_true", help="search a smoothed error surface first")
+    s.add_argument("--hops", type=_positive_int, default=200, help="basin-hopping: hops at most (default 200)")
+    s.add_argument("--recut-rounds", type=_positive_int, default=1, metavar="N", help="hybrid: search again "
+                   "from an overlap re-cut at the pose found, up to N rounds in all (default 1)")
     s.add_argument("--trace", help="write every ICP/SA step as JSON lines")
     s.add_argument("--out", help="write the transform as JSON")
     s.add_argument("--json", action="store_true", help="print one JSON object")
@@ -115,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--json", help="write the rows as JSON to this file")
-    s.add_argument("--runs", type=_positive_int, help="starts per scene (default 10, quick 3)")
+    s.add_argument("--runs", type=_positive_int, help="starts per scene (default 10, quick 2)")
     s.add_argument("--bunny", default=str(Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"),
                    help="folder of the Stanford bunny scans")
 
@@ -175,7 +178,7 @@ def cmd_info(a) -> int:
     return 0
 
 
-def _pair_and_config(a, method="hybrid", threshold=None, polish=False, c2f=False):
+def _pair_and_config(a, method="hybrid", threshold=None, **options):
     from core.io import read_transform
     from core.problem import ProblemConfig, relative_guess
     from core.register import Config
@@ -189,7 +192,7 @@ def _pair_and_config(a, method="hybrid", threshold=None, polish=False, c2f=False
         raise InputError(f"--seed must be >= 0, got {a.seed}")
     pc = ProblemConfig(max_points=a.max_points, frustum=a.frustum, rotation_uncertainty_deg=a.rotation_uncertainty,
                        translation_uncertainty=a.translation_uncertainty, seed=a.seed)
-    cfg = Config(method=method, threshold=threshold, seed=a.seed, problem=pc, polish=polish, coarse_to_fine=c2f)
+    cfg = Config(method=method, threshold=threshold, seed=a.seed, problem=pc, **options)
     cfg.validate()
     return source, target, T_init, cfg
 
@@ -212,7 +215,9 @@ class _Progress:
 def cmd_register(a) -> int:
     from core.register import register
 
-    source, target, T_init, cfg = _pair_and_config(a, a.method, a.threshold, a.polish, a.coarse_to_fine)
+    source, target, T_init, cfg = _pair_and_config(a, a.method, a.threshold, polish=a.polish,
+                                                   coarse_to_fine=a.coarse_to_fine, hops=a.hops,
+                                                   recut_rounds=a.recut_rounds)
     trace = open(a.trace, "w") if a.trace else None
     progress = _Progress(not a.json and sys.stderr.isatty() or (not a.json and a.trace is None))
 

@@ -50,7 +50,8 @@ REFRESH = 0.07  # seconds between pushes of a run's progress: ~14 Hz, >= 10 Hz a
 # software-rendered page draws, so pushes never queue up in the browser (Pause shows at once)
 RUN_POINTS = 6000  # while a run moves the scan, each cloud is drawn with at most this many points
 SLICE_REFRESH = 1.0  # seconds between redraws of the path on the slice during a run
-RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts"}
+RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
+               "Basin hopping": "basin-hopping"}
 
 
 class Session:

@@ -18,11 +18,28 @@ from scipy.spatial.transform import Rotation
 PARAM_NAMES = ("tx", "ty", "tz", "rx", "ry", "rz")
 
 
+def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """(3,) rotation vector (radians) -> (3, 3) matrix (Rodrigues; the optimisers call this per
+    evaluation, where scipy's Rotation object costs more than the whole matrix)."""
+    r = np.asarray(rotvec, dtype=np.float64)
+    theta = float(np.sqrt(r @ r))
+    if theta < 1e-12:
+        return np.eye(3)
+    x, y, z = r / theta
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+
+
+def rotation_angle(R: np.ndarray) -> float:
+    """The angle (radians) of the (3, 3) rotation R."""
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
 def from_params(params: np.ndarray) -> np.ndarray:
     """(6,) pose vector -> (4, 4) transform."""
     p = np.asarray(params, dtype=np.float64).reshape(6)
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(p[3:]).as_matrix()
+    T[:3, :3] = rotation_matrix(p[3:])
     T[:3, 3] = p[:3]
     return T
 
@@ -48,7 +65,7 @@ def perturb(T_base: np.ndarray, delta: np.ndarray, center: np.ndarray) -> np.nda
     """Apply the local step ``delta`` (6,) to ``T_base``: rotate about ``center`` (target frame), translate."""
     d = np.asarray(delta, dtype=np.float64)
     D = np.eye(4)
-    R = Rotation.from_rotvec(d[3:]).as_matrix()
+    R = rotation_matrix(d[3:])
     D[:3, :3] = R
     D[:3, 3] = center - R @ center + d[:3]
     return D @ T_base
@@ -89,8 +106,7 @@ def pose_error(T_est: np.ndarray, T_true: np.ndarray, center: np.ndarray | None 
     rotation error from showing up as a large translation error when the origin is far away.
     """
     D = T_est @ invert(T_true)
-    cos = np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    rot = float(np.degrees(np.arccos(cos)))
+    rot = float(np.degrees(rotation_angle(D[:3, :3])))
     c = np.zeros(3) if center is None else np.asarray(center, dtype=np.float64)
     trans = float(np.linalg.norm(apply(T_est, c[None])[0] - apply(T_true, c[None])[0]))
     return rot, trans

@@ -9,8 +9,24 @@ from hypothesis import strategies as st
 from core.frustum import frustum_of, segment_overlap
 from core.scan import Scan
 from core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
-from core.transforms import from_params, invert
+from core.transforms import delta_between, from_params, invert, perturb, rotation_angle, rotation_matrix
 from tests.conftest import brute_closest
+
+_vec = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_vec, _vec, _vec)
+def test_rotation_helpers_agree_with_scipy_and_perturb_inverts(rotvec, shift, center):
+    from scipy.spatial.transform import Rotation
+
+    R = rotation_matrix(rotvec)
+    assert np.allclose(R, Rotation.from_rotvec(rotvec).as_matrix(), atol=1e-12)
+    assert np.isclose(rotation_angle(R), Rotation.from_matrix(R).magnitude(), atol=1e-6)
+    base = from_params(np.r_[shift * 100, shift[::-1]])
+    delta = np.r_[shift * 10, rotvec * 0.3]  # rotations under pi: the rotation vector is unique
+    again = perturb(base, delta_between(perturb(base, delta, center), base, center), center)
+    assert np.allclose(again, perturb(base, delta, center), atol=1e-9)
 
 
 def _edges_within_bound(points, faces):

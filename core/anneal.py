@@ -146,7 +146,7 @@ def _amotsa(p, y, psum, ihi, yhi, fac, fx, report, rng, T):
     ptry = psum * fac1 - p[ihi] * fac2
     ytry = fx(ptry)
     yflu = ytry + T * np.log(rng.random())  # the tried point minus a positive fluctuation
-    accepted = yflu < yhi
+    accepted = bool(yflu < yhi)
     if accepted:
         y[ihi] = ytry
         yhi = yflu

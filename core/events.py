@@ -37,8 +37,8 @@ class Event:
     def to_json(self) -> dict:
         return {"phase": self.phase, "iteration": self.iteration, "phase_iteration": self.phase_iteration,
                 "leg": self.leg, "params": self.params.tolist(), "transform": self.T.tolist(),
-                "error": self.error, "temperature": self.temperature, "accepted": self.accepted,
-                "local_minimum": self.local_minimum}
+                "error": float(self.error), "temperature": None if self.temperature is None else float(self.temperature),
+                "accepted": bool(self.accepted), "local_minimum": bool(self.local_minimum)}
 
     @classmethod
     def from_json(cls, d: dict) -> Event:

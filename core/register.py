@@ -18,11 +18,14 @@ surface, here E with its outlier cap t widened 100 and then 10 times, so that a 
 are flat beyond sqrt(t) - a plane hovering off its partner - pulls from farther away).
 
 Beyond the paper, on by default: the overlap is cut again (section 2.1's frustum) at the pose the
-search found and the search refines there with the small uncertainty left (``resegment``); ICP and
-annealing stay within SEARCH_BOUND times the guess's uncertainty around the pose the cut was made
-at. Off by default: ``recut_rounds`` > 1 (hybrid only) searches again with the full uncertainty from
-a cut at the pose found, unless that cut is nearly the old one; the round whose pose has the lowest
-E on the cut at its own pose wins. Measured on bun090 -> bun000 (10 starts, 15 deg / 25 mm): 1 round
+search found and the search refines there with the small uncertainty left (``resegment``); annealing
+and ICP stay within SEARCH_BOUND times the guess's uncertainty around the pose the cut was made at,
+except the first ICP leg, which walks wherever E leads (as the paper's) and is taken again inside the
+region only when it ends outside above the threshold (``_Run.first_icp``).
+
+Off by default: ``recut_rounds`` > 1 (hybrid only) searches again with the full uncertainty from a
+cut at the pose found, unless that cut is nearly the old one; the round whose pose has the lowest E
+on the cut at its own pose wins. Measured on bun090 -> bun000 (10 starts, 15 deg / 25 mm): 1 round
 5/10 in 5.8 s median, 2 rounds 6/10 in 8.2 s; on bowl it doubles the time for nothing.
 """
 
@@ -176,6 +179,17 @@ class _Run:
             self.emit("icp", res.T, res.error, count=False)
         return res.T, res.error
 
+    def first_icp(self, threshold):
+        """ICP from the start, free to walk wherever E leads, as the paper's; a leg that ends outside
+        the search region above the threshold is a minimum the guess rules out (bun090 -> bun000: 40-50
+        deg off, where E on the cut under a poor guess can prefer it), so ICP again, kept inside."""
+        T, E = self.icp(self.start, bounded=False)
+        if E >= threshold and not self.inside(T):
+            self.mark_local_minimum(T, E)
+            self.best_T, self.best_E = self.start, np.inf  # ruled out: never the answer
+            T, E = self.icp(self.start)
+        return T, E
+
     def sa(self, T_base, E_base, stop_below, config):
         self.legs["sa"] += 1
         p = self.p
@@ -200,16 +214,15 @@ class _Run:
 
 
 def _hybrid(run: _Run, threshold: float) -> str:
-    T = run.start
+    T, E = run.first_icp(threshold)
     while True:
-        T, E = run.icp(T)
         if E < threshold:
             return "error below threshold"
         run.mark_local_minimum(T, E)
         T_sa, E_sa, better = run.sa(T, E, E * (1 - MIN_GAIN), run.cfg.anneal)
         if not better:
             return "annealing found no better point"
-        T = T_sa
+        T, E = run.icp(T_sa)
 
 
 def _icp_alone(run: _Run, threshold: float) -> str:
@@ -234,7 +247,7 @@ def _icp_restarts(run: _Run, threshold: float) -> str:
             t, r = random_perturbation(run.rng, 1.0, 1.0)
             x = np.r_[t * run.rng.uniform(0, 1) * p.steps[0], r * run.rng.uniform(0, 1) * p.steps[3]]
             T0 = p.pose(run.start, x)
-        T, E = run.icp(T0)
+        T, E = run.icp(T0) if k else run.first_icp(threshold)
         if E < threshold:
             return f"error below threshold after {k + 1} ICP runs"
         run.mark_local_minimum(T, E)
@@ -243,7 +256,7 @@ def _icp_restarts(run: _Run, threshold: float) -> str:
 
 def _basin_hopping(run: _Run, threshold: float) -> str:
     p = run.p
-    T, E = run.icp(run.start)
+    T, E = run.first_icp(threshold)
     if E >= threshold:
         run.mark_local_minimum(T, E)
     # Refining (on the overlap re-cut at the pose found, with the small uncertainty left) always hops

@@ -71,6 +71,8 @@ def test_register_with_init_file(tmp_path):
     (("register", CORNER_SRC, CORNER_TGT, "--method", "magic"), "invalid choice"),
     (("register", CORNER_SRC, CORNER_TGT, "--threshold", "-3"), "threshold"),
     (("register", CORNER_SRC, CORNER_TGT, "--threshold", "abc"), "expected a number"),
+    (("register", CORNER_SRC, CORNER_TGT, "--hops", "-1"), "hops >= 0"),
+    (("register", CORNER_SRC, CORNER_TGT, "--recut-rounds", "0"), "re-cut rounds"),
     (("slice", CORNER_SRC, CORNER_TGT, "--steps", "1", "--png", "x.png"), "steps"),
     (("slice", CORNER_SRC, CORNER_TGT, "--params", "tx,qq", "--png", "x.png"), "--params"),
     (("info", "pyproject.toml"), "unsupported format"),
@@ -99,3 +101,14 @@ def test_register_works_on_the_bunny_with_no_flags():
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["error"] < 1e-6  # metres squared: sub-millimetre residuals
+
+
+def test_a_result_above_the_threshold_says_what_to_try():
+    if not BUNNY.is_dir():
+        pytest.skip("the shared bunny scans are absent")
+    # no stored guess: identity, 45 degrees from the truth; ICP ends 30 degrees off
+    r = rangereg("register", BUNNY / "bun315.ply", BUNNY / "bun000.ply", "--method", "icp")
+    assert r.returncode == 0, r.stderr
+    assert "note: E stayed above the threshold" in r.stdout and "--rotation-uncertainty" in r.stdout
+    r = rangereg("register", BUNNY / "bun045.ply", BUNNY / "bun000.ply", "--method", "icp")  # ICP gets there
+    assert r.returncode == 0 and "note:" not in r.stdout, r.stdout

@@ -153,6 +153,24 @@ def test_basin_hopping_finds_the_bowls_true_well_where_icp_stays_out(scene):
     assert events[-1].iteration == hop.iterations["icp"] + hop.iterations["sa"]
 
 
+def test_every_event_of_every_method_writes_as_json(scene):
+    # the --trace file and the workbench's trace export: annealing's moves included
+    import json
+
+    from core.events import Event
+
+    a, b, _, T0 = _truth_and_start(scene, "corner", 10.0, 400.0, 4)
+    short = AnnealConfig(max_evaluations=60)
+    for method in ("hybrid", "sa", "icp-restarts", "basin-hopping"):
+        events = []
+        register(b, a, T0, Config(method=method, seed=4, threshold=0, hops=3, restarts=3, anneal=short,
+                                  sa_alone=short), events.append)
+        assert any(e.phase == "sa" for e in events) or method == "icp-restarts"
+        for e in events:
+            back = Event.from_json(json.loads(json.dumps(e.to_json())))
+            assert back.phase == e.phase and back.accepted == e.accepted and np.allclose(back.T, e.T)
+
+
 def test_registration_is_deterministic_for_a_seed(scene):
     a, b, _, T0 = _truth_and_start(scene, "bowl", 5.0, 100.0, 1)
     r1 = register(b, a, T0, Config(seed=3))

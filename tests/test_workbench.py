@@ -235,6 +235,9 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     assert "below" in wait_finished(page, 60)
     page.get_by_role("button", name="Merge", exact=True).click()
     page.get_by_text(re.compile(r"\d+ vertices, \d+ triangles")).first.wait_for(timeout=120_000)
+    # a slice of the error surface around the pose, drawn in the page
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    page.locator(".js-plotly-plot").first.wait_for(timeout=120_000)
     # every export arrives as a download in the browser
     page.get_by_text("Export", exact=True).click()
 
@@ -249,4 +252,5 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     assert lines and all(json.loads(line)["phase"] in ("icp", "sa") for line in lines)
     assert download("Registered scans (PLY)").startswith(b"ply")
     assert download("Model (PLY)").startswith(b"ply")
+    assert download("Slice (PNG)").startswith(b"\x89PNG")
     page.close()

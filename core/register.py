@@ -25,8 +25,9 @@ region only when it ends outside above the threshold (``_Run.first_icp``).
 
 Off by default: ``recut_rounds`` > 1 (hybrid only) searches again with the full uncertainty from a
 cut at the pose found, unless that cut is nearly the old one; the round whose pose has the lowest E
-on the cut at its own pose wins. Measured on bun090 -> bun000 (10 starts, 15 deg / 25 mm): 1 round
-5/10 in 5.8 s median, 2 rounds 6/10 in 8.2 s; on bowl it doubles the time for nothing.
+on the cut at its own pose wins. Measured (10 starts): bun090 -> bun000 (15 deg / 25 mm) 9/10 in
+2.2 s median with 1 round or 2; bowl 0/10 either way, 2.4 -> 5.8 s. (Before annealing's simplex was
+let roam: bun090 -> bun000 5/10 with 1 round, 6/10 with 2.)
 """
 
 from __future__ import annotations
@@ -72,7 +73,9 @@ class Config:
     problem: ProblemConfig = field(default_factory=ProblemConfig)
     icp: IcpConfig = field(default_factory=IcpConfig)
     anneal: AnnealConfig = field(default_factory=AnnealConfig)
-    sa_alone: AnnealConfig = field(default_factory=lambda: AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25))
+    # annealing alone settles later (measured, corner, 10 starts: settle_below 0.1: 20 %, 0.01: 70 %)
+    sa_alone: AnnealConfig = field(default_factory=lambda: AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25,
+                                                                        settle_below=1e-2))
     restarts: int = 40  # icp-restarts budget (number of ICP runs)
     hops: int = 200  # basin-hopping budget (hops, each followed by ICP)
     # a hop moves up to this x the initial uncertainty in each of rotation and translation. Measured
@@ -96,6 +99,8 @@ class Config:
                 raise InputError(f"the minimum temperature ratio must be between 0 and 1, got {a.t_min_ratio}")
             if a.moves_per_temperature < 1 or a.max_evaluations < 7:
                 raise InputError("annealing needs at least 1 move per temperature and 7 evaluations")
+            if not 0 <= a.settle_below <= 1:
+                raise InputError(f"settle_below must be between 0 and 1, got {a.settle_below}")
             if a.t_start is not None and not a.t_start > 0:
                 raise InputError(f"the start temperature must be positive, got {a.t_start}")
         if self.icp.max_iterations < 1 or not self.icp.tolerance >= 0:

@@ -193,6 +193,7 @@ def test_nonsense_settings_are_refused(scene):
 
     a, b = scene("corner")
     for cfg in (Config(method="magic"), Config(threshold=-1), Config(anneal=AnnealConfig(cooling=1.5)),
+                Config(anneal=AnnealConfig(settle_below=2.0)),
                 Config(hops=-1), Config(hop_size=0), Config(recut_rounds=0),
                 Config(problem=ProblemConfig(max_points=2)), Config(problem=ProblemConfig(frustum="round"))):
         with pytest.raises(InputError):

@@ -251,7 +251,7 @@ def cmd_register(a) -> int:
         rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
         print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
     if res.threshold > 0 and res.error >= res.threshold:
-        t_unc = cfg.problem.translation_uncertainty or 0.15 * target.size
+        t_unc = cfg.problem.translation_uncertainty_for(target.size)
         print(f"note: E stayed above the threshold, so this is probably not the registration. The search covers "
               f"about twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg, "
               f"{t_unc:.4g} {target.units}); if the guess may be farther off, give a better --init or a larger "

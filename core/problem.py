@@ -40,6 +40,10 @@ class ProblemConfig:
         if self.translation_uncertainty is not None and not self.translation_uncertainty > 0:
             raise InputError(f"translation uncertainty must be positive, got {self.translation_uncertainty}")
 
+    def translation_uncertainty_for(self, target_size: float) -> float:
+        """The translation uncertainty in units: as given, or 15 % of the target's size."""
+        return self.translation_uncertainty if self.translation_uncertainty is not None else 0.15 * target_size
+
 
 @dataclass(eq=False)
 class Problem:
@@ -88,7 +92,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
             raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
     surface = surface if surface is not None else Surface.from_scan(target)
     overlap = segment_overlap(source, target, T_init, config.frustum)
-    t_unc = config.translation_uncertainty if config.translation_uncertainty is not None else 0.15 * target.size
+    t_unc = config.translation_uncertainty_for(target.size)
     r_unc = np.radians(config.rotation_uncertainty_deg)
     used = overlap.source_mask.copy()
     if config.visibility and used.any():

@@ -195,6 +195,14 @@ class _Run:
             T, E = self.icp(self.start)
         return T, E
 
+    def random_step(self, T, size: float):
+        """T moved in a random direction by up to ``size`` x the guess's uncertainty in each of
+        translation and rotation (uniform in length)."""
+        t, r = random_perturbation(self.rng, 1.0, 1.0)
+        steps = self.p.steps
+        x = np.r_[t * self.rng.uniform(0, size) * steps[0], r * self.rng.uniform(0, size) * steps[3]]
+        return self.p.pose(T, x)
+
     def sa(self, T_base, E_base, stop_below, config):
         self.legs["sa"] += 1
         p = self.p
@@ -245,14 +253,8 @@ def _sa_alone(run: _Run, threshold: float) -> str:
 
 
 def _icp_restarts(run: _Run, threshold: float) -> str:
-    p = run.p
     for k in range(run.cfg.restarts):
-        T0 = run.start
-        if k > 0:
-            t, r = random_perturbation(run.rng, 1.0, 1.0)
-            x = np.r_[t * run.rng.uniform(0, 1) * p.steps[0], r * run.rng.uniform(0, 1) * p.steps[3]]
-            T0 = p.pose(run.start, x)
-        T, E = run.icp(T0) if k else run.first_icp(threshold)
+        T, E = run.icp(run.random_step(run.start, 1.0)) if k else run.first_icp(threshold)
         if E < threshold:
             return f"error below threshold after {k + 1} ICP runs"
         run.mark_local_minimum(T, E)
@@ -270,10 +272,7 @@ def _basin_hopping(run: _Run, threshold: float) -> str:
     for hop in range(budget):
         if E < threshold and not run.refining:
             return f"error below threshold ({hop} hops)"
-        t, r = random_perturbation(run.rng, 1.0, 1.0)
-        size = run.cfg.hop_size
-        x = np.r_[t * run.rng.uniform(0, size) * p.steps[0], r * run.rng.uniform(0, size) * p.steps[3]]
-        T_hop = p.pose(T, x)
+        T_hop = run.random_step(T, run.cfg.hop_size)
         if not run.inside(T_hop):
             continue
         run.emit("sa", T_hop, p.error(T_hop))  # a hop counts as an annealing iteration: a stochastic move

@@ -28,7 +28,6 @@ class ProblemConfig:
     visibility: bool = True  # also drop points hidden behind the target's surface (beyond the paper)
     rotation_uncertainty_deg: float = 15.0  # how wrong the initial guess may be
     translation_uncertainty: float | None = None  # units; None: 15 % of the target's size
-    seed: int = 0
 
     def validate(self) -> None:
         if self.max_points < 3:
@@ -83,8 +82,9 @@ class Problem:
 
 
 def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: ProblemConfig = ProblemConfig(),
-            surface: Surface | None = None) -> Problem:
-    """Triangulate the target, cut the overlap under ``T_init`` and sample the source points."""
+            surface: Surface | None = None, seed: int = 0) -> Problem:
+    """Triangulate the target, cut the overlap under ``T_init`` and sample the source points
+    (the sample drawn with ``seed``: a registration passes its ``Config.seed``)."""
     config.validate()
     T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
     for s in (source, target):
@@ -103,7 +103,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
         raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess "
                          f"({used.sum()} of {len(used)} points of {source.name} fall in {target.name}'s view)")
     idx = np.flatnonzero(used)
-    rng = np.random.default_rng(config.seed)
+    rng = np.random.default_rng(seed)
     if len(idx) > config.max_points:
         idx = np.sort(rng.choice(idx, config.max_points, replace=False))
     points = source.points[idx]

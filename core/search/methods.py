@@ -74,7 +74,7 @@ def basin_hopping(state: SearchState, threshold: float) -> Stop:
         T_hop = state.random_step(T, state.cfg.hop_size)
         if not state.inside(T_hop):
             continue
-        state.emit("sa", T_hop, state.error(T_hop))  # a hop counts as an annealing iteration: a stochastic move
+        state.hop(T_hop)  # a hop counts as an annealing iteration: a stochastic move
         T_new, E_new = state.icp(T_hop)
         if E_new >= threshold:
             state.mark_local_minimum(T_new, E_new)

@@ -40,7 +40,8 @@ class SearchState:
         self.cfg, self.listener = config, listener
         self.rng = np.random.default_rng(config.seed)
         self.n = {"icp": 0, "sa": 0}
-        self.legs = {"icp": 0, "sa": 0}
+        self.legs = {"icp": 0, "sa": 0}  # legs begun so far, per phase
+        self.in_leg = {"icp": 0, "sa": 0}  # iterations of the current leg, per phase
         self.local_minima = 0
         self.evaluations = 0
         self.refining = False  # searching again on the overlap re-cut at the pose found (resegment)
@@ -67,14 +68,19 @@ class SearchState:
 
     # --- the event stream -----------------------------------------------------------------------
 
+    def begin_leg(self, phase: str) -> None:
+        self.legs[phase] += 1
+        self.in_leg[phase] = 0
+
     def emit(self, phase: str, T: np.ndarray, E: float, temperature: float | None = None, accepted: bool = True,
              local_minimum: bool = False, count: bool = True) -> None:
         if count:
             self.n[phase] += 1
+            self.in_leg[phase] += 1
         if E < self.best_E:
             self.best_T, self.best_E = T, E
         if self.listener is not None:
-            self.listener(Event(phase, self.n["icp"] + self.n["sa"], self.n[phase], self.legs[phase], T, E,
+            self.listener(Event(phase, self.n["icp"] + self.n["sa"], self.in_leg[phase], self.legs[phase], T, E,
                                 temperature, accepted, local_minimum))
 
     def mark_local_minimum(self, T: np.ndarray, E: float) -> None:
@@ -92,7 +98,7 @@ class SearchState:
 
     def icp(self, T: np.ndarray, icp_config: IcpConfig | None = None, bounded: bool = True) -> tuple[np.ndarray, float]:
         """One ICP leg from T; returns (pose, E) where it ended."""
-        self.legs["icp"] += 1
+        self.begin_leg("icp")
         start = self.n["icp"]
         res = icp(self.error, T, icp_config or self.cfg.icp, lambda T_, E: self.emit("icp", T_, E),
                   self.inside if bounded else None)
@@ -119,10 +125,15 @@ class SearchState:
         x = np.r_[t * self.rng.uniform(0, size) * steps[0], r * self.rng.uniform(0, size) * steps[3]]
         return self.p.pose(T, x)
 
+    def hop(self, T: np.ndarray) -> None:
+        """A random hop to T (basin hopping): a one-move annealing leg, a stochastic move."""
+        self.begin_leg("sa")
+        self.emit("sa", T, self.error(T))
+
     def sa(self, T_base: np.ndarray, E_base: float, stop_below: float | None,
            config: AnnealConfig) -> tuple[np.ndarray, float, bool]:
         """One annealing leg around T_base; returns (best pose, its E, whether it got below ``stop_below``)."""
-        self.legs["sa"] += 1
+        self.begin_leg("sa")
         p, error = self.p, self.error
 
         def f(x):

@@ -55,5 +55,6 @@ def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, confi
 
 
 def start_pose(problem: Problem, config: Config) -> np.ndarray:
-    """Where the search begins: the guess the overlap was cut under (paper section 2.1)."""
+    """Where the search begins: the guess the overlap was cut under (paper section 2.1). The search
+    region is centred on the pose the problem was cut at, so a start elsewhere brings its own cut."""
     return problem.T_init

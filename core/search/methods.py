@@ -31,7 +31,7 @@ def hybrid(state: SearchState, threshold: float) -> Stop:
         if E < threshold:
             return Stop(StopReason.BELOW_THRESHOLD)
         state.mark_local_minimum(T, E)
-        T_sa, E_sa, better = state.sa(T, E, E * (1 - state.cfg.search.min_gain), state.cfg.anneal)
+        T_sa, E_sa, better = state.sa(T, E, E * (1 - state.config.search.min_gain), state.config.anneal)
         if not better:
             return Stop(StopReason.NO_BETTER_POINT)
         T, E = state.icp(T_sa)
@@ -47,12 +47,12 @@ def icp_alone(state: SearchState, threshold: float) -> Stop:
 
 def sa_alone(state: SearchState, threshold: float) -> Stop:
     E0 = state.error(state.start)
-    state.sa(state.start, E0, None, state.cfg.sa_alone)
+    state.sa(state.start, E0, None, state.config.sa_alone)
     return Stop(StopReason.MIN_TEMPERATURE)
 
 
 def icp_restarts(state: SearchState, threshold: float) -> Stop:
-    budget = state.cfg.restarts
+    budget = state.config.restarts
     for k in range(budget):
         T, E = state.icp(state.random_step(state.start, 1.0)) if k else state.first_icp(threshold)
         if E < threshold:
@@ -67,11 +67,11 @@ def basin_hopping(state: SearchState, threshold: float) -> Stop:
         state.mark_local_minimum(T, E)
     # Refining (on the overlap re-cut at the pose found, with the small uncertainty left) always hops
     # a few times: the threshold sits above near-misses round the true well (see SearchConfig.confirm_hops).
-    budget = min(state.cfg.search.confirm_hops, state.cfg.hops) if state.refining else state.cfg.hops
+    budget = min(state.config.search.confirm_hops, state.config.hops) if state.refining else state.config.hops
     for hop in range(budget):
         if E < threshold and not state.refining:
             return Stop(StopReason.BELOW_THRESHOLD, f"error below threshold ({hop} hops)")
-        T_hop = state.random_step(T, state.cfg.hop_size)
+        T_hop = state.random_step(T, state.config.hop_size)
         if not state.inside(T_hop):
             continue
         state.hop(T_hop)  # a hop counts as an annealing iteration: a stochastic move

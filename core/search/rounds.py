@@ -62,7 +62,7 @@ def jaccard(a: np.ndarray, b: np.ndarray) -> float:
 
 def search_levels(state: SearchState, threshold: float) -> Stop:
     """The method on the current cut; with coarse-to-fine, first on smoother error surfaces."""
-    cfg = state.cfg
+    cfg = state.config
     for widen in cfg.search.coarse_widenings if cfg.coarse_to_fine else (1.0,):  # never empty: validated
         # Coarse-to-fine (paper section 4): the same search on a smoother error surface first.
         state.widen(widen)
@@ -75,11 +75,11 @@ def search_levels(state: SearchState, threshold: float) -> Stop:
 def refine(state: SearchState, threshold: float) -> Stop:
     """Once the pose is good the cut is too (fewer points without a partner): cut again there, with
     the small uncertainty left, and search again from the pose found."""
-    state.use(recut(state.p, state.best_T, state.cfg, converged=True))
+    state.use(recut(state.problem, state.best_T, state.config, converged=True))
     state.restart()
     state.refining = True
     try:
-        return METHODS[state.cfg.method](state, threshold)
+        return METHODS[state.config.method](state, threshold)
     finally:
         state.refining = False
 
@@ -87,35 +87,35 @@ def refine(state: SearchState, threshold: float) -> Stop:
 def search_rounds(state: SearchState, threshold: float, rounds: list[Round]) -> None:
     """Search, refine and score each overlap cut in turn, appending a :class:`Round` for each. The
     outer re-cut loop belongs to our hybrid; the baselines search one cut, as in the paper."""
-    cfg = state.cfg
-    cut = state.p  # the cut the current round searches
+    cfg = state.config
+    cut = state.problem  # the cut the current round searches
     for k in range(cfg.recut_rounds if cfg.method == "hybrid" else 1):
         if k:
             # Beyond the paper: section 2.1 cuts the overlap under the first guess; where that guess
             # is poor and the overlap low, most cut points have no partner at the truth and E can
             # prefer a wrong pose. Cut again at the pose found (with the full uncertainty) and search
             # again from there, unless the new cut is nearly the old one (the same error again).
-            new = recut(state.p, state.best_T, cfg, converged=False)
+            new = recut(state.problem, state.best_T, cfg, converged=False)
             if jaccard(new.used, cut.used) >= cfg.search.same_cut:
                 break
             state.use(new)
             state.restart()
-        cut = state.p
+        cut = state.problem
         T_round = cut.T_init
         stop = search_levels(state, threshold)
         if cfg.resegment:
             stop = refine(state, threshold)
         E = state.error(state.best_T)
         rounds.append(Round(E, state.best_T, stop))
-        rot, tr = pose_error(state.best_T, T_round, state.p.center)
+        rot, tr = pose_error(state.best_T, T_round, state.problem.center)
         if E < threshold or (rot < cfg.search.resegment_rotation_deg
-                             and tr < cfg.search.resegment_translation * state.p.target.size):
+                             and tr < cfg.search.resegment_translation * state.problem.target.size):
             break
 
 
 def polish(state: SearchState, rounds: list[Round]) -> None:
     """Beyond the paper (section 4's suggestion): a last ICP leg, outliers dropped and no weights."""
-    state.icp(state.best_T, replace(state.cfg.icp, unweighted=True))
+    state.icp(state.best_T, replace(state.config.icp, unweighted=True))
     rounds.append(Round(state.error(state.best_T), state.best_T, rounds[-1].stop))
 
 

@@ -37,11 +37,12 @@ class SearchState:
     """One optimisation: counts iterations and evaluations, emits events, keeps the best pose."""
 
     def __init__(self, problem: Problem, config: Config, listener: Listener | None):
-        self.cfg, self.listener = config, listener
+        self.config, self.listener = config, listener
         self.rng = np.random.default_rng(config.seed)
-        self.n = {"icp": 0, "sa": 0}
-        self.legs = {"icp": 0, "sa": 0}  # legs begun so far, per phase
-        self.in_leg = {"icp": 0, "sa": 0}  # iterations of the current leg, per phase
+        # per phase ("icp", "sa"; a new stage emits its own phase and gets its own key):
+        self.n = {"icp": 0, "sa": 0}  # iterations over the run (Result.iterations)
+        self.legs = {"icp": 0, "sa": 0}  # legs begun so far
+        self.in_leg = {"icp": 0, "sa": 0}  # iterations of the current leg
         self.local_minima = 0
         self.evaluations = 0
         self.refining = False  # searching again on the overlap re-cut at the pose found (resegment)
@@ -50,16 +51,17 @@ class SearchState:
 
     # --- what is searched, and from where -------------------------------------------------------
 
-    def use(self, problem: Problem, widen: float = 1.0) -> None:
-        """Search ``problem``'s overlap cut, its E's outlier cap widened ``widen`` times."""
-        self.p = problem
-        self.error = CountedError(problem.error.widened(widen), self)
+    def use(self, problem: Problem) -> None:
+        """Search ``problem``'s overlap cut (E as prepared, not widened)."""
+        self.problem = problem
+        self.widen(1.0)
 
     def widen(self, widen: float) -> None:
-        self.error = CountedError(self.p.error.widened(widen), self)
+        """Search E with its outlier cap widened ``widen`` times (coarse-to-fine); the problem is not touched."""
+        self.error = CountedError(self.problem.error.widened(widen), self)
 
     def start_at(self, T: np.ndarray) -> None:
-        """The method begins at pose T, with no best E yet (the best pose so far stays T)."""
+        """The method begins at pose T, which is also the best pose so far, with no E yet."""
         self.start, self.best_T, self.best_E = T, T, np.inf
 
     def restart(self) -> None:
@@ -69,18 +71,18 @@ class SearchState:
     # --- the event stream -----------------------------------------------------------------------
 
     def begin_leg(self, phase: str) -> None:
-        self.legs[phase] += 1
+        self.legs[phase] = self.legs.get(phase, 0) + 1
         self.in_leg[phase] = 0
 
     def emit(self, phase: str, T: np.ndarray, E: float, temperature: float | None = None, accepted: bool = True,
              local_minimum: bool = False, count: bool = True) -> None:
         if count:
-            self.n[phase] += 1
-            self.in_leg[phase] += 1
+            self.n[phase] = self.n.get(phase, 0) + 1
+            self.in_leg[phase] = self.in_leg.get(phase, 0) + 1
         if E < self.best_E:
             self.best_T, self.best_E = T, E
         if self.listener is not None:
-            self.listener(Event(phase, self.n["icp"] + self.n["sa"], self.in_leg[phase], self.legs[phase], T, E,
+            self.listener(Event(phase, sum(self.n.values()), self.in_leg.get(phase, 0), self.legs.get(phase, 0), T, E,
                                 temperature, accepted, local_minimum))
 
     def mark_local_minimum(self, T: np.ndarray, E: float) -> None:
@@ -91,7 +93,7 @@ class SearchState:
 
     def inside(self, T: np.ndarray) -> bool:
         """Whether pose T lies in the search region: ``search.bound`` x the guess's uncertainty around it."""
-        p, bound = self.p, self.cfg.search.bound  # the norms of p.coords(T, p.T_init), without its matrix logarithm
+        p, bound = self.problem, self.config.search.bound  # the norms of p.coords(T, p.T_init), without its matrix logarithm
         moved = (T[:3, :3] - p.T_init[:3, :3]) @ p.center + T[:3, 3] - p.T_init[:3, 3]
         return bool(np.linalg.norm(moved) <= bound * p.translation_uncertainty
                     and rotation_angle(T[:3, :3] @ p.T_init[:3, :3].T) <= bound * p.rotation_uncertainty)
@@ -100,7 +102,7 @@ class SearchState:
         """One ICP leg from T; returns (pose, E) where it ended."""
         self.begin_leg("icp")
         start = self.n["icp"]
-        res = icp(self.error, T, icp_config or self.cfg.icp, lambda T_, E: self.emit("icp", T_, E),
+        res = icp(self.error, T, icp_config or self.config.icp, lambda T_, E: self.emit("icp", T_, E),
                   self.inside if bounded else None)
         if self.n["icp"] == start:  # no step taken: still report where ICP stands
             self.emit("icp", res.T, res.error, count=False)
@@ -121,9 +123,9 @@ class SearchState:
         """T moved in a random direction by up to ``size`` x the guess's uncertainty in each of
         translation and rotation (uniform in length)."""
         t, r = random_perturbation(self.rng, 1.0, 1.0)
-        steps = self.p.steps
+        steps = self.problem.steps
         x = np.r_[t * self.rng.uniform(0, size) * steps[0], r * self.rng.uniform(0, size) * steps[3]]
-        return self.p.pose(T, x)
+        return self.problem.pose(T, x)
 
     def hop(self, T: np.ndarray) -> None:
         """A random hop to T (basin hopping): a one-move annealing leg, a stochastic move."""
@@ -134,7 +136,7 @@ class SearchState:
            config: AnnealConfig) -> tuple[np.ndarray, float, bool]:
         """One annealing leg around T_base; returns (best pose, its E, whether it got below ``stop_below``)."""
         self.begin_leg("sa")
-        p, error = self.p, self.error
+        p, error = self.problem, self.error
 
         def f(x):
             T = p.pose(T_base, x)
@@ -146,6 +148,6 @@ class SearchState:
             if np.isfinite(y):
                 self.emit("sa", p.pose(T_base, x), y, temp, accepted)
 
-        res = anneal(f, np.zeros(6), self.cfg.simplex_scale * p.steps, self.rng, config, stop_below=stop_below,
+        res = anneal(f, np.zeros(6), self.config.simplex_scale * p.steps, self.rng, config, stop_below=stop_below,
                      on_eval=report, f0=E_base)
         return p.pose(T_base, res.x), res.value, res.improved

@@ -604,7 +604,7 @@ class Session:
         with self.client.atomic():
             self._move_source(self.T, gizmo=False)
             self.n_path.points, self.n_path.colors = seg, rgb
-            self.n_minima.points = trail.pos[trail.minimum] if trail.minimum.any() else np.zeros((0, 3), np.float32)
+            self.n_minima.points = trail.minima()
             self.h.plot.data = trail.plot(self.E0)
             self._update_status()
         if self.slice is not None and time.monotonic() - self.slice_drawn_at > SLICE_REFRESH:

@@ -90,6 +90,10 @@ class Trail:
         n_min = int(self.minimum.sum())
         return int((~self.sa).sum()) - n_min, int(self.sa.sum()), n_min
 
+    def minima(self) -> np.ndarray:
+        """(M, 3) float32 page positions of the local minima ICP stopped in (drawn as red markers)."""
+        return self.pos[self.minimum] if self.minimum.any() else np.zeros((0, 3), np.float32)
+
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
         """Line segments (S, 2, 3) and colours (S, 2, 3) for the path, thinned to MAX_PATH_POINTS."""
         pos = self.pos

@@ -111,6 +111,41 @@ def test_scene_renders_and_hybrid_finishes_below_threshold(server, browser):
     page.close()
 
 
+def icp_iterations(page) -> int:
+    return int(re.search(r"Iterations: ICP (\d+)", page.locator("body").inner_text()).group(1))
+
+
+def wait_paused(page, iterations: int | None = None, timeout: float = 60.0) -> int:
+    """Wait until the page says the run is paused (after ``iterations`` ICP iterations when given)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if "· paused ·" in page.locator("body").inner_text():
+            n = icp_iterations(page)
+            if iterations is None or n == iterations:
+                return n
+        time.sleep(0.1)
+    raise AssertionError(f"the run did not pause: {page.locator('body').inner_text()[:400]}")
+
+
+def test_step_next_phase_resume_walk_a_hybrid_run_to_its_end(server, browser):
+    """The corner opens with ICP in two legs (the second on an overlap re-cut at the pose found)."""
+    page = open_page(browser, server[0])
+    page.get_by_role("button", name="Step", exact=True).click()
+    assert wait_paused(page, 1) == 1 and "Method hybrid" in page.locator("body").inner_text()
+    time.sleep(0.5)
+    assert icp_iterations(page) == 1  # a step is one iteration, and the run stays paused
+    page.get_by_role("button", name="Next phase", exact=True).click()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and icp_iterations(page) == 1:
+        time.sleep(0.1)
+    n = wait_paused(page)
+    assert n > 2 and "Finished" not in page.locator("body").inner_text()  # paused where the first leg ended
+    page.get_by_role("button", name="Resume", exact=True).click()
+    assert "below" in wait_finished(page, 60)
+    assert icp_iterations(page) > n
+    page.close()
+
+
 def _gizmo_pixel(px: np.ndarray) -> tuple[int, int] | None:
     """A pixel of the gizmo's red (x) handles: a crimson (about 250, 45, 105) no scan colour has."""
     r, g, b = (px[..., k].astype(int) for k in range(3))

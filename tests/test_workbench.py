@@ -223,6 +223,66 @@ def test_bad_setting_is_a_notification_and_the_session_lives_on(server, browser)
     page.close()
 
 
+def handshake(port: int, host: str, origin: str | None) -> int:
+    """HTTP status of a raw WebSocket opening handshake sent with these Host and Origin headers."""
+    lines = ["GET / HTTP/1.1", f"Host: {host}", "Upgrade: websocket", "Connection: Upgrade",
+             "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==", "Sec-WebSocket-Version: 13"]
+    if origin is not None:
+        lines.append(f"Origin: {origin}")
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        return int(s.recv(4096).split(b" ", 2)[1])
+
+
+def test_websocket_only_from_the_workbench_page(server):
+    port = server[1]
+    assert handshake(port, f"127.0.0.1:{port}", f"http://127.0.0.1:{port}") == 101
+    assert handshake(port, f"localhost:{port}", f"http://localhost:{port}") == 101
+    assert handshake(port, f"127.0.0.1:{port}", "http://evil.example") == 403
+    assert handshake(port, f"evil.example:{port}", f"http://evil.example:{port}") == 403  # DNS rebinding
+    assert handshake(port, "evil.example", None) == 403
+
+
+def test_a_library_websocket_client_from_a_foreign_origin_is_refused(server):
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    port = server[1]
+    with pytest.raises(InvalidStatus) as refused:
+        connect(f"ws://127.0.0.1:{port}", origin="http://evil.example", open_timeout=10)
+    assert refused.value.response.status_code == 403
+    connect(f"ws://127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", open_timeout=10).close()
+
+
+def test_a_page_request_under_a_foreign_host_is_refused(server):
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", server[1], timeout=10)
+    conn.request("GET", "/", headers={"Host": "evil.example"})
+    assert conn.getresponse().status == 403
+    conn = http.client.HTTPConnection("127.0.0.1", server[1], timeout=10)
+    conn.request("GET", "/")
+    assert conn.getresponse().status == 200
+
+
+def test_every_interface_is_said_aloud_with_the_real_addresses():
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--host", "0.0.0.0", "--port", str(port)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        seen = []
+        while not seen or "rangereg workbench:" not in seen[-1]:
+            seen.append(proc.stdout.readline())
+            assert proc.poll() is None, "".join(seen)
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    text = "".join(seen)
+    assert "warning: --host 0.0.0.0 listens on every network interface" in text
+    urls = re.findall(r"http://\S+", seen[-1])
+    assert urls and f"http://127.0.0.1:{port}" in urls and not any("0.0.0.0" in u for u in urls)
+
+
 def test_taken_port_is_refused(server):
     r = subprocess.run([sys.executable, "-m", "app.cli", "serve", "--port", str(server[1])], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)

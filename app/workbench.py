@@ -1,4 +1,4 @@
-"""``rangereg serve``: the viser workbench. One server, one :class:`app.session.Session` per tab.
+"""``rangereg serve``: the viser workbench. One server, one :class:`app.tab.tab.Tab` per browser tab.
 
 It listens on 127.0.0.1 unless told otherwise (viser's own default is every interface), serves
 only its own page (Host and Origin checked, app/access.py), refuses a taken port instead of moving
@@ -107,7 +107,7 @@ class Workbench:
             self.server = viser.ViserServer(host=options.host, port=options.port, label="rangereg", verbose=False)
         self.server.gui.configure_theme(show_share_button=False, control_width="large", dark_mode=False)
         self._refuse_big_uploads()
-        self.sessions: dict = {}
+        self.tabs: dict = {}
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
 
@@ -151,7 +151,7 @@ class Workbench:
         """Drop an upload over the cap as soon as it announces its size, before its bytes arrive.
 
         viser buffers uploads in memory; its upload state is private, so this is best effort, and
-        the session checks the size again when an upload completes.
+        the tab checks the size again when an upload completes.
         """
         from viser import _messages
 
@@ -164,27 +164,27 @@ class Workbench:
         def on_start(client_id, message) -> None:
             if message.size_bytes > self.upload_cap:
                 states.pop(message.transfer_uuid, None)
-                session = self.sessions.get(client_id)
-                if session is not None:
-                    session.notify("Upload refused", f"{message.filename}: {message.size_bytes / 1e6:.0f} MB is over "
+                tab = self.tabs.get(client_id)
+                if tab is not None:
+                    tab.notify("Upload refused", f"{message.filename}: {message.size_bytes / 1e6:.0f} MB is over "
                                    f"the upload cap ({self.upload_cap_mb:g} MB)")
 
         iface.register_handler(_messages.FileTransferStartUpload, on_start)
 
     def _connect(self, client) -> None:
-        from app.session import Session
+        from app.tab.tab import Tab
 
-        session = Session(self, client)
-        self.sessions[client.client_id] = session
+        tab = Tab(self, client)
+        self.tabs[client.client_id] = tab
         try:
-            session.load_pair(*self.first_pair)
+            tab.load_pair(*self.first_pair)
         except InputError as exc:
-            session.notify("Could not open the scans", str(exc))
+            tab.notify("Could not open the scans", str(exc))
 
     def _disconnect(self, client) -> None:
-        session = self.sessions.pop(client.client_id, None)
-        if session is not None:
-            session.close()
+        tab = self.tabs.pop(client.client_id, None)
+        if tab is not None:
+            tab.close()
 
 
 def serve(options, stop: threading.Event | None = None) -> int:

@@ -90,3 +90,21 @@ def test_slice_figure_draws_both_legs_in_the_page_colours_and_the_current_pose()
 def test_slice_figure_without_a_run_shows_the_surface_and_the_pose_only():
     fig = slice_figure(a_slice(), None, None, np.array([0.0, 0.0]), "t")
     assert [t.name for t in fig.data if t.name] == ["current"]
+
+
+def test_the_png_draws_each_leg_in_the_page_colour():
+    import matplotlib.colors as mcolors
+    import matplotlib.pyplot as plt
+
+    from app.plots import slice_axes
+
+    path = np.array([[0.9, 8.0], [0.5, 5.0], [0.4, 4.0], [0.1, 1.0]])
+    fig = slice_axes(a_slice(), path, ["icp", "icp", "sa", "sa"], np.array([0.0, 0.5]), "t", units="m")
+    ax = fig.axes[0]
+    legend = {t.get_text(): line for t, line in zip(ax.get_legend().get_texts(), ax.get_legend().get_lines())}
+    for phase, name in (("icp", "ICP"), ("sa", "SA")):
+        assert mcolors.to_hex(legend[name].get_color()) == "#{:02x}{:02x}{:02x}".format(*PHASE_RGB[phase])
+    drawn = {mcolors.to_hex(line.get_color()) for line in ax.get_lines() if len(line.get_xdata()) > 1}
+    assert drawn == {"#{:02x}{:02x}{:02x}".format(*PHASE_RGB[p]) for p in ("icp", "sa")}
+    assert ax.get_xlabel() == "tx (m)" and ax.get_ylabel() == "ry (deg)"
+    plt.close(fig)

@@ -65,6 +65,11 @@ def open_page(browser, url):
     return page
 
 
+def show_tab(page, name: str) -> None:
+    """Bring one of the panel's tabs (Run, Pose, Scans, Landscape, Model, Export) to the front."""
+    page.get_by_role("tab", name=name, exact=True).click()
+
+
 def initial_E(page) -> float:
     return float(re.search(r"Initial E = ([0-9.eE+-]+)", page.get_by_text("Initial E =").inner_text()).group(1))
 
@@ -161,8 +166,10 @@ def _gizmo_pixel(px: np.ndarray) -> tuple[int, int] | None:
 
 def test_dragging_the_gizmo_changes_the_initial_error(server, browser):
     page = open_page(browser, server[0])
+    show_tab(page, "Scans")
     for box in ("Frustums", "Overlap points", "Path"):
         page.get_by_label(box, exact=True).first.uncheck()
+    show_tab(page, "Pose")
     time.sleep(1.5)
     E_before = initial_E(page)
     pose_before = pose_fields(page)
@@ -188,6 +195,7 @@ def test_two_tabs_are_independent(server, browser):
     a, b = open_page(browser, server[0]), open_page(browser, server[0])
     E_a, E_b = initial_E(a), initial_E(b)
     assert E_a == pytest.approx(E_b)
+    show_tab(a, "Pose")
     tx = a.get_by_label("tx", exact=True)
     tx.fill(str(float(tx.input_value()) + 40.0))
     a.get_by_role("button", name="Apply pose", exact=True).click()
@@ -195,6 +203,7 @@ def test_two_tabs_are_independent(server, browser):
     while time.monotonic() < deadline and initial_E(a) == E_a:
         time.sleep(0.2)
     assert initial_E(a) != E_a
+    show_tab(a, "Run")
     a.get_by_role("button", name="Run SA", exact=True).click()  # a long run in tab A ...
     time.sleep(1.0)
     assert initial_E(b) == pytest.approx(E_b)  # ... moves nothing in tab B, whose page still answers
@@ -317,6 +326,7 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     url, folder = data_server
     page = open_page(browser, url)
     # files from --data-dir, and nothing outside it, are offered; opening them shows them
+    show_tab(page, "Scans")
     body = page.locator("body").inner_text()
     assert "outside" not in body
     page.get_by_role("button", name="Open files", exact=True).click()
@@ -326,15 +336,18 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     page.get_by_text("over the upload cap").first.wait_for(timeout=20_000)
     assert "right → left" in page.locator("body").inner_text()
     # register, then merge into one model
+    show_tab(page, "Run")
     page.get_by_role("button", name="Run ICP", exact=True).click()
     assert "below" in wait_finished(page, 60)
+    show_tab(page, "Model")
     page.get_by_role("button", name="Merge", exact=True).click()
     page.get_by_text(re.compile(r"\d+ vertices, \d+ triangles")).first.wait_for(timeout=120_000)
     # a slice of the error surface around the pose, drawn in the page
+    show_tab(page, "Landscape")
     page.get_by_role("button", name="Compute slice", exact=True).click()
     page.locator(".js-plotly-plot").first.wait_for(timeout=120_000)
     # every export arrives as a download in the browser
-    page.get_by_text("Export", exact=True).click()
+    show_tab(page, "Export")
 
     def download(label: str) -> bytes:
         with page.expect_download(timeout=60_000) as d:

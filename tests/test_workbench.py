@@ -74,9 +74,15 @@ def initial_E(page) -> float:
     return float(re.search(r"Initial E = ([0-9.eE+-]+)", page.get_by_text("Initial E =").inner_text()).group(1))
 
 
+def text_input(page, label: str):
+    """A text field by its label (viser's text fields carry a label whose "for" names no element)."""
+    return page.locator("label", has_text=re.compile(f"^{re.escape(label)}$")).first.locator(
+        "xpath=ancestor::div[2]").locator("input")
+
+
 def pose_fields(page) -> np.ndarray:
     names = ("tx", "ty", "tz", "rx (deg)", "ry (deg)", "rz (deg)")
-    return np.array([float(page.get_by_label(n, exact=True).input_value()) for n in names])
+    return np.array([float(text_input(page, n).input_value()) for n in names])
 
 
 def canvas_pixels(page) -> np.ndarray:
@@ -196,7 +202,7 @@ def test_two_tabs_are_independent(server, browser):
     E_a, E_b = initial_E(a), initial_E(b)
     assert E_a == pytest.approx(E_b)
     show_tab(a, "Pose")
-    tx = a.get_by_label("tx", exact=True)
+    tx = text_input(a, "tx")
     tx.fill(str(float(tx.input_value()) + 40.0))
     a.get_by_role("button", name="Apply pose", exact=True).click()
     deadline = time.monotonic() + 10
@@ -219,8 +225,7 @@ def test_two_tabs_are_independent(server, browser):
 def test_bad_setting_is_a_notification_and_the_session_lives_on(server, browser):
     page = open_page(browser, server[0])
     page.get_by_text("Settings", exact=True).click()
-    # viser's text fields carry a label whose "for" names no element: find the input in its row
-    thr = page.locator("label", has_text=re.compile(r"^Threshold$")).first.locator("xpath=ancestor::div[2]").locator("input")
+    thr = text_input(page, "Threshold")
     thr.fill("banana")
     thr.press("Enter")
     page.get_by_role("button", name="Run ICP", exact=True).click()
@@ -290,6 +295,35 @@ def test_every_interface_is_said_aloud_with_the_real_addresses():
     assert "warning: --host 0.0.0.0 listens on every network interface" in text
     urls = re.findall(r"http://\S+", seen[-1])
     assert urls and f"http://127.0.0.1:{port}" in urls and not any("0.0.0.0" in u for u in urls)
+
+
+def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, browser):
+    page = open_page(browser, server[0])
+    show_tab(page, "Pose")
+    E0, tx = initial_E(page), text_input(page, "tx")
+    before = float(tx.input_value())
+    tx.fill("12,5")
+    page.get_by_role("button", name="Apply pose", exact=True).click()
+    page.get_by_text("write decimals with a point").first.wait_for(timeout=10_000)
+    assert initial_E(page) == E0  # nothing applied
+    tx.fill(f"{before + 2.5e-3:.12e}")  # exponent notation, as a user may type it (viser's number field mangled it)
+    page.get_by_role("button", name="Apply pose", exact=True).click()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and initial_E(page) == E0:
+        time.sleep(0.2)
+    assert float(text_input(page, "tx").input_value()) == pytest.approx(before + 2.5e-3, abs=1e-9)
+    # out of range is a notification, not a silent clamp
+    show_tab(page, "Landscape")
+    text_input(page, "Steps").fill("1000000")
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    page.get_by_text("steps must be a whole number from 2 to 201").first.wait_for(timeout=10_000)
+    # a big slice can be cancelled
+    text_input(page, "Steps").fill("201")
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    page.get_by_role("button", name="Cancel slice", exact=True).click()
+    page.get_by_text("cancelled").first.wait_for(timeout=30_000)
+    assert page.locator(".js-plotly-plot").count() == 0
+    page.close()
 
 
 def test_taken_port_is_refused(server):

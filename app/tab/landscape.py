@@ -1,4 +1,4 @@
-"""The Landscape panel: a 2-D slice of E around the pose, with the run's path on it (paper Fig. 3-5)."""
+"""The Landscape panel: a 2-D slice of E around the pose, with the run's path on it."""
 
 from __future__ import annotations
 
@@ -9,22 +9,45 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
+from app.tab.fields import Range, parse_number
 from app.tab.state import SliceView, TabState
 from app.views import slice_figure
 from core.errors import InputError
 from core.events import Cancelled
-from core.landscape import compute_slice, default_span, project
+from core.landscape import Slice, compute_slice, default_span, project
+from core.problem import Problem
 from core.transforms import PARAM_NAMES
+
+STEPS = Range(2, 201, integer=True)
+
+
+def compute(problem: Problem, center, params: tuple[str, str], spans: tuple[float, float], steps: int,
+            cancel: threading.Event, progress=None) -> Slice | None:
+    """``compute_slice`` that stops within one row of ``cancel`` being set (then None). progress(fraction)."""
+
+    def row_done(fraction: float) -> None:
+        if cancel.is_set():
+            raise Cancelled()
+        if progress is not None:
+            progress(fraction)
+
+    if cancel.is_set():
+        return None
+    try:
+        return compute_slice(problem, center, params, spans, steps, progress=row_done)
+    except Cancelled:
+        return None
 
 
 @dataclass(eq=False)
 class LandscapeHandles:
     param_a: viser.GuiDropdownHandle
     param_b: viser.GuiDropdownHandle
-    span_a: viser.GuiNumberHandle
-    span_b: viser.GuiNumberHandle
-    steps: viser.GuiNumberHandle
+    span_a: viser.GuiTextHandle
+    span_b: viser.GuiTextHandle
+    steps: viser.GuiTextHandle
     compute: viser.GuiButtonHandle
+    cancel: viser.GuiButtonHandle
     progress: viser.GuiProgressBarHandle
     folder: viser.GuiFolderHandle
     plot: viser.GuiPlotlyHandle | None = None  # made with the first slice
@@ -35,10 +58,11 @@ def build(gui: viser.GuiApi) -> LandscapeHandles:
         return LandscapeHandles(
             param_a=gui.add_dropdown("Parameter A", PARAM_NAMES, initial_value="tx"),
             param_b=gui.add_dropdown("Parameter B", PARAM_NAMES, initial_value="ry"),
-            span_a=gui.add_number("Span A (0: auto)", 0.0, min=0.0, step=1e-3),
-            span_b=gui.add_number("Span B (0: auto)", 0.0, min=0.0, step=1e-3),
-            steps=gui.add_number("Steps", 41, min=2, max=201, step=1),
+            span_a=gui.add_text("Span A (0: auto)", "0", hint="+- this much around the pose (scan units or deg)"),
+            span_b=gui.add_text("Span B (0: auto)", "0", hint="+- this much around the pose (scan units or deg)"),
+            steps=gui.add_text("Steps", "41", hint=f"grid points per axis, {STEPS.lo:g} to {STEPS.hi:g}"),
             compute=gui.add_button("Compute slice"),
+            cancel=gui.add_button("Cancel slice", disabled=True),
             progress=gui.add_progress_bar(0.0, visible=False),
             folder=folder)
 
@@ -60,6 +84,7 @@ class LandscapePanel:
         self.tab, self.state = tab, tab.state
         self.h = build(tab.gui)
         self.h.compute.on_click(lambda e: tab.guarded(self.start))
+        self.h.cancel.on_click(lambda e: self.cancel())
         self.drawn_at = 0.0
 
     def start(self) -> None:
@@ -68,37 +93,28 @@ class LandscapePanel:
         params = (h.param_a.value, h.param_b.value)
         if params[0] == params[1]:
             raise InputError("choose two different parameters for the slice")
-        steps = int(h.steps.value)
-        if not 2 <= steps <= 201:
-            raise InputError(f"steps must be between 2 and 201, got {steps}")
+        steps = parse_number(h.steps.value, "steps", STEPS)
+        typed = [parse_number(s.value, f"span {k}", Range(0)) for s, k in ((h.span_a, "A"), (h.span_b, "B"))]
         with st.lock:
             if st.slice_busy:
                 raise InputError("a slice is already being computed")
             problem, pair = st.problem, st.pair
-            spans = tuple(float(s.value) or default_span(problem, n) for s, n in zip((h.span_a, h.span_b), params))
+            spans = tuple(float(s) or default_span(problem, n) for s, n in zip(typed, params))
             if not all(np.isfinite(s) and s > 0 for s in spans):
                 raise InputError(f"spans must be positive numbers, got {spans}")
             center = st.T if not st.running else st.T_init
             st.slice_busy, st.slice_cancel = True, threading.Event()
             cancel = st.slice_cancel
         h.progress.value, h.progress.visible = 0.0, True
-        h.compute.disabled = True
+        h.compute.disabled, h.cancel.disabled = True, False
         threading.Thread(target=self._work, args=(problem, pair, center, params, spans, steps, cancel), daemon=True,
                          name="rangereg-slice").start()
 
     def _work(self, problem, pair, center, params, spans, steps, cancel: threading.Event) -> None:
         """On the slice's thread: compute, then hand the slice to the refresher."""
         bar, sl, failure = self.h.progress, None, None
-
-        def progress(fraction: float) -> None:
-            if cancel.is_set():
-                raise Cancelled()
-            bar.value = 100.0 * fraction
-
         try:
-            sl = compute_slice(problem, center, params, spans, steps, progress=progress)
-        except Cancelled:
-            pass
+            sl = compute(problem, center, params, spans, steps, cancel, lambda f: setattr(bar, "value", 100.0 * f))
         except Exception as exc:  # said on the page; the tab lives on
             failure = exc
 
@@ -110,7 +126,9 @@ class LandscapePanel:
 
         def then() -> None:
             bar.visible = False
-            self.h.compute.disabled = False
+            self.h.compute.disabled, self.h.cancel.disabled = False, True
+            if self.state.closed:
+                return
             if failure is not None:
                 self.tab.notify("Slice failed", str(failure))
             elif sl is None:
@@ -119,6 +137,12 @@ class LandscapePanel:
                 self.draw()
 
         self.state.hand(apply, then)
+
+    def cancel(self) -> None:
+        """Stop the slice being computed (it ends within one row of the grid)."""
+        with self.state.lock:
+            if self.state.slice_cancel is not None:
+                self.state.slice_cancel.set()
 
     def draw(self) -> None:
         """Draw (or redraw) the slice with the run's path so far."""

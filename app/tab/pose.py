@@ -8,21 +8,26 @@ import numpy as np
 import viser
 
 from app.tab import scene3d
+from app.tab.fields import parse_number, show_number
 from core.errors import InputError
 from core.transforms import PARAM_NAMES, from_params, to_params
 
 
 @dataclass(eq=False)
 class PoseHandles:
-    params: list[viser.GuiNumberHandle]  # tx ty tz in the scans' units, rx ry rz in degrees
+    params: list[viser.GuiTextHandle]  # tx ty tz in the scans' units, rx ry rz in degrees
     apply: viser.GuiButtonHandle
     reset_file: viser.GuiButtonHandle
     reset_truth: viser.GuiButtonHandle
 
 
+def label(param: str) -> str:
+    return param + (" (deg)" if param.startswith("r") else "")
+
+
 def build(gui: viser.GuiApi) -> PoseHandles:
     return PoseHandles(
-        params=[gui.add_number(n + (" (deg)" if n.startswith("r") else ""), 0.0, step=1e-4) for n in PARAM_NAMES],
+        params=[gui.add_text(label(n), "0") for n in PARAM_NAMES],
         apply=gui.add_button("Apply pose"),
         reset_file=gui.add_button("Reset to file pose"),
         reset_truth=gui.add_button("Reset to ground truth"))
@@ -38,9 +43,7 @@ class PosePanel:
 
     def typed(self) -> np.ndarray:
         """T_target_source from the six fields."""
-        p = np.array([float(f.value) for f in self.h.params])
-        if not np.all(np.isfinite(p)):
-            raise InputError("the six pose parameters must be finite numbers")
+        p = np.array([float(parse_number(f.value, label(n))) for f, n in zip(self.h.params, PARAM_NAMES)])
         return from_params(np.r_[p[:3], np.radians(p[3:])])
 
     def apply_typed(self) -> None:
@@ -69,7 +72,7 @@ class PosePanel:
     def show(self, T: np.ndarray) -> None:
         p = to_params(T)
         for f, v in zip(self.h.params, np.r_[p[:3], np.degrees(p[3:])]):
-            f.value = float(v)
+            f.value = show_number(v)
 
     def lock(self, running: bool) -> None:
         self.h.apply.disabled = self.h.reset_file.disabled = running

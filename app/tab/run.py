@@ -10,6 +10,7 @@ import viser.uplot as uplot
 
 from app.figures import PHASE_RGB, hex_colour
 from app.runner import Run
+from app.tab.fields import Range, parse_number, parse_optional
 from app.tab.settings import PageSettings, page_config
 from app.tab.state import TabState
 from core.errors import InputError
@@ -17,6 +18,9 @@ from core.frustum import KINDS
 from core.problem import prepare
 from core.register import register
 
+ANNEALS = "applies to Run hybrid and Run SA (the methods that anneal)"
+SEED = Range(0, 2**63 - 1, integer=True)
+RATIO = Range(0, 1, lo_open=True, hi_open=True)
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
                "Basin hopping": "basin-hopping"}
 
@@ -25,13 +29,13 @@ RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP re
 class SettingsHandles:
     threshold: viser.GuiTextHandle
     t_start: viser.GuiTextHandle
-    t_min: viser.GuiNumberHandle
-    cooling: viser.GuiNumberHandle
-    seed: viser.GuiNumberHandle
-    icp_max: viser.GuiNumberHandle
-    sa_max: viser.GuiNumberHandle
+    t_min: viser.GuiTextHandle
+    cooling: viser.GuiTextHandle
+    seed: viser.GuiTextHandle
+    icp_max: viser.GuiTextHandle
+    sa_max: viser.GuiTextHandle
     frustum: viser.GuiDropdownHandle
-    max_points: viser.GuiNumberHandle
+    max_points: viser.GuiTextHandle
     coarse_to_fine: viser.GuiCheckboxHandle
     polish: viser.GuiCheckboxHandle
 
@@ -72,42 +76,36 @@ def build(gui: viser.GuiApi) -> RunHandles:
         settings = SettingsHandles(
             threshold=gui.add_text("Threshold", "auto", hint="stop below this E; auto: from the scans' noise; "
                                    "0: search until annealing gives up"),
-            t_start=gui.add_text("Start temperature", "auto", hint="auto: from the spread of E over the first simplex"),
-            t_min=gui.add_number("Minimum temperature ratio", 0.01, min=1e-9, max=0.999, step=1e-3),
-            cooling=gui.add_number("Cooling", 0.9, min=0.01, max=0.999, step=0.01),
-            seed=gui.add_number("Seed", 0, min=0, step=1),
-            icp_max=gui.add_number("ICP iteration cap", 100, min=1, step=1),
-            sa_max=gui.add_number("SA evaluation cap", 20000, min=7, step=100),
+            t_start=gui.add_text("Start temperature", "auto",
+                                 hint=f"auto: from the spread of E over the first simplex; {ANNEALS}"),
+            t_min=gui.add_text("Minimum temperature ratio", "auto",
+                               hint=f"annealing stops below this fraction of its start temperature, between 0 and 1; "
+                                    f"auto: 0.01 for the hybrid, 1e-5 for annealing alone; {ANNEALS}"),
+            cooling=gui.add_text("Cooling", "0.9", hint=f"temperature factor per block of moves, between 0 and 1; "
+                                 f"{ANNEALS}"),
+            seed=gui.add_text("Seed", "0", hint="a whole number >= 0: the same seed, the same run"),
+            icp_max=gui.add_text("ICP iteration cap", "100", hint="iterations per ICP leg, >= 1"),
+            sa_max=gui.add_text("SA evaluation cap", "20000", hint=f"evaluations of E per annealing leg, >= 7; {ANNEALS}"),
             frustum=gui.add_dropdown("Frustum", KINDS, initial_value="convex"),
-            max_points=gui.add_number("Overlap sample size", 300, min=3, step=1),
+            max_points=gui.add_text("Overlap sample size", "300", hint="source points in E, >= 3"),
             coarse_to_fine=gui.add_checkbox("Coarse to fine", False),
             polish=gui.add_checkbox("Unweighted polish", False))
     return RunHandles(run, step, next_phase, pause, resume, cancel, reset, plot, settings)
 
 
-def _optional(text: str, what: str, rule: str) -> float | None:
-    text = str(text).strip().lower()
-    if text in ("", "auto"):
-        return None
-    try:
-        return float(text)
-    except ValueError:
-        raise InputError(f"{what} must be {rule} or 'auto', got {text!r}") from None
-
-
 def read_settings(h: SettingsHandles) -> PageSettings:
-    """The settings as typed on the page; a bad one raises InputError."""
-    threshold = _optional(h.threshold.value, "threshold", "a number >= 0")
-    if threshold is not None and not (np.isfinite(threshold) and threshold >= 0):
-        raise InputError(f"threshold must be a number >= 0 or 'auto', got {h.threshold.value!r}")
-    seed = int(h.seed.value)
-    if seed < 0:
-        raise InputError(f"seed must be >= 0, got {seed}")
-    return PageSettings(threshold=threshold, t_start=_optional(h.t_start.value, "start temperature", "a number"),
-                        t_min_ratio=float(h.t_min.value), cooling=float(h.cooling.value), seed=seed,
-                        icp_max=int(h.icp_max.value), sa_max=int(h.sa_max.value), frustum=h.frustum.value,
-                        max_points=int(h.max_points.value), coarse_to_fine=bool(h.coarse_to_fine.value),
-                        polish=bool(h.polish.value))
+    """The settings as typed on the page; a bad one raises InputError (never a clamped or rewritten value)."""
+    return PageSettings(
+        threshold=parse_optional(h.threshold.value, "threshold", Range(0)),
+        t_start=parse_optional(h.t_start.value, "start temperature", Range(0, lo_open=True)),
+        t_min_ratio=parse_optional(h.t_min.value, "minimum temperature ratio", RATIO),
+        cooling=parse_number(h.cooling.value, "cooling", RATIO),
+        seed=parse_number(h.seed.value, "seed", SEED),
+        icp_max=parse_number(h.icp_max.value, "ICP iteration cap", Range(1, 10**6, integer=True)),
+        sa_max=parse_number(h.sa_max.value, "SA evaluation cap", Range(7, 10**8, integer=True)),
+        frustum=h.frustum.value,
+        max_points=parse_number(h.max_points.value, "overlap sample size", Range(3, 10**7, integer=True)),
+        coarse_to_fine=bool(h.coarse_to_fine.value), polish=bool(h.polish.value))
 
 
 class RunPanel:
@@ -124,7 +122,15 @@ class RunPanel:
         h.cancel.on_click(lambda e: self.control("cancel"))
         h.reset.on_click(lambda e: guarded(self.reset))
         h.settings.frustum.on_update(lambda e: guarded(tab.reprepare))
-        h.settings.max_points.on_update(lambda e: guarded(tab.reprepare))
+        h.settings.max_points.on_update(lambda e: self._sample_size_typed())
+
+    def _sample_size_typed(self) -> None:
+        """A new sample size re-cuts the overlap once it is a valid number (half-typed ones wait for the run)."""
+        try:
+            parse_number(self.h.settings.max_points.value, "overlap sample size", Range(3, 10**7, integer=True))
+        except InputError:
+            return
+        self.tab.guarded(self.tab.reprepare)
 
     def settings(self) -> PageSettings:
         return read_settings(self.h.settings)

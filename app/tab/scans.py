@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
+from app.tab.fields import parse_vector, show_vector
 from app.tab.scene3d import Visibility
 from core.errors import InputError
 from core.io import load_scan
@@ -33,8 +35,8 @@ class ScansHandles:
     open_files: viser.GuiButtonHandle | None
     upload_source: viser.GuiUploadButtonHandle
     upload_target: viser.GuiUploadButtonHandle
-    vp_source: viser.GuiVector3Handle
-    vp_target: viser.GuiVector3Handle
+    vp_source: viser.GuiTextHandle  # "x y z" in the scan's own frame and units
+    vp_target: viser.GuiTextHandle
     apply_vp: viser.GuiButtonHandle
     show: ShowHandles
 
@@ -54,14 +56,33 @@ def build(gui: viser.GuiApi, wb) -> ScansHandles:
         open_files = gui.add_button("Open files")
     upload_source = gui.add_upload_button("Upload source", hint=f"up to {wb.upload_cap_mb:g} MB")
     upload_target = gui.add_upload_button("Upload target", hint=f"up to {wb.upload_cap_mb:g} MB")
-    vp_source = gui.add_vector3("Source viewpoint", (0.0, 0.0, 0.0), step=1e-4)
-    vp_target = gui.add_vector3("Target viewpoint", (0.0, 0.0, 0.0), step=1e-4)
+    hint = "the sensor's origin: three numbers (x y z) in the scan's frame and units"
+    vp_source = gui.add_text("Source viewpoint", "0 0 0", hint=hint)
+    vp_target = gui.add_text("Target viewpoint", "0 0 0", hint=hint)
     apply_vp = gui.add_button("Apply viewpoints")
     with gui.add_folder("Show"):
         show = ShowHandles(gui.add_checkbox("Frustums", True), gui.add_checkbox("Overlap points", True),
                            gui.add_checkbox("Surfaces", False), gui.add_checkbox("Path", True))
     return ScansHandles(scene, open_scene, file_source, file_target, open_files, upload_source, upload_target,
                         vp_source, vp_target, apply_vp, show)
+
+
+def load_upload(name: str, content: bytes) -> Scan:
+    """A scan from an upload's bytes. Only the name's suffix reaches the disk, and no message names a server path."""
+    stem = re.sub(r"[^A-Za-z0-9_-]", "_", Path(name.replace("\\", "/")).stem).strip("_") or "upload"
+    suffix = Path(name).suffix.lower()
+    suffix = suffix if re.fullmatch(r"\.[a-z0-9]{1,8}", suffix) else ""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{stem}{suffix}"
+        try:
+            path.write_bytes(content)
+            scan = load_scan(path)
+        except Exception as exc:  # whatever went wrong, the message names the upload, never the server's folder
+            text = str(exc).replace(str(path), name).replace(tmp, "")
+            if not isinstance(exc, InputError):
+                text = f"{name}: could not be read as a scan ({type(exc).__name__}: {text})"
+            raise InputError(text) from None
+    return replace(scan, source=f"upload:{name}")
 
 
 def with_viewpoint(scan: Scan, value) -> Scan:
@@ -102,14 +123,7 @@ class ScansPanel:
         if len(upload.content) > self.wb.upload_cap:
             raise InputError(f"{upload.name}: {len(upload.content) / 1e6:.0f} MB is over the upload cap "
                              f"({self.wb.upload_cap_mb:g} MB)")
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / Path(upload.name).name
-            path.write_bytes(upload.content)
-            try:
-                scan = load_scan(path)
-            except InputError as exc:
-                raise InputError(str(exc).replace(str(path), upload.name)) from None
-        scan = replace(scan, source=f"upload:{upload.name}")
+        scan = load_upload(upload.name, upload.content)
         st = self.state
         self.tab.load_pair(scan, st.target) if which == "source" else self.tab.load_pair(st.source, scan)
         self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points", error=False)
@@ -117,12 +131,13 @@ class ScansPanel:
     def apply_viewpoints(self) -> None:
         st = self.state
         st.require_scans()
-        self.tab.load_pair(with_viewpoint(st.source, self.h.vp_source.value),
-                           with_viewpoint(st.target, self.h.vp_target.value), keep_pose=True)
+        self.tab.load_pair(with_viewpoint(st.source, parse_vector(self.h.vp_source.value, "source viewpoint")),
+                           with_viewpoint(st.target, parse_vector(self.h.vp_target.value, "target viewpoint")),
+                           keep_pose=True)
 
     def show_viewpoints(self, source: Scan, target: Scan) -> None:
-        self.h.vp_source.value = tuple(float(v) for v in source.viewpoint)
-        self.h.vp_target.value = tuple(float(v) for v in target.viewpoint)
+        self.h.vp_source.value = show_vector(source.viewpoint)
+        self.h.vp_target.value = show_vector(target.viewpoint)
 
     def lock(self, running: bool) -> None:
         for b in self.h.held_by_a_run():

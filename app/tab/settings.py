@@ -18,7 +18,7 @@ from core.register import Config
 class PageSettings:
     threshold: float | None = None  # None: auto (from the scans' noise)
     t_start: float | None = None  # None: auto (from the first simplex)
-    t_min_ratio: float = 0.01
+    t_min_ratio: float | None = None  # None: each method's own (hybrid 1e-2, annealing alone 1e-5)
     cooling: float = 0.9
     seed: int = 0
     icp_max: int = 100
@@ -34,12 +34,16 @@ def problem_config(s: PageSettings) -> ProblemConfig:
 
 
 def page_config(s: PageSettings, method: str) -> Config:
-    """The core Config for ``method`` from the page's settings (validated: bad values raise InputError)."""
-    anneal = AnnealConfig(t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling, max_evaluations=s.sa_max)
+    """The core Config for ``method`` from the page's settings (validated: bad values raise InputError).
+
+    The annealing settings reach both methods that anneal: the hybrid's legs and annealing alone.
+    """
+    base = Config()
+    t_min = {} if s.t_min_ratio is None else {"t_min_ratio": s.t_min_ratio}
+    anneal = replace(AnnealConfig(), t_start=s.t_start, cooling=s.cooling, max_evaluations=s.sa_max, **t_min)
+    sa_alone = replace(base.sa_alone, t_start=s.t_start, cooling=s.cooling, max_evaluations=s.sa_max, **t_min)
     cfg = Config(method=method, threshold=s.threshold, seed=s.seed, problem=problem_config(s),
-                 icp=IcpConfig(max_iterations=s.icp_max), anneal=anneal,
-                 sa_alone=replace(Config().sa_alone, t_start=s.t_start, cooling=s.cooling,
-                                  max_evaluations=max(s.sa_max, 7)),
+                 icp=IcpConfig(max_iterations=s.icp_max), anneal=anneal, sa_alone=sa_alone,
                  coarse_to_fine=s.coarse_to_fine, polish=s.polish)
     cfg.validate()
     return cfg

@@ -125,7 +125,10 @@ class ScansPanel:
                              f"({self.wb.upload_cap_mb:g} MB)")
         scan = load_upload(upload.name, upload.content)
         st = self.state
-        self.tab.load_pair(scan, st.target) if which == "source" else self.tab.load_pair(st.source, scan)
+        if which == "source":
+            self.tab.load_pair(scan, st.target)
+        else:
+            self.tab.load_pair(st.source, scan)
         self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points", error=False)
 
     def apply_viewpoints(self) -> None:

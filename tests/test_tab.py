@@ -162,3 +162,22 @@ def test_a_cancelled_slice_stops_within_a_row():
     assert compute(problem, T, ("tx", "ry"), (1.0, 1.0), 201, cancel, progress) is None
     assert len(rows) == 1
     assert compute(problem, T, ("tx", "ry"), (1.0, 1.0), 3, threading.Event()).values.shape == (3, 3)
+
+
+def test_a_reset_drops_the_outcome_of_the_run_it_cancelled():
+    """Reset cancels the run and forgets it: the cancelled run's result, handed over later, must not bring it back."""
+    from app.runner import Run
+    from app.tab.run import RunPanel
+    from tests.test_runner import scripted, settle
+
+    st = TabState()
+    panel = RunPanel.__new__(RunPanel)  # only the hand-over, no page
+    panel.state, panel.tab = st, SimpleNamespace(notify=lambda *a, **k: None)
+    st.run = run = Run(scripted(), mode="step", on_done=panel._done).start()
+    st.events = run.events
+    settle(run, 1)
+    run.cancel()
+    run.join(5)
+    st.reset_run()  # what Reset does once the run has ended
+    st.apply_handed()
+    assert st.finished_text == "" and st.result is None

@@ -162,8 +162,8 @@ class RunPanel:
             self.tab.notify("The run failed", str(run.failure))
 
         def apply(st: TabState) -> None:
-            if st.run is not run:
-                return  # a newer run or pair took over
+            if st.run is not run or st.events is not run.events:
+                return  # a newer run, a reset or a new pair took over: this outcome is stale
             st.result = run.result
             if run.failure is not None:
                 st.finished_text = f"**Finished**: the run failed: {run.failure}"

@@ -117,9 +117,9 @@ class RunPanel:
             h.run[label].on_click(lambda e, m=method: guarded(self.start, m))
         h.step.on_click(lambda e: guarded(self.step))
         h.next_phase.on_click(lambda e: guarded(self.next_phase))
-        h.pause.on_click(lambda e: self.control("pause"))
-        h.resume.on_click(lambda e: self.control("resume"))
-        h.cancel.on_click(lambda e: self.control("cancel"))
+        h.pause.on_click(lambda e: self.control(Run.pause))
+        h.resume.on_click(lambda e: self.control(Run.resume))
+        h.cancel.on_click(lambda e: self.control(Run.cancel))
         h.reset.on_click(lambda e: guarded(self.reset))
         h.settings.frustum.on_update(lambda e: guarded(tab.reprepare))
         h.settings.max_points.on_update(lambda e: self._sample_size_typed())
@@ -176,12 +176,12 @@ class RunPanel:
 
         self.state.hand(apply)
 
-    def control(self, action: str) -> None:
-        """Pause, resume or cancel the run, and say so on the page at once (not at the next push)."""
+    def control(self, action) -> None:
+        """``action(run)``: Run.pause, .resume or .cancel; said on the page at once (not at the next push)."""
         run = self.state.run
         if run is None:
             return
-        getattr(run, action)()
+        action(run)
         if self.state.running:
             self.tab.update_status()
 

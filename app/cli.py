@@ -169,13 +169,15 @@ def main(argv: list[str] | None = None) -> int:
         status = importlib.import_module(f"app.commands.{args.command}").run(args)
         sys.stdout.flush()
         return status
-    except BrokenPipeError:
+    except BrokenPipeError:  # the reader went away (`| head`): nothing more to say
         _quiet_stdout()
         return 1
     except InputError as exc:
         _error(args.command, str(exc))
-    except OSError as exc:  # a file the core reads that the OS refuses (a folder, no permission)
-        _error(args.command, f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc))
+    except OSError as exc:  # a file the core reads that the OS refuses; a full stdout
+        if exc.filename is None:
+            _quiet_stdout()
+        _error(args.command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
     except KeyboardInterrupt:
         _error(None, "interrupted")
         return 130
@@ -185,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
 def _error(command: str | None, message: str) -> None:
     try:
         sys.stdout.flush()  # the result printed before a late failure comes first
-    except BrokenPipeError:
+    except OSError:
         _quiet_stdout()
     sys.stderr.write(f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n")
 

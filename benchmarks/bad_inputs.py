@@ -240,9 +240,8 @@ CASES: list[Case] = [
 ]
 
 # A quick, varied subset for the test suite (each case a subprocess of about 2 s).
-FAST = ("seed 1e30", "unknown flag", "init not rigid inline", "out onto a sidecar", "trace kept on bad seed",
-        "scan empty ply", "xyz collinear", "slice trace folder", "merge out onto a scan", "serve port 99999",
-        "scenes out a file", "init a folder")
+FAST = ("seed 1e30", "init not rigid inline", "out onto a sidecar", "trace kept on bad seed", "scan empty ply",
+        "slice trace folder", "merge out onto a scan", "serve port 99999")
 
 
 def write_fixtures(folder: Path) -> None:

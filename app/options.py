@@ -41,11 +41,11 @@ class Knob:
         return f"{'a whole number' if self.kind is int else 'a number'} {self.bounds()}".strip()
 
 
-# Upper bounds keep a typo from running for hours; each says what it is measured against.
+# Upper bounds keep a typo from running for hours or a number from meaning nothing.
 KNOBS: dict[str, Knob] = {
     "seed": Knob("--seed", int, 0, 2**32 - 1),  # as numpy's legacy seeds; exact in every JSON and page field
     "max_points": Knob("--max-points", int, 3, 100_000),  # paper: 165-341; one E over 300 points: 0.24 ms
-    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0, 180, low_open=True),
+    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0, 180, low_open=True),  # beyond 180: the other way
     "translation_uncertainty": Knob("--translation-uncertainty", float, 0, None, low_open=True),
     "threshold": Knob("--threshold", float, 0, None),
     "t_start": Knob("--t-start", float, 0, None, low_open=True),
@@ -53,13 +53,13 @@ KNOBS: dict[str, Knob] = {
     "cooling": Knob("--cooling", float, 0, 1, low_open=True, high_open=True),
     "icp_max_iterations": Knob("--icp-max-iterations", int, 1, 100_000),
     "sa_max_evaluations": Knob("--sa-max-evaluations", int, 7, 10_000_000),  # 10^7 x 0.24 ms: 40 min
-    "hops": Knob("--hops", int, 0, 100_000),
-    "restarts": Knob("--restarts", int, 1, 100_000),
-    "recut_rounds": Knob("--recut-rounds", int, 1, 20),
+    "hops": Knob("--hops", int, 0, 100_000),  # each hop is an ICP run (~5-50 ms here): at most about an hour
+    "restarts": Knob("--restarts", int, 1, 100_000),  # likewise
+    "recut_rounds": Knob("--recut-rounds", int, 1, 20),  # measured: a second round rarely differs (core/register.py)
     "steps": Knob("--steps", int, 2, 201),  # 201 x 201 evaluations take about 10 s here (0.24 ms each)
-    "runs": Knob("--runs", int, 1, 1000),
-    "port": Knob("--port", int, 1, 65535),
-    "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),
+    "runs": Knob("--runs", int, 1, 1000),  # a full bench of 10 starts takes about 15 min
+    "port": Knob("--port", int, 1, 65535),  # TCP ports
+    "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
 }
 
 _WHOLE = re.compile(r"[+-]?\d+")

@@ -109,14 +109,15 @@ def _probe_writable(folder: Path, flag: str, p: Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_path(target: Path) -> Iterator[Path]:
-    """A temporary path (same suffix) to write; on success it replaces ``target`` (atomic rename for
-    a regular file or a new one; a plain copy onto a device or pipe). On failure it is removed."""
+def atomic_path(target: Path, suffix: str = "") -> Iterator[Path]:
+    """A temporary path to write, with the target's suffix (else ``suffix``: writers such as matplotlib
+    add their own to a bare name); on success it replaces ``target`` (atomic rename for a regular file
+    or a new one; a plain copy onto a device or pipe). On failure it is removed."""
     target = Path(target)
     special = _is_special(target)
     real = target.resolve() if target.is_symlink() and not special else target
     folder = None if special else real.parent
-    fd, tmp = tempfile.mkstemp(prefix=f".{real.stem}-", suffix=real.suffix, dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=f".{real.stem}-", suffix=real.suffix or suffix, dir=folder)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -139,24 +140,25 @@ def _umask() -> int:
     return mask
 
 
-def write_output(target: Path, flag: str, write: Callable[[Path], None]) -> None:
-    """Call ``write(tmp_path)`` and put the file in place atomically; an OSError becomes one InputError."""
+def write_output(target: Path, flag: str, write: Callable[[Path], None], suffix: str = "") -> None:
+    """Call ``write(tmp_path)`` and put the file in place atomically; an OSError becomes one InputError.
+    ``suffix``: the temporary file's when the target has none (``/dev/null``)."""
     try:
-        with atomic_path(target) as tmp:
+        with atomic_path(target, suffix) as tmp:
             write(tmp)
     except OSError as exc:
         raise InputError(f"{flag} {target}: cannot write it ({exc.strerror or exc})") from None
 
 
-def write_outputs(jobs: list[tuple[Path | None, str, Callable[[Path], None]]]) -> None:
-    """Write every (target, flag, write) job even when one fails, then raise one InputError naming all
-    that failed (so the result printed before is never lost and stderr gets one line)."""
+def write_outputs(jobs: list[tuple]) -> None:
+    """Write every (target, flag, write[, suffix]) job even when one fails, then raise one InputError
+    naming all that failed (so the result printed before is never lost and stderr gets one line)."""
     failed = []
-    for target, flag, write in jobs:
+    for target, flag, write, *suffix in jobs:
         if target is None:
             continue
         try:
-            write_output(target, flag, write)
+            write_output(target, flag, write, *suffix)
         except InputError as exc:
             failed.append(str(exc))
     if failed:

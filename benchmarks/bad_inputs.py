@@ -189,6 +189,7 @@ CASES: list[Case] = [
     C("slice png folder", f"{S} --png folder.ply", "folder"),
     C("slice png missing folder", f"{S} --png nowhere/s.png", "does not exist"),
     C("slice png kept on bad steps", f"{S} --png keep.png --steps 0", ">= 2"),
+    C("slice png /dev/full after the work", f"{S} --png /dev/full --steps 5", "No space left", stdout_ok=True),
     C("slice npz suffix", f"{S} --png s.png --npz s.png", "suffix"),
     C("slice center choice", f"{S} --png s.png --center middle", "invalid choice"),
     C("slice center end without trace", f"{S} --png s.png --center end", "--trace"),

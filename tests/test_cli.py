@@ -159,6 +159,17 @@ def test_a_late_write_failure_prints_the_result_and_exits_2(rangereg):
     assert err.count("\n") == 1 and "--out /dev/full: cannot write it" in err
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+def test_a_slice_onto_a_full_device_says_so_and_leaves_no_temporary(rangereg):
+    import tempfile
+
+    before = set(Path(tempfile.gettempdir()).iterdir())
+    code, out, err = rangereg("slice", CORNER_SRC, CORNER_TGT, "--steps", "5", "--png", "/dev/full", "--npz", "/dev/null")
+    assert code == 2 and out.startswith("Slice(")
+    assert err.count("\n") == 1 and "--png /dev/full: cannot write it" in err
+    assert not {p for p in set(Path(tempfile.gettempdir()).iterdir()) - before if p.name.startswith(".full-")}
+
+
 def test_register_works_on_the_bunny_with_no_flags(rangereg):
     if not BUNNY.is_dir():
         pytest.skip("the shared bunny scans are absent")
@@ -176,3 +187,24 @@ def test_a_result_above_the_threshold_says_what_to_try(rangereg):
     assert "note: E stayed above the threshold" in out and "--rotation-uncertainty" in out
     code, out, _ = rangereg("register", BUNNY / "bun045.ply", BUNNY / "bun000.ply", "--method", "icp")  # ICP gets there
     assert code == 0 and "note:" not in out, out
+
+
+def test_the_cli_defaults_make_the_config_they_made_before():
+    from app.cli import build_parser
+    from app.commands import pair
+    from core.problem import ProblemConfig
+    from core.register import Config
+
+    a = build_parser().parse_args(["register", "s.ply", "t.ply", "--seed", "5", "--method", "icp", "--polish"])
+    assert pair.config(a) == Config(method="icp", seed=5, problem=ProblemConfig(max_points=300, seed=5), polish=True,
+                                    hops=200, recut_rounds=1)
+
+
+def test_serve_hands_the_workbench_typed_options(rangereg, monkeypatch):
+    import app.workbench
+
+    seen = []
+    monkeypatch.setattr(app.workbench, "serve", lambda options: seen.append(options) or 0)
+    code, _, err = rangereg("serve", "--scene", "bowl", "--port", "8123", "--upload-cap-mb", "5")
+    assert code == 0, err
+    assert seen == [app.workbench.Options(scene="bowl", port=8123, upload_cap_mb=5.0)]

@@ -75,5 +75,5 @@ def run(a: Namespace) -> int:
             np.savez(f, params=np.array(params), axis_a=sl.axis_a, axis_b=sl.axis_b, values=sl.values, center=center,
                      path=path_xy if path_xy is not None else np.zeros((0, 2)))
 
-    write_outputs([(png, "--png", write_png), (npz, "--npz", write_npz)])
+    write_outputs([(png, "--png", write_png, ".png"), (npz, "--npz", write_npz, ".npz")])
     return 0

@@ -59,19 +59,21 @@ def run(a: Namespace) -> int:
         if trace is not None:
             trace.discard()
         raise
-    report(res, source, target, cfg, a.json)
-    failed = []
-    if trace is not None:
+    try:
+        report(res, source, target, cfg, a.json)  # first: a file that cannot be written loses only itself
+    finally:  # the files are written even when stdout is gone (`| head`)
+        failed = []
+        if trace is not None:
+            try:
+                trace.commit()
+            except InputError as exc:
+                failed.append(str(exc))
         try:
-            trace.commit()
+            write_outputs([(out, "--out", lambda p: _write_transform(p, res))])
         except InputError as exc:
             failed.append(str(exc))
-    try:
-        write_outputs([(out, "--out", lambda p: _write_transform(p, res))])
-    except InputError as exc:
-        failed.append(str(exc))
-    if failed:
-        raise InputError("; ".join(failed))
+        if failed:
+            raise InputError("; ".join(failed))
     return 0
 
 

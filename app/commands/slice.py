@@ -62,7 +62,6 @@ def run(a: Namespace) -> int:
     sl = compute_slice(problem, center, params, spans, a.steps)
     path_xy = project(problem, center, params, [problem.T_init] + [e.T for e in events]) if events else None
     phases = ["icp"] + [e.phase for e in events] if events else None
-    print(f"{sl!r} -> {png}" + (f", {npz}" if npz else ""))
 
     def write_png(p: Path) -> None:
         from app.plots import slice_png
@@ -75,5 +74,8 @@ def run(a: Namespace) -> int:
             np.savez(f, params=np.array(params), axis_a=sl.axis_a, axis_b=sl.axis_b, values=sl.values, center=center,
                      path=path_xy if path_xy is not None else np.zeros((0, 2)))
 
-    write_outputs([(png, "--png", write_png, ".png"), (npz, "--npz", write_npz, ".npz")])
+    try:
+        print(f"{sl!r} -> {png}" + (f", {npz}" if npz else ""))
+    finally:  # the files are written even when stdout is gone (`| head`)
+        write_outputs([(png, "--png", write_png, ".png"), (npz, "--npz", write_npz, ".npz")])
     return 0

@@ -155,8 +155,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _quiet_stdout() -> None:
     """After a closed pipe (``| head``): point stdout at devnull so the interpreter's flush at exit is
     silent (the recipe of Python's signal module documentation)."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # a stdout with no file behind it (in-process callers)
+        pass
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -174,9 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except InputError as exc:
         _error(args.command, str(exc))
-    except OSError as exc:  # a file the core reads that the OS refuses; a full stdout
-        if exc.filename is None:
-            _quiet_stdout()
+    except OSError as exc:  # a file the core reads that the OS refuses; a full stdout (see _error)
         _error(args.command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
     except KeyboardInterrupt:
         _error(None, "interrupted")

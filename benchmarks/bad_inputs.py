@@ -110,6 +110,8 @@ CASES: list[Case] = [
     C("out a folder", f"{R} --out folder.ply", "folder"),
     C("out missing folder", f"{R} --out nowhere/t.json", "does not exist"),
     C("out under a file", f"{R} --out src.ply/t.json", "not a folder"),
+    C("out unwritable folder", f"{R} --out /proc/t.json", "cannot write in"),  # refuses even root
+    C("trace unwritable folder", f"{R} --trace /sys/run.jsonl", "cannot write in"),
     C("out empty", [*R.split(), "--out", ""], "file name"),
     C("trace wrong suffix", f"{R} --trace run.png", "suffix"),
     C("trace a folder", f"{R} --trace folder.ply", "folder"),

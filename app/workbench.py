@@ -44,12 +44,6 @@ class ServeOptions:
         if not self.upload_cap_mb > 0:
             raise InputError(f"--upload-cap-mb must be positive, got {self.upload_cap_mb}")
 
-    @classmethod
-    def from_namespace(cls, a) -> ServeOptions:
-        """From the CLI's argparse namespace (until the CLI builds ServeOptions itself)."""
-        return cls(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port, data_dir=a.data_dir,
-                   upload_cap_mb=getattr(a, "upload_cap_mb", 200.0))
-
 
 @cache
 def _load_cached(path: str, mtime: float) -> Scan:
@@ -187,15 +181,10 @@ class Workbench:
             tab.close()
 
 
-def serve(options, stop: threading.Event | None = None) -> int:
-    """Entry point of ``rangereg serve``; blocks until interrupted or ``stop`` is set.
-
-    options: :class:`ServeOptions` (an argparse namespace with the same fields is converted).
-    """
+def serve(options: ServeOptions, stop: threading.Event | None = None) -> int:
+    """Entry point of ``rangereg serve``; blocks until interrupted or ``stop`` is set."""
     from app.access import WILDCARDS
 
-    if not isinstance(options, ServeOptions):
-        options = ServeOptions.from_namespace(options)
     # The optimiser's worker thread is busy Python; a short switch interval lets the server's threads
     # (events, page pushes) take the GIL within milliseconds, so Pause and the 10 Hz path stay live.
     sys.setswitchinterval(0.001)

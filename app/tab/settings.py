@@ -1,15 +1,14 @@
 """The page's settings as plain values, and the one mapping from them to a core ``Config``.
 
-``page_config`` is the only place the page turns settings into a config; when app/options.py (the
-settings path shared by the CLI, the page and merge) lands, it replaces the body of this function.
+``page_config`` is the only place the page turns settings into a config; it goes through
+app/options.py, the settings path shared by the CLI, the page and merge.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
-from core.anneal import AnnealConfig
-from core.icp import IcpConfig
+from app.options import Settings, to_config
 from core.problem import ProblemConfig
 from core.register import Config
 
@@ -34,16 +33,12 @@ def problem_config(s: PageSettings) -> ProblemConfig:
 
 
 def page_config(s: PageSettings, method: str) -> Config:
-    """The core Config for ``method`` from the page's settings (validated: bad values raise InputError).
+    """The core Config for ``method`` from the page's settings (validated: bad values raise InputError),
+    through app.options, the one settings path the CLI, the page and merge share.
 
     The annealing settings reach both methods that anneal: the hybrid's legs and annealing alone.
     """
-    base = Config()
-    t_min = {} if s.t_min_ratio is None else {"t_min_ratio": s.t_min_ratio}
-    anneal = replace(AnnealConfig(), t_start=s.t_start, cooling=s.cooling, max_evaluations=s.sa_max, **t_min)
-    sa_alone = replace(base.sa_alone, t_start=s.t_start, cooling=s.cooling, max_evaluations=s.sa_max, **t_min)
-    cfg = Config(method=method, threshold=s.threshold, seed=s.seed, problem=problem_config(s),
-                 icp=IcpConfig(max_iterations=s.icp_max), anneal=anneal, sa_alone=sa_alone,
-                 coarse_to_fine=s.coarse_to_fine, polish=s.polish)
-    cfg.validate()
-    return cfg
+    return to_config(Settings(method=method, seed=s.seed, threshold=s.threshold, max_points=s.max_points,
+                              frustum=s.frustum, t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling,
+                              icp_max_iterations=s.icp_max, sa_max_evaluations=s.sa_max, polish=s.polish,
+                              coarse_to_fine=s.coarse_to_fine))

@@ -115,14 +115,20 @@ def _load_ply(path: Path):
     if "face" in data and data["face"]:
         counts, flat = next(iter(data["face"].values()))
         faces = _triangulate_polygons(counts, flat)
-        if faces.size and faces.max() >= len(pts):
-            raise InputError(f"{path}: a face refers to vertex {faces.max()} of {len(pts)}")
+        if faces.size and (faces.max() >= len(pts) or faces.min() < 0):
+            bad = faces.max() if faces.max() >= len(pts) else faces.min()
+            raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
     return pts, grid_idx, faces
 
 
 def _triangulate_polygons(counts, flat) -> np.ndarray:
     if len(counts) and np.all(counts == 3):
         return flat.reshape(-1, 3)
+    if len(counts) and counts[0] > 3 and np.all(counts == counts[0]):  # all quads (say): fans, vectorised
+        poly = flat.reshape(len(counts), int(counts[0]))
+        k = poly.shape[1]
+        return np.stack([np.broadcast_to(poly[:, :1], (len(poly), k - 2)), poly[:, 1:-1], poly[:, 2:]],
+                        axis=2).reshape(-1, 3)
     tris, pos = [], 0
     for k in counts:
         poly = flat[pos:pos + k]

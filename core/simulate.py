@@ -191,10 +191,10 @@ def true_transform(source: Scan, target: Scan) -> np.ndarray:
 def terrain_mesh(half: float = 1000.0, n: int = 601, seed: int = 11) -> tuple[np.ndarray, np.ndarray]:
     """An asymmetric landscape of random bumps and pits (mm) over [-half, half]^2, for large scans."""
     rng = np.random.default_rng(seed)
-    k = 70
+    k = 400
     cx, cy = rng.uniform(-half, half, (2, k))
-    amp = rng.uniform(-70.0, 90.0, k)
-    sig = rng.uniform(30.0, 160.0, k)
+    amp = rng.uniform(-50.0, 60.0, k)
+    sig = rng.uniform(15.0, 90.0, k)
 
     def z(x, y):
         h = 0.04 * x - 0.02 * y

@@ -376,3 +376,49 @@ def test_transform_from_the_text_of_16_numbers():
         parse_transform(" ".join(["2"] + ["0"] * 4 + ["1"] + ["0"] * 4 + ["1"] + ["0"] * 4 + ["1"]))
     with pytest.raises(InputError, match="NaN or infinite"):
         parse_transform(" ".join(["nan"] + ["0"] * 14 + ["1"]))
+
+
+def test_a_face_with_a_negative_vertex_index_is_refused(tmp_path):
+    path = tmp_path / "f.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n1 1 0.1\n0 1 0\n3 0 -2 1\n")
+    with pytest.raises(InputError, match="a face refers to vertex -2; the file has vertices 0 to 3"):
+        load_scan(path)
+
+
+def test_quads_are_split_into_fans(tmp_path):
+    path = tmp_path / "q.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n1 1 0.1\n0 1 0\n2 0 0\n2 1 0\n4 0 1 2 3\n4 1 4 5 2\n")
+    assert load_scan(path).faces.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]]
+
+
+def test_viewpoint_at_the_centre_of_the_points_is_refused(tmp_path):
+    from core.frustum import frustum_of
+    from core.surface import triangulate
+
+    pts = np.r_[_cube_points(200), -_cube_points(200, seed=1)]  # two sheets around the origin
+    write_ply(tmp_path / "s.ply", pts)
+    s = load_scan(tmp_path / "s.ply", viewpoint=pts.mean(0))
+    for build in (triangulate, frustum_of):
+        with pytest.raises(InputError, match="centre of the points|beside or behind"):
+            build(s)
+
+
+@pytest.mark.parametrize("viewpoint, match", [
+    ([0, 0], "should be three numbers"), ([0, np.nan, 1], "not finite"), ("up", "should be three numbers")])
+def test_a_bad_viewpoint_argument_is_refused(tmp_path, viewpoint, match):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    with pytest.raises(InputError, match=match):
+        load_scan(tmp_path / "s.ply", viewpoint=viewpoint)
+
+
+def test_a_pcd_viewpoint_that_is_not_finite_is_refused(tmp_path):
+    pts = _cube_points(50)
+    head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 50\nHEIGHT 1\n"
+            "VIEWPOINT nan 0 5 1 0 0 0\nPOINTS 50\nDATA ascii\n")
+    (tmp_path / "a.pcd").write_text(head + "\n".join(" ".join(map(str, p)) for p in pts))
+    with pytest.raises(InputError, match="VIEWPOINT .* not finite"):
+        load_scan(tmp_path / "a.pcd")

@@ -73,10 +73,10 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
         pose = _pose_from_conf_beside(path)
     units = side.get("units") or _guess_units(points)
     vp, estimated = (stored_vp, False)
-    if vp is not None and not np.all(np.isfinite(vp)):
-        raise InputError(f"{what}: the stored VIEWPOINT {vp.tolist()} is not finite")
     if side.get("viewpoint") is not None:
         vp = side["viewpoint"]
+    elif vp is not None and viewpoint is None and not np.all(np.isfinite(vp)):
+        raise InputError(f"{what}: the stored VIEWPOINT {vp.tolist()} is not finite")
     if viewpoint is not None:
         vp, estimated = _vector3(viewpoint, f"{what}: the viewpoint"), False
         check_viewpoint(points, vp, grid, faces, what)
@@ -373,7 +373,8 @@ def parse_transform(text_or_path: str | Path) -> np.ndarray:
     with ``transform``) or, when ``text_or_path`` is a string naming no file, from the text itself
     (16 numbers, or that JSON)."""
     if isinstance(text_or_path, str) and not Path(text_or_path).exists() and _looks_like_numbers(text_or_path):
-        return _transform_from_text(text_or_path.strip(), "the transform")
+        text = text_or_path.strip()
+        return _transform_from_text(text, f"the transform {text if len(text) <= 40 else text[:37] + '...'!r}")
     path = Path(text_or_path)
     if not path.exists():
         raise InputError(f"{path}: no such file (and not 16 numbers)")

@@ -113,9 +113,8 @@ def read_ply(path: Path) -> tuple[dict, dict]:
             pos += dt.itemsize * count
         else:
             out[name], pos = _binary_rows(buf, pos, count, props, order, name)
-    extra = bytes(buf[pos:])
-    if extra.strip():  # a trailing newline is harmless; data beyond the header's rows is not
-        raise PlyError(_leftover(elements, len(extra), "bytes"))
+    if len(buf) > pos and bytes(buf[pos:]).strip():  # a trailing newline is harmless; more rows are not
+        raise PlyError(_leftover(elements, len(buf) - pos, "bytes"))
     return out, obj_info
 
 
@@ -180,6 +179,8 @@ def _binary_rows(buf, pos, count, props, order, name):
                     pos += cdt.itemsize
                     cols[p[0]].append(np.frombuffer(buf, dtype=idt, count=k, offset=pos))
                     pos += idt.itemsize * k
+    except PlyError:
+        raise
     except ValueError:
         raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows") from None
     return _pack(cols, props), pos

@@ -260,6 +260,16 @@ def test_ply_list_with_a_negative_length_is_refused(tmp_path):
         load_scan(path)
 
 
+def test_binary_ply_list_with_a_negative_length_is_refused(tmp_path):
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            "property float z\nelement face 2\nproperty list char int vertex_indices\nend_header\n")
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 1]], "<f4").tobytes()
+    faces = np.array([3], "i1").tobytes() + np.array([0, 1, 2], "<i4").tobytes() + np.array([-2], "i1").tobytes()
+    (tmp_path / "neg.ply").write_bytes(head.encode() + verts + faces)
+    with pytest.raises(InputError, match="a list of -2 items"):
+        load_scan(tmp_path / "neg.ply")
+
+
 def test_the_bunny_plys_still_read_whole(bunny):
     # the honest Stanford range-grid files pass the new checks (leftover data would be refused)
     for name in ("bun000", "bun045", "bun090", "bun315"):

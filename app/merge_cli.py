@@ -1,14 +1,22 @@
-"""``rangereg merge``: a set of scans -> globally consistent poses -> one fused mesh (core.merge)."""
+"""``rangereg merge``: a set of scans -> globally consistent poses -> one fused mesh (core.merge).
+
+The pairwise registrations run as tasks (app.distributed): ``--workers 1`` a plain loop, ``--workers N``
+a local Dask cluster of N processes (default: one per core), ``--scheduler tcp://HOST:PORT`` an
+existing cluster. The options are read with defaults when the parser does not define them.
+"""
 
 from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 from core.errors import InputError
+
+PROGRESS_DELAY = 1.0  # s: a run that fails sooner shows no progress lines
 
 
 def _poses_for(conf: dict[str, np.ndarray], scans, what: str) -> list[np.ndarray]:
@@ -18,19 +26,44 @@ def _poses_for(conf: dict[str, np.ndarray], scans, what: str) -> list[np.ndarray
     return [conf[s.name] for s in scans]
 
 
+class DelayedLines:
+    """A progress sink for stderr that holds its lines until the inputs have passed every check (the
+    registrations have started: a line starting with ``release``) and the run has taken ``delay``
+    seconds, so that bad input (no overlap, a scan that overlaps nothing) prints one line, the error."""
+
+    def __init__(self, delay: float = PROGRESS_DELAY, release: str = "registering", stream=None):
+        self.t0, self.delay, self.release, self.stream = time.perf_counter(), delay, release, stream or sys.stderr
+        self.held: list[str] = []
+        self.released = False
+
+    def __call__(self, line: str) -> None:
+        self.held.append(f"  {line}\n")
+        self.released = self.released or line.startswith(self.release)
+        if self.released and time.perf_counter() - self.t0 >= self.delay:
+            self.stream.write("".join(self.held))
+            self.stream.flush()
+            self.held.clear()
+
+
 def main(a) -> int:
+    from app.distributed import TaskRunner
     from core.fuse import double_layer_fraction
     from core.io import load_conf, load_scan
-    from core.merge import merge
+    from core.merge import PAIR_MODES, merge
     from core.ply import write_ply
     from core.problem import ProblemConfig
     from core.register import Config
     from core.transforms import invert, pose_error
 
+    workers = getattr(a, "workers", 1)
+    scheduler = getattr(a, "scheduler", None)
+    pairs = getattr(a, "pairs", None)
     if len(a.scans) < 2:
         raise InputError("merge needs at least two scans")
     if a.seed < 0:
         raise InputError(f"--seed must be >= 0, got {a.seed}")
+    if pairs is not None and pairs not in PAIR_MODES:
+        raise InputError(f"--pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
     scans = [load_scan(p) for p in a.scans]
     names = [s.name for s in scans]
     if len(set(names)) != len(names):
@@ -40,16 +73,23 @@ def main(a) -> int:
     if truth is None and all(s.pose is not None for s in scans):
         truth = [s.pose for s in scans]  # ground truth stored with the scans (sidecar or .conf beside them)
     config = Config(seed=a.seed, problem=ProblemConfig(rotation_uncertainty_deg=25.0, seed=a.seed))
-    say = (lambda msg: sys.stderr.write(f"  {msg}\n")) if not a.json else None
-    res = merge(scans, initial, config, progress=say)
+    say = DelayedLines() if not a.json or sys.stderr.isatty() else None
+    with TaskRunner(workers, scheduler, progress=say) as runner:
+        res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map)
     out = Path(a.out)
     gap = float(np.median([s.spacing for s in scans]))
     write_ply(out, res.model.vertices, res.model.faces, comments=("rangereg fused model",))
     report = {
         "scans": names,
         "poses": [np.asarray(T).tolist() for T in res.poses],
-        "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "overlap": p.overlap}
-                  for p in res.pairs],
+        "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "overlap": p.overlap,
+                   "status": p.status, "seconds": p.seconds} for p in res.pairs],
+        "graph": {"mode": res.mode, "pairs": len(res.pairs), "used": len(res.used),
+                  "rejected": sum(p.status == "rejected" for p in res.pairs),
+                  "dropped": sum(p.status == "dropped" for p in res.pairs)},
+        "workers": 1 if runner.serial else (runner.workers if scheduler is None else None),
+        "scheduler": scheduler,
+        "pair_seconds": res.pair_seconds,
         "seconds": res.seconds,
         "model": {"path": str(out), "vertices": len(res.model.vertices), "triangles": len(res.model.faces),
                   "double_layer_fraction": double_layer_fraction(res.model.vertices, res.model.faces, gap)},
@@ -61,9 +101,14 @@ def main(a) -> int:
     if a.json:
         print(json.dumps(report))
         return 0
-    print(f"registered {len(res.pairs)} pairs in {res.seconds:.1f} s:")
+    g = report["graph"]
+    where = "1 process" if runner.serial else (scheduler or f"{runner.workers} local workers")
+    print(f"registered {g['pairs']} pairs ({g['mode']}) on {where} in {res.pair_seconds:.1f} s; "
+          f"{g['used']} used, {g['rejected']} rejected by the pose graph, {g['dropped']} dropped (E far above "
+          f"the others'); {res.seconds:.1f} s in all:")
     for p in report["pairs"]:
-        print(f"  {p['source']} -> {p['target']}  E={p['error']:.4g}  overlap {p['overlap']:.0%}")
+        tag = "" if p["status"] == "used" else f"  [{p['status']}]"
+        print(f"  {p['source']} -> {p['target']}  E={p['error']:.4g}  overlap {p['overlap']:.0%}{tag}")
     print(f"poses (into {names[0]}'s frame):")
     for k, (name, T) in enumerate(zip(names, res.poses)):
         line = f"  {name}: t={np.round(T[:3, 3], 6).tolist()}"

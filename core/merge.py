@@ -39,10 +39,11 @@ MIN_OVERLAP_ANY = 0.05  # below this a scan's best partner is no partner: the sc
 MAX_PARTNERS = 4
 OUTLIER_PAIR = 20.0  # a pair whose E exceeds this many times the median pair's is dropped
 # Polish: point-to-plane Gauss-Newton steps after the hybrid. Beyond the paper: its ICP (point to
-# closest point) slides slowly along smooth surfaces and stops 1-4 degrees off on the simulated
-# turntable; point-to-plane converges in a few steps. Measured, 24 stops, seed 1, 15 pairs 15-30 deg apart:
-# mean rotation error 1.92 deg (max 6.6) without the polish; 0.16 / 0.11 / 0.11 deg with a gate of 3 / 1.5 / 1
-# spacings (a wide gate lets in points beyond the target's edge, whose closest points sit on the edge).
+# closest point) slides slowly along smooth surfaces and stops up to a degree or more off on the simulated
+# turntable; point-to-plane converges in a few steps. Measured, 24 stops, seed 1, 15 pairs 15-30 deg apart,
+# mean (max) rotation error: no polish 0.36 (1.27) deg; gate 3 / 1.5 / 1 spacings: 0.15 / 0.055 / 0.059 deg
+# (a wide gate lets in points beyond the target's edge, whose closest points sit on the edge). On a smoother
+# object (fewer, wider lumps): 1.92 (6.6) deg without, 0.16 / 0.11 / 0.11 deg with.
 POLISH_STEPS = 30
 POLISH_GATE = 1.5  # correspondences farther than this many point spacings are left out of the polish
 PAIR_MODES = ("init", "chain", "overlap")
@@ -228,8 +229,15 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     n = len(scans)
     if chain:
         if mode != "chain":
-            raise InputError(f"--pairs {mode} needs initial poses (--init, or stored guesses)")
-        candidates = [(i, i + 1, 1.0) for i in range(n - 1)]
+            raise InputError(f"pairs={mode!r} needs initial poses (--init, or stored guesses)")
+        # consecutive scans from the identity; checked up front, so that a scan that overlaps its
+        # neighbour nowhere is refused before any registration runs
+        say(f"measuring the overlap of {n - 1} consecutive pairs")
+        fracs = run(overlap_task, [(i, i + 1, np.eye(4)) for i in range(n - 1)], shared)
+        gaps = [f"{scans[i].name} and {scans[i + 1].name}" for i, f in zip(range(n - 1), fracs) if f <= 0]
+        if gaps:
+            raise InputError(f"{'; '.join(gaps)} do not overlap from the identity; give initial poses (--init)")
+        candidates = [(i, i + 1, f) for i, f in zip(range(n - 1), fracs)]
     else:
         if mode == "chain":
             items = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
@@ -244,6 +252,11 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     if alone:
         raise InputError(f"{', '.join(alone)} overlap(s) no other scan under the initial poses; "
                          "give better initial poses (--init) or leave it out")
+    groups = _components(n, candidates)
+    if len(groups) > 1:
+        listed = "; ".join(", ".join(scans[k].name for k in g) for g in groups)
+        raise InputError(f"the overlapping pairs form {len(groups)} separate groups ({listed}); "
+                         "give better initial poses (--init)")
     say(f"registering {len(candidates)} pairs")
     out = run(pair_task, [(i, j, rel(i, j)) for i, j, _ in candidates], shared)
     results = [PairResult(i, j, T, err, frac, sec) for (i, j, frac), (T, err, sec) in zip(candidates, out)]
@@ -274,6 +287,23 @@ def _choose(overlaps: list, n: int, mode: str) -> list:
             if best is not None and best[2] >= MIN_OVERLAP_ANY:
                 candidates.append(best)
     return sorted(candidates, key=lambda c: c[:2])
+
+
+def _components(n: int, pairs: list) -> list[list[int]]:
+    """Connected groups of scan indices under the pairs (i, j, ...)."""
+    parent = list(range(n))
+
+    def root(k):
+        while parent[k] != k:
+            k = parent[k]
+        return k
+
+    for i, j, *_ in pairs:
+        parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for k in range(n):
+        groups.setdefault(root(k), []).append(k)
+    return list(groups.values())
 
 
 def _drop_outliers(pairs: list, n: int) -> list:

@@ -39,7 +39,7 @@ class TurntableConfig:
     elevation_deg: float = 20.0
     elevation_jitter_deg: float = 4.0
     size: float = 240.0
-    lumps: int = 14
+    lumps: int = 30
     scanner: Scanner = Scanner(rows=64, cols=64, fov_deg=(24.0, 24.0), noise=0.3, outliers=0.02, jitter=0.35)
     perturb_deg: float = 3.0
     perturb_frac: float = 0.02
@@ -78,7 +78,7 @@ class Campaign:
                 f"{min(pts)}-{max(pts)} points per scan)")
 
 
-def lumpy_object(rng: np.random.Generator, size: float = 240.0, lumps: int = 14) -> tuple[np.ndarray, np.ndarray]:
+def lumpy_object(rng: np.random.Generator, size: float = 240.0, lumps: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """A closed, asymmetric triangle mesh ((V, 3) mm, (F, 3)): an ellipsoid with seeded lumps and dents."""
     import trimesh
 
@@ -88,7 +88,7 @@ def lumpy_object(rng: np.random.Generator, size: float = 240.0, lumps: int = 14)
     centres = rng.normal(size=(lumps, 3))
     centres /= np.linalg.norm(centres, axis=1, keepdims=True)
     heights = rng.uniform(0.08, 0.25, lumps) * rng.choice([-1.0, 1.0], lumps, p=[0.3, 0.7])
-    widths = rng.uniform(0.25, 0.6, lumps)
+    widths = rng.uniform(0.12, 0.35, lumps)
     for c, h, w in zip(centres, heights, widths):
         r += h * np.exp(-np.sum((u - c) ** 2, axis=1) / (2 * w * w))
     axes = np.array([1.0, 0.75, 0.9]) * rng.uniform(0.9, 1.1, 3)

@@ -107,6 +107,9 @@ class TaskRunner:
                                             host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                             silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
+        # Import the engine (numpy, scipy, Open3D: seconds each) in every worker now, at the cluster's
+        # start, not inside the first tasks.
+        self.client.run(_warm)
         if self.say:
             n = len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
             where = self.scheduler or "a local cluster"
@@ -133,20 +136,33 @@ class TaskRunner:
             return out
         from distributed import as_completed
 
-        if shared is None:
-            futures = self.client.map(fn, items, pure=False)
-        else:
-            [ref] = self.client.scatter([shared], broadcast=True, hash=False)
-            futures = self.client.map(fn, [ref] * len(items), items, pure=False)
+        # Many short tasks (e.g. 276 overlap measurements of a 24-scan campaign) go in batches of
+        # consecutive items, about 16 batches per worker: the scheduler's cost per task stays small.
+        n_workers = max(1, len(self.client.scheduler_info(n_workers=-1).get("workers", {})))
+        size = max(1, len(items) // (16 * n_workers))
+        batches = [items[k:k + size] for k in range(0, len(items), size)]
+        [ref] = self.client.scatter([shared], broadcast=True, hash=False)
+        futures = self.client.map(_run_batch, [fn] * len(batches), [ref] * len(batches), batches, pure=False)
         try:
             for fut in as_completed(futures):
                 if fut.status == "error":
                     fut.result()  # raises the task's own exception (an InputError stays one)
-                bar.step()
-            return self.client.gather(futures)
+                for _ in range(len(batches[futures.index(fut)])):
+                    bar.step()
+            return [r for part in self.client.gather(futures) for r in part]
         finally:
             for fut in futures:
                 fut.release()
+
+
+def _warm() -> None:
+    import open3d  # noqa: F401
+
+    import core.merge  # noqa: F401
+
+
+def _run_batch(fn: Callable, shared: Any, batch: list) -> list:
+    return [fn(item) if shared is None else fn(shared, item) for item in batch]
 
 
 def map_tasks(fn: Callable, items: Sequence[Any], workers: int | None = 1, scheduler: str | None = None,

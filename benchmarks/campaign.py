@@ -76,6 +76,8 @@ def main() -> int:
           f"{sum(p.status == 'dropped' for p in r1.pairs)} dropped")
     print(f"{'':28s}{'1 worker':>12s}{f'{a.workers} workers':>12s}{'speed-up':>10s}")
     print(f"{'pairwise stage (s)':28s}{r1.pair_seconds:12.1f}{rn.pair_seconds:12.1f}{r1.pair_seconds / rn.pair_seconds:9.2f}x")
+    print(f"{'  of which overlaps (s)':28s}{r1.overlap_seconds:12.1f}{rn.overlap_seconds:12.1f}"
+          f"{r1.overlap_seconds / rn.overlap_seconds:9.2f}x")
     print(f"{'end to end (s)':28s}{w1:12.1f}{wn:12.1f}{w1 / wn:9.2f}x")
     print(f"{'load average after':28s}{l1:12.1f}{ln:12.1f}")
     same = all(np.array_equal(x, y) for x, y in zip(r1.poses, rn.poses))

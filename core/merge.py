@@ -82,6 +82,7 @@ class MergeResult:
     model: FusedModel | None
     seconds: float
     pair_seconds: float = 0.0  # wall time of the pairwise stage (candidates + registrations)
+    overlap_seconds: float = 0.0  # of which measuring the candidates' overlap
     mode: str = "init"
 
     @property
@@ -252,6 +253,7 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     if alone:
         raise InputError(f"{', '.join(alone)} overlap(s) no other scan under the initial poses; "
                          "give better initial poses (--init) or leave it out")
+    overlap_seconds = time.perf_counter() - t0
     groups = _components(n, candidates)
     if len(groups) > 1:
         listed = "; ".join(", ".join(scans[k].name for k in g) for g in groups)
@@ -268,7 +270,7 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     if build_model:
         say("fusing the registered scans into one model")
         model = fuse(scans, poses)
-    return MergeResult(poses, results, model, time.perf_counter() - t0, pair_seconds, mode)
+    return MergeResult(poses, results, model, time.perf_counter() - t0, pair_seconds, overlap_seconds, mode)
 
 
 def _choose(overlaps: list, n: int, mode: str) -> list:

@@ -68,20 +68,21 @@ def _clock(seconds: float) -> str:
 
 
 class TaskRunner:
-    """A context manager that runs task maps serially or on one Dask cluster kept for its lifetime.
+    """A context manager that runs task maps serially or on one Dask cluster, started by the first map
+    with two or more tasks and kept until the context ends.
 
     ``progress`` receives human-readable lines (progress, the dashboard address); None: silent.
     """
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None, connect_timeout: float = 10.0):
         if scheduler is not None:
             if not isinstance(scheduler, str) or not scheduler.startswith("tcp://") or ":" not in scheduler[6:]:
                 raise InputError(f"--scheduler must look like tcp://HOST:PORT, got {scheduler!r}")
         workers = default_workers() if workers is None else workers
         if not isinstance(workers, int) or workers < 1:
             raise InputError(f"--workers must be a whole number >= 1, got {workers!r}")
-        self.workers, self.scheduler, self.say = workers, scheduler, progress
+        self.workers, self.scheduler, self.say, self.connect_timeout = workers, scheduler, progress, connect_timeout
         self.client = None
         self.cluster = None
 
@@ -90,14 +91,18 @@ class TaskRunner:
         return self.scheduler is None and self.workers == 1
 
     def __enter__(self) -> TaskRunner:
-        if self.serial:
-            return self
+        return self
+
+    def start(self) -> None:
+        """Connect to the scheduler or start the local cluster (done by the first map with work for it)."""
+        if self.serial or self.client is not None:
+            return
         import dask
         from distributed import Client, LocalCluster
 
         if self.scheduler is not None:
             try:
-                self.client = Client(self.scheduler, timeout="10s")
+                self.client = Client(self.scheduler, timeout=f"{self.connect_timeout}s")
             except (OSError, TimeoutError) as exc:
                 raise InputError(f"cannot reach the Dask scheduler at {self.scheduler} ({exc})") from None
         else:
@@ -114,7 +119,6 @@ class TaskRunner:
             n = len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
             where = self.scheduler or "a local cluster"
             self.say(f"Dask: {n} workers on {where}; dashboard {self.client.dashboard_link}")
-        return self
 
     def __exit__(self, *exc) -> None:
         if self.client is not None:
@@ -128,7 +132,7 @@ class TaskRunner:
         items = list(items)
         label = label or getattr(fn, "__name__", "task").removesuffix("_task") + "s"
         bar = Progress(len(items), label, self.say)
-        if self.serial or not items:
+        if self.serial or len(items) < 2:  # one task: a cluster would only add its start-up
             out = []
             for item in items:
                 out.append(fn(item) if shared is None else fn(shared, item))
@@ -136,6 +140,7 @@ class TaskRunner:
             return out
         from distributed import as_completed
 
+        self.start()
         # Many short tasks (e.g. 276 overlap measurements of a 24-scan campaign) go in batches of
         # consecutive items, about 16 batches per worker: the scheduler's cost per task stays small.
         n_workers = max(1, len(self.client.scheduler_info(n_workers=-1).get("workers", {})))

@@ -34,6 +34,7 @@ ROT_TARGET, TRANS_TARGET = 1.0, 0.005  # degrees; fraction of the object's size
 def run(camp, initial, workers: int, pairs: str, quiet: bool) -> tuple:
     t0 = time.perf_counter()
     with TaskRunner(workers, progress=None if quiet else stderr_lines) as runner:
+        runner.start()  # the cluster's start counts end to end, not in the pairwise stage
         res = merge(camp.scans, initial, build_model=False, pairs=pairs, map_tasks=runner.map,
                     progress=None if quiet else stderr_lines)
     return res, time.perf_counter() - t0

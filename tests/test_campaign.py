@@ -168,8 +168,8 @@ def test_bad_runner_settings_are_one_clear_error():
             TaskRunner(**kw)
     port = _free_port()  # nobody listens there
     with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
-        with TaskRunner(scheduler=f"tcp://127.0.0.1:{port}"):
-            pass
+        with TaskRunner(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=1.0) as runner:
+            runner.start()
 
 
 def test_map_tasks_keeps_the_order_serially_and_on_a_cluster():

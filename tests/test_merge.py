@@ -91,3 +91,21 @@ def test_bunny_set_comes_back_to_the_conf_poses(bunny):
         assert rot < 1.0 and tr < 0.002, (s.name, rot, tr)
     assert double_layer_fraction(res.model.vertices, res.model.faces, scans[0].spacing) < 0.02
     assert BUNNY.is_dir()
+
+
+def test_merge_of_scans_that_do_not_overlap_prints_one_line(tmp_path):
+    from dataclasses import replace
+
+    from core.io import load_scan, save_scan
+
+    # no stored guesses: a chain from the identity, where the second scan lies 100 m away
+    near = load_scan(ASSETS / "corner" / "scan2.ply")
+    far = load_scan(ASSETS / "corner" / "scan1.ply")
+    save_scan(tmp_path / "near.ply", replace(near, pose=None, guess=None))
+    save_scan(tmp_path / "far.ply", replace(far, points=far.points + 1e5, viewpoint=far.viewpoint + 1e5, pose=None,
+                                            guess=None))
+    out = tmp_path / "model.ply"
+    r = rangereg("merge", tmp_path / "near.ply", tmp_path / "far.ply", "--out", out)
+    assert r.returncode == 2 and not out.exists()
+    assert r.stderr.strip().splitlines() == ["rangereg merge: error: near and far do not overlap from the identity; "
+                                             "give initial poses (--init)"]

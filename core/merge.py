@@ -119,11 +119,11 @@ def _token(scans: list[Scan], config: Config) -> str:
     return h.hexdigest()
 
 
-_BUILT: dict[str, dict[int, tuple]] = {}  # per process: token -> {scan index: (Scan, Surface, normals)}
+_BUILT: dict[str, dict] = {}  # per process: token -> {scan index: (Scan, Surface)} and {("normals", k): (N, 3)}
 
 
-def _built(shared: Shared, k: int) -> tuple[Scan, Surface, np.ndarray]:
-    """Scan k rebuilt from its arrays, its surface and normals: built once per process, then reused."""
+def _built(shared: Shared, k: int) -> tuple[Scan, Surface]:
+    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused."""
     if shared.token not in _BUILT:
         _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
         _BUILT[shared.token] = {}
@@ -132,8 +132,16 @@ def _built(shared: Shared, k: int) -> tuple[Scan, Surface, np.ndarray]:
         d = shared.scans[k]
         scan = Scan(points=d["points"], viewpoint=d["viewpoint"], name=d["name"], units=d["units"],
                     grid=None if d["grid"] is None else RangeGrid(d["grid"]), faces=d["faces"])
-        cache[k] = (scan, Surface.from_scan(scan), sample_quality(scan)[0])
+        cache[k] = (scan, Surface.from_scan(scan))
     return cache[k]
+
+
+def _normals(shared: Shared, k: int) -> np.ndarray:
+    """(N, 3) normals of scan k (facing its sensor), once per process: only targets of a pair need them."""
+    cache = _BUILT[shared.token]
+    if ("normals", k) not in cache:
+        cache[("normals", k)] = sample_quality(_built(shared, k)[0])[0]
+    return cache[("normals", k)]
 
 
 def pair_seed(seed: int, i: int, j: int) -> int:
@@ -144,7 +152,7 @@ def pair_seed(seed: int, i: int, j: int) -> int:
 def overlap_task(shared: Shared, item: tuple) -> float:
     """item (i, j, T_i_j) -> the smaller of the two overlap fractions (frustum and visibility)."""
     i, j, T_i_j = item
-    (si, fi, _), (sj, fj, _) = _built(shared, i), _built(shared, j)
+    (si, fi), (sj, fj) = _built(shared, i), _built(shared, j)
     fracs = []
     for src, tgt, surf, T in ((sj, si, fi, T_i_j), (si, sj, fj, invert(T_i_j))):
         try:
@@ -158,7 +166,8 @@ def pair_task(shared: Shared, item: tuple) -> tuple[np.ndarray, float, float]:
     """item (i, j, T0_i_j) -> (T_i_j, E, seconds): scan j registered onto scan i from T0, then polished."""
     i, j, T0 = item
     t0 = time.perf_counter()
-    target, surface, normals = _built(shared, i)
+    target, surface = _built(shared, i)
+    normals = _normals(shared, i)
     source = _built(shared, j)[0]
     seed = pair_seed(shared.config.seed, i, j)
     config = replace(shared.config, seed=seed)
@@ -263,7 +272,8 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     out = run(pair_task, [(i, j, rel(i, j)) for i, j, _ in candidates], shared)
     results = [PairResult(i, j, T, err, frac, sec) for (i, j, frac), (T, err, sec) in zip(candidates, out)]
     pair_seconds = time.perf_counter() - t0
-    results = _drop_outliers(results, n)
+    if not chain:  # a chain from the identity has no pair to spare
+        results = _drop_outliers(results, n)
     poses, rejected = _pose_graph(n, [p for p in results if p.status == "used"], initial, chain, scans)
     results = [replace(p, status="rejected") if (p.i, p.j) in rejected else p for p in results]
     model = None
@@ -310,12 +320,12 @@ def _components(n: int, pairs: list) -> list[list[int]]:
 
 def _drop_outliers(pairs: list, n: int) -> list:
     """A pair whose final E is far above the others' did not find its partner surface: leave it out,
-    unless that leaves a scan with no pair."""
+    unless that splits the scans into separate groups."""
     if len(pairs) < 3:
         return pairs
     median = float(np.median([p.error for p in pairs]))
-    good = [p for p in pairs if p.error <= OUTLIER_PAIR * median]
-    if {k for p in good for k in (p.i, p.j)} != set(range(n)):
+    good = [(p.i, p.j) for p in pairs if p.error <= OUTLIER_PAIR * median]
+    if len(_components(n, good)) > 1:
         return pairs
     return [p if p.error <= OUTLIER_PAIR * median else replace(p, status="dropped") for p in pairs]
 

@@ -109,3 +109,17 @@ def test_merge_of_scans_that_do_not_overlap_prints_one_line(tmp_path):
     assert r.returncode == 2 and not out.exists()
     assert r.stderr.strip().splitlines() == ["rangereg merge: error: near and far do not overlap from the identity; "
                                              "give initial poses (--init)"]
+
+
+def test_candidate_pairs_per_mode():
+    from core.merge import MAX_PARTNERS, _choose
+
+    n = 12  # a ring: overlap falls with the distance round the ring
+    ring = lambda i, j: min((j - i) % n, (i - j) % n)  # noqa: E731
+    overlaps = [(i, j, max(0.0, 0.9 - 0.12 * ring(i, j))) for i in range(n) for j in range(i + 1, n)]
+    every = _choose(overlaps, n, "overlap")
+    assert {c[:2] for c in every} == {(i, j) for i, j, f in overlaps if f >= 0.25}
+    best = _choose(overlaps, n, "init")
+    assert {c[:2] for c in best} == {(i, j) for i, j, _ in overlaps if ring(i, j) <= MAX_PARTNERS // 2}
+    chain = [(i, i + 1, 0.8) for i in range(n - 1)] + [(0, n - 1, 0.02)]
+    assert [c[:2] for c in _choose(chain, n, "chain")] == [(i, i + 1) for i in range(n - 1)]

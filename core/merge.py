@@ -288,9 +288,14 @@ def _choose(overlaps: list, n: int, mode: str) -> list:
     floor = MIN_OVERLAP_ANY if mode == "chain" else MIN_OVERLAP
     candidates = [c for c in overlaps if c[2] >= floor]
     if mode == "init":
-        best = {k: sorted((c for c in candidates if k in c[:2]), key=lambda c: -c[2])[:MAX_PARTNERS] for k in range(n)}
-        keep = {c[:2] for cs in best.values() for c in cs}
-        candidates = [c for c in candidates if c[:2] in keep]
+        # a pair both of whose scans count the other among their best partners (the union where that
+        # leaves separate groups): a scan seen from behind can look overlapping near its silhouette
+        # (12-stop turntable: 48 % "overlap" at 180 degrees, ranked 4th by the far scan alone)
+        best = {k: {c[:2] for c in sorted((c for c in candidates if k in c[:2]), key=lambda c: -c[2])[:MAX_PARTNERS]}
+                for k in range(n)}
+        mutual = [c for c in candidates if c[:2] in best[c[0]] and c[:2] in best[c[1]]]
+        either = [c for c in candidates if c[:2] in best[c[0]] or c[:2] in best[c[1]]]
+        candidates = mutual if len(_components(n, mutual)) == 1 else either
     # A scan whose every overlap looks small under rough poses still gets its best partner.
     for k in range(n):
         if not any(k in c[:2] for c in candidates):

@@ -145,6 +145,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
     s.add_argument("--out", default="model.ply", help="the fused mesh (.ply)")
     s.add_argument("--seed", type=_knob("seed"), default=0)
+    s.add_argument("--workers", type=_knob("workers"), default=None, help="pairwise registrations at once: 1 = a "
+                   "plain loop here, N = a local Dask cluster of N processes (default: one per core)")
+    s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the pairwise registrations on an existing "
+                   "Dask cluster (started with 'dask scheduler' and 'dask worker')")
+    s.add_argument("--pairs", choices=("init", "chain", "overlap"), help="candidate pairs: init = each scan's "
+                   "best-overlapping partners under the initial poses (default with initial poses); chain = "
+                   "consecutive scans and the last with the first (default without); overlap = every overlapping pair")
     s.add_argument("--json", action="store_true")
 
     s = sub.add_parser("scenes", help="regenerate the bundled default scenes",

@@ -58,6 +58,7 @@ KNOBS: dict[str, Knob] = {
     "recut_rounds": Knob("--recut-rounds", int, 1, 20),  # measured: a second round rarely differs (core/register.py)
     "steps": Knob("--steps", int, 2, 201),  # 201 x 201 evaluations take about 10 s here (0.24 ms each)
     "runs": Knob("--runs", int, 1, 1000),  # a full bench of 10 starts takes about 15 min
+    "workers": Knob("--workers", int, 1, 1024),  # Dask worker processes (merge); more than the cores only queue
     "port": Knob("--port", int, 1, 65535),  # TCP ports
     "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
 }

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 from .lock import LockFrame
+from .transforms import apply
 
 
 def weighted_horn(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
@@ -94,3 +95,16 @@ def constrained_horn(y: np.ndarray, q: np.ndarray, w: np.ndarray, frame: LockFra
         if done:
             break
     return z
+
+
+def locked_horn(x: np.ndarray, y: np.ndarray, w: np.ndarray | None, frame: LockFrame) -> np.ndarray:
+    """(4, 4) the pose of ``frame``'s allowed set with T(x_i) ~ y_i (point-pair alignment under a
+    lock); x: (N, 3) source frame, y: (N, 3) target frame, w: (N,) weights (default 1).
+
+    Starts from the unconstrained Horn pose projected onto the set (a large rotation is found
+    there; the turntable's angle is closed-form anyway), then :func:`constrained_horn`.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    w = np.ones(len(x)) if w is None else np.asarray(w, dtype=np.float64)
+    z0 = frame.free(weighted_horn(x, y, w)) if np.count_nonzero(w) >= 3 else np.zeros(frame.k)
+    return frame.pose(constrained_horn(apply(frame.T_ref, x), y, w, frame, z0))

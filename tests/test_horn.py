@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from core.errors import InputError
-from core.horn import constrained_horn, weighted_horn
+from core.horn import constrained_horn, locked_horn, weighted_horn
 from core.lock import Lock
 from core.transforms import apply, from_params
 
@@ -93,3 +93,19 @@ def test_constrained_horn_refuses_bad_input():
         constrained_horn(np.zeros((4, 3)), np.zeros((5, 3)), np.ones(4), frame, np.zeros(5))
     with pytest.raises(InputError, match="weights"):
         constrained_horn(np.zeros((4, 3)), np.zeros((4, 3)), np.zeros(4), frame, np.zeros(5))
+
+
+def test_pair_alignment_under_a_turntable_lock_finds_a_large_turn():
+    from core.transforms import perturb
+
+    rng = np.random.default_rng(5)
+    x = rng.normal(0, 50, (6, 3))  # six picked pairs
+    point, axis = np.array([10.0, -30.0, 0.0]), np.array([0.0, 0.6, 0.8])
+    T = perturb(np.eye(4), np.r_[0, 0, 0, np.radians(150.0) * axis], point)
+    y = apply(T, x) + rng.normal(0, 0.5, x.shape)
+    frame = Lock.parse("turntable:10,-30,0,0,0.6,0.8").bind(np.eye(4), x.mean(0), 1.0)
+    np.testing.assert_allclose(locked_horn(x, y, None, frame), T, atol=0.02)
+    # the same turn as a subset lock (tx, ty, tz, rx locked about the centroid) from the projected start
+    sub = Lock.parse("tx,ty,tz,rx").bind(np.eye(4), x.mean(0), 1.0)
+    T_sub = perturb(np.eye(4), np.r_[0, 0, 0, 0, 1.2, -1.5], x.mean(0))
+    np.testing.assert_allclose(locked_horn(x, apply(T_sub, x), None, sub), T_sub, atol=1e-8)

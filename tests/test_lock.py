@@ -188,3 +188,18 @@ def test_a_locked_trace_reads_back_with_its_coordinates():
     free = []
     register(source, target, T0, Config(method="icp"), free.append)
     assert all(e.coords is None and "coords" not in e.to_json() for e in free)
+
+
+def test_the_search_state_projects_a_stage_s_own_poses_onto_the_allowed_set():
+    from core.problem import prepare
+    from core.search import SearchState
+
+    source, target, Tt = _bowl()
+    problem = prepare(source, target, Tt)
+    T = from_params(np.r_[5.0, -3.0, 2.0, 0.02, -0.01, 0.03]) @ Tt
+    assert SearchState(problem, Config(), None).project(T) is T
+    state = SearchState(problem, Config(lock=Lock.parse("tx,rx,ry")), None)
+    P = state.project(T)
+    x = state.frame.coords_of(P)
+    assert np.all(x[[0, 3, 4]] == 0.0) and np.array_equal(P, state.frame.pose(state.frame.free(P)))
+    assert not np.allclose(x, 0)

@@ -126,6 +126,11 @@ class SearchState:
             T, E = self.icp(self.start)
         return T, E
 
+    def project(self, T: np.ndarray) -> np.ndarray:
+        """T itself, or under a lock the pose of the allowed set nearest to it (core.lock): a stage
+        that makes poses of its own (candidates, pair alignment) hands them to the legs through this."""
+        return T if self.frame is None else self.frame.pose(self.frame.free(T))
+
     def random_step(self, T: np.ndarray, size: float) -> np.ndarray:
         """T moved in a random direction by up to ``size`` x the guess's uncertainty in each of
         translation and rotation (uniform in length)."""

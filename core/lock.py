@@ -59,6 +59,8 @@ class Lock:
         return tuple(n for n in PARAM_NAMES if n not in self.locked)
 
     def validate(self) -> None:
+        if not isinstance(self.locked, tuple):
+            raise InputError(f"locked must be a tuple of names such as ('rx', 'ry'), got {self.locked!r}")
         if self.turntable:
             if self.locked:
                 raise InputError("a lock is either a turntable axis or a set of locked parameters, not both")
@@ -117,6 +119,8 @@ class Lock:
         source's overlap centroid (source frame, the subset mode's pivot); ``scale``: units per
         search unit of translation (``Problem.scale``)."""
         self.validate()
+        if not (np.isfinite(scale) and scale > 0):
+            raise InputError(f"a lock's translation scale must be > 0, got {scale}")
         return LockFrame(self, np.asarray(T_ref, dtype=np.float64), np.asarray(center, dtype=np.float64), float(scale))
 
     def project(self, T: np.ndarray, T_ref: np.ndarray, center: np.ndarray, scale: float = 1.0) -> np.ndarray:

@@ -84,6 +84,8 @@ def test_the_config_checks_its_lock():
         Config(lock="rx").validate()
     with pytest.raises(InputError, match="both"):
         Config(lock=Lock(locked=("rx",), axis_point=(0, 0, 0), axis_direction=(0, 0, 1))).validate()
+    with pytest.raises(InputError, match="tuple of names"):
+        Config(lock=Lock(locked="rx")).validate()
     Config(lock=Lock.parse("rx")).validate()
     assert not Config().lock.active
 

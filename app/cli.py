@@ -1,19 +1,20 @@
-"""The ``rangereg`` command line: info, register, slice, bench, serve, merge, scenes.
+"""The ``rangereg`` command line: the parser and the dispatch. Each command's body is in ``app.commands``.
 
 Every transform maps SOURCE coordinates into TARGET's frame (``T_target_source``). Bad input gives
-one line on stderr and exit status 2.
+one line on stderr and exit status 2, checked before the work starts where it can be.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
+import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
+from app.options import KNOBS, check_value
 from core.errors import InputError
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
@@ -21,8 +22,21 @@ ASSETS = Path(__file__).resolve().parent.parent / "assets"
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit 2, no usage dump
-        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        sys.stderr.write(f"{self.prog}: error: {' '.join(message.split())}\n")
         raise SystemExit(2)
+
+
+def _knob(name: str):
+    """An argparse type checking ``app.options.KNOBS[name]`` (the one place each range is written)."""
+
+    def parse(text: str):
+        v = check_value(KNOBS[name], text)
+        if isinstance(v, str):
+            raise argparse.ArgumentTypeError(v)
+        return v
+
+    parse.__name__ = KNOBS[name].describe()
+    return parse
 
 
 def _vec3(text: str) -> np.ndarray:
@@ -35,27 +49,10 @@ def _vec3(text: str) -> np.ndarray:
     return v
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    return v
-
-
-def _number(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not np.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
-
-
 def build_parser() -> argparse.ArgumentParser:
     from core.frustum import KINDS
-    from core.register import METHODS
+    from core.problem import ProblemConfig
+    from core.register import METHODS, Config
     from core.simulate import SCENES
 
     p = _Parser(prog="rangereg", description="Register 3-D range scans with the hybrid simulated annealing + ICP "
@@ -69,48 +66,55 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
 
-    def pair(s, init=True):
+    pc, cfg = ProblemConfig(), Config()
+
+    def pair(s):
         s.add_argument("source", help="the scan to move")
         s.add_argument("target", help="the scan to register onto")
-        if init:
-            s.add_argument("--init", help="initial T_target_source: 16 numbers (row-major) or JSON with "
-                           "'transform'; default: from the scans' stored rough poses, else identity")
+        s.add_argument("--init", help="initial T_target_source: 16 numbers (row-major, quoted, spaces or commas) or "
+                       "a file holding them or JSON with 'transform'; default: from the scans' stored rough poses, "
+                       "else identity")
         s.add_argument("--viewpoint-source", type=_vec3, metavar="X,Y,Z")
         s.add_argument("--viewpoint-target", type=_vec3, metavar="X,Y,Z")
-        s.add_argument("--frustum", choices=KINDS, default="convex", help="overlap frustum (default convex)")
-        s.add_argument("--max-points", type=_positive_int, default=300, help="overlap points in E (default 300)")
-        s.add_argument("--seed", type=_positive_int, default=0)
-        s.add_argument("--rotation-uncertainty", type=_number, default=15.0, metavar="DEG",
-                       help="how far off the guess may be in rotation (default 15 deg)")
-        s.add_argument("--translation-uncertainty", type=_number, metavar="UNITS",
+        s.add_argument("--frustum", choices=KINDS, default=pc.frustum, help=f"overlap frustum (default {pc.frustum})")
+        s.add_argument("--max-points", type=_knob("max_points"), default=pc.max_points,
+                       help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
+        s.add_argument("--seed", type=_knob("seed"), default=0, help="seed of every random choice (default 0)")
+        s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), default=pc.rotation_uncertainty_deg,
+                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180] "
+                       f"(default {pc.rotation_uncertainty_deg:g} deg)")
+        s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",
                        help="how far off the guess may be in translation (default 15 %% of the target's size)")
 
     s = sub.add_parser("register", help="register SOURCE onto TARGET", description="Register SOURCE onto TARGET; "
                        "prints the transform that maps SOURCE into TARGET's frame.")
     pair(s)
     s.add_argument("--method", choices=METHODS, default="hybrid")
-    s.add_argument("--threshold", type=_number, help="stop below this E (squared units); default: estimated "
-                   "from the scans' own noise; 0: search until annealing gives up")
+    s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
+                   "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")
     s.add_argument("--coarse-to-fine", action="store_true", help="search a smoothed error surface first")
-    s.add_argument("--hops", type=_positive_int, default=200, help="basin-hopping: hops at most (default 200)")
-    s.add_argument("--recut-rounds", type=_positive_int, default=1, metavar="N", help="hybrid: search again "
-                   "from an overlap re-cut at the pose found, up to N rounds in all (default 1)")
-    s.add_argument("--trace", help="write every ICP/SA step as JSON lines")
-    s.add_argument("--out", help="write the transform as JSON")
+    s.add_argument("--hops", type=_knob("hops"), default=cfg.hops,
+                   help=f"basin-hopping: hops at most, 0 to {KNOBS['hops'].high:,} (default {cfg.hops})")
+    s.add_argument("--recut-rounds", type=_knob("recut_rounds"), default=cfg.recut_rounds, metavar="N",
+                   help="hybrid: search again from an overlap re-cut at the pose found, up to N rounds in all, "
+                   f"1 to {KNOBS['recut_rounds'].high} (default {cfg.recut_rounds})")
+    s.add_argument("--trace", help="write every ICP/SA step as JSON lines (.jsonl), put in place when the run ends")
+    s.add_argument("--out", help="write the transform as JSON (.json)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
 
     s = sub.add_parser("slice", help="plot a 2-D slice of the error surface",
                        description="E over two of tx,ty,tz (units), rx,ry,rz (degrees) around a pose.")
     pair(s)
     s.add_argument("--params", default="tx,ry", help="two parameters, e.g. tx,ry")
-    s.add_argument("--span", help="half-widths a,b (units / degrees); default: the initial uncertainty")
-    s.add_argument("--steps", type=_positive_int, default=61)
-    s.add_argument("--trace", help="a --trace file from 'register' to draw on the slice")
+    s.add_argument("--span", help="half-widths a,b > 0 (units / degrees); default: the initial uncertainty")
+    s.add_argument("--steps", type=_knob("steps"), default=61,
+                   help=f"grid steps per axis, 2 to {KNOBS['steps'].high} (default 61)")
+    s.add_argument("--trace", dest="trace_in", help="a --trace file from 'register' to draw on the slice")
     s.add_argument("--center", choices=("init", "end"), default="init",
                    help="slice around the initial pose or the trace's end (default init)")
-    s.add_argument("--png", required=True, help="write the picture here")
-    s.add_argument("--npz", help="write the numbers here")
+    s.add_argument("--png", required=True, help="write the picture here (.png)")
+    s.add_argument("--npz", help="write the numbers here (.npz)")
 
     s = sub.add_parser("bench", help="reproduce the paper's tables", description="Run every method from the same "
                        "seeded starts on the scenes (and the shared bunny scans when present).")
@@ -118,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--json", help="write the rows as JSON to this file")
-    s.add_argument("--runs", type=_positive_int, help="starts per scene (default 10, quick 2)")
+    s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
     s.add_argument("--bunny", default=str(Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"),
                    help="folder of the Stanford bunny scans")
 
@@ -127,220 +131,65 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("target", nargs="?")
     s.add_argument("--scene", choices=SCENES, default="corner")
     s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=_positive_int, default=8080)
+    s.add_argument("--port", type=_knob("port"), default=8080)
     s.add_argument("--data-dir", help="folder whose scan files the page may open")
-    s.add_argument("--upload-cap-mb", type=_number, default=200.0, help="largest upload accepted (default 200 MB)")
+    s.add_argument("--upload-cap-mb", type=_knob("upload_cap_mb"), default=200.0,
+                   help="largest upload accepted (default 200 MB)")
 
     s = sub.add_parser("merge", help="register a set of scans and fuse them into one model",
                        description="Register overlapping pairs, make poses globally consistent, fuse one mesh.")
     s.add_argument("scans", nargs="+")
     s.add_argument("--init", help="initial poses: a Stanford .conf (default: stored rough poses, else a chain)")
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
-    s.add_argument("--out", default="model.ply")
-    s.add_argument("--seed", type=_positive_int, default=0)
+    s.add_argument("--out", default="model.ply", help="the fused mesh (.ply)")
+    s.add_argument("--seed", type=_knob("seed"), default=0)
     s.add_argument("--json", action="store_true")
 
     s = sub.add_parser("scenes", help="regenerate the bundled default scenes",
                        description="Simulate the paper's scenes (corner, wing, bowl) into a folder.")
     s.add_argument("--out", default=str(ASSETS))
-    s.add_argument("--seed", type=_positive_int, default=0)
+    s.add_argument("--seed", type=_knob("seed"), default=0)
     return p
 
 
-def _load(path, viewpoint=None):
-    from core.io import load_scan
-
-    return load_scan(path, viewpoint=viewpoint)
-
-
-def cmd_info(a) -> int:
-    from core.surface import Surface
-
-    scan = _load(a.scan, a.viewpoint)
-    tri = Surface.from_scan(scan).n_triangles
-    info = {"points": len(scan.points), "bounds": [scan.points.min(0).tolist(), scan.points.max(0).tolist()],
-            "units": scan.units, "viewpoint": scan.viewpoint.tolist(), "viewpoint_estimated": scan.viewpoint_estimated,
-            "grid": scan.grid is not None, "triangles": tri, "spacing": scan.spacing, "dropped": scan.dropped,
-            "ground_truth": scan.pose is not None}
-    if a.json:
-        print(json.dumps(info))
-        return 0
-    lo, hi = info["bounds"]
-    print(f"{a.scan}")
-    print(f"  points      {info['points']}" + (f" ({scan.dropped} NaN/inf dropped)" if scan.dropped else ""))
-    print(f"  bounds      {np.round(lo, 5).tolist()} .. {np.round(hi, 5).tolist()} {scan.units}")
-    print(f"  viewpoint   {np.round(scan.viewpoint, 5).tolist()}" + (" (estimated)" if scan.viewpoint_estimated else ""))
-    print(f"  range grid  {'x'.join(map(str, scan.grid.shape)) if scan.grid is not None else 'no'}")
-    print(f"  triangles   {tri}")
-    print(f"  spacing     {scan.spacing:.6g} {scan.units} (median nearest-neighbour)")
-    if scan.pose is not None:
-        print("  ground truth pose: yes")
-    return 0
-
-
-def _pair_and_config(a, method="hybrid", threshold=None, **options):
-    from core.io import read_transform
-    from core.problem import ProblemConfig, relative_guess
-    from core.register import Config
-
-    source = _load(a.source, a.viewpoint_source)
-    target = _load(a.target, a.viewpoint_target)
-    T_init = read_transform(a.init) if a.init else relative_guess(source, target)
-    if a.max_points < 3:
-        raise InputError(f"--max-points must be at least 3, got {a.max_points}")
-    if a.seed < 0:
-        raise InputError(f"--seed must be >= 0, got {a.seed}")
-    pc = ProblemConfig(max_points=a.max_points, frustum=a.frustum, rotation_uncertainty_deg=a.rotation_uncertainty,
-                       translation_uncertainty=a.translation_uncertainty)
-    cfg = Config(method=method, threshold=threshold, seed=a.seed, problem=pc, **options)
-    cfg.validate()
-    return source, target, T_init, cfg
-
-
-class _Progress:
-    """Readable progress on stderr, at most twice a second."""
-
-    def __init__(self, enabled: bool):
-        self.enabled, self.last = enabled, 0.0
-
-    def __call__(self, e) -> None:
-        now = time.monotonic()
-        if self.enabled and (now - self.last > 0.5 or e.local_minimum):
-            self.last = now
-            extra = f" T={e.temperature:.3g}" if e.temperature is not None else ""
-            mark = "  <- ICP ended in a local minimum" if e.local_minimum else ""
-            sys.stderr.write(f"  {e.phase:3s} iteration {e.iteration:6d}  E={e.error:.6g}{extra}{mark}\n")
-
-
-def cmd_register(a) -> int:
-    from core.register import register
-
-    source, target, T_init, cfg = _pair_and_config(a, a.method, a.threshold, polish=a.polish,
-                                                   coarse_to_fine=a.coarse_to_fine, hops=a.hops,
-                                                   recut_rounds=a.recut_rounds)
-    trace = open(a.trace, "w") if a.trace else None
-    progress = _Progress(not a.json and sys.stderr.isatty() or (not a.json and a.trace is None))
-
-    def listener(e):
-        if trace is not None:
-            trace.write(json.dumps(e.to_json()) + "\n")
-        progress(e)
-
+def _quiet_stdout() -> None:
+    """After a closed pipe (``| head``): point stdout at devnull so the interpreter's flush at exit is
+    silent (the recipe of Python's signal module documentation)."""
     try:
-        res = register(source, target, T_init, cfg, listener)
-    finally:
-        if trace is not None:
-            trace.close()
-    if a.out:
-        from core.io import write_transform
-
-        write_transform(a.out, res.transform, error=res.error, method=res.method)
-    if a.json:
-        print(json.dumps(res.to_json()))
-        return 0
-    print(f"method      {res.method}")
-    print(f"error       {res.error:.6g} {target.units}^2 (threshold {res.threshold:.6g})")
-    print(f"iterations  ICP {res.iterations['icp']}, SA {res.iterations['sa']}  (local minima {res.local_minima})")
-    print(f"stopped     {res.stop_text} after {res.seconds:.2f} s")
-    print("transform (maps SOURCE into TARGET's frame):")
-    for row in res.transform:
-        print("  " + " ".join(f"{v: .8f}" for v in row))
-    if source.pose is not None and target.pose is not None:
-        from core.transforms import invert, pose_error
-
-        rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
-        print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
-    if res.threshold > 0 and res.error >= res.threshold:
-        t_unc = cfg.problem.translation_uncertainty_for(target.size)
-        print(f"note: E stayed above the threshold, so this is probably not the registration. The search covers "
-              f"about twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg, "
-              f"{t_unc:.4g} {target.units}); if the guess may be farther off, give a better --init or a larger "
-              "--rotation-uncertainty / --translation-uncertainty, or try --method basin-hopping.")
-    return 0
-
-
-def cmd_slice(a) -> int:
-    from core.events import Event
-    from core.landscape import compute_slice, default_span, parse_params, project
-    from core.problem import prepare
-
-    params = parse_params(a.params)
-    if a.steps < 2:
-        raise InputError(f"--steps must be at least 2, got {a.steps}")
-    source, target, T_init, cfg = _pair_and_config(a)
-    problem = prepare(source, target, T_init, cfg.problem, seed=cfg.seed)
-    events = []
-    if a.trace:
-        tp = Path(a.trace)
-        if not tp.exists():
-            raise InputError(f"{tp}: no such file")
-        try:
-            events = [Event.from_json(json.loads(line)) for line in tp.read_text().splitlines() if line.strip()]
-        except (json.JSONDecodeError, KeyError, TypeError) as exc:
-            raise InputError(f"{tp}: not a rangereg trace (JSON lines of events): {exc}") from None
-    center = events[-1].T if (a.center == "end" and events) else problem.T_init
-    if a.span:
-        try:
-            spans = tuple(float(v) for v in a.span.split(","))
-        except ValueError:
-            raise InputError(f"--span needs two numbers a,b, got {a.span!r}") from None
-        if len(spans) != 2:
-            raise InputError(f"--span needs two numbers a,b, got {a.span!r}")
-    else:
-        spans = tuple(default_span(problem, n) for n in params)
-    sl = compute_slice(problem, center, params, spans, a.steps)
-    path_xy = project(problem, center, params, [problem.T_init] + [e.T for e in events]) if events else None
-    phases = ["icp"] + [e.phase for e in events] if events else None
-    from app.plots import slice_png
-
-    slice_png(sl, a.png, path_xy, phases, title=f"{Path(a.source).stem} -> {Path(a.target).stem}: E({params[0]}, {params[1]})")
-    if a.npz:
-        np.savez(a.npz, params=np.array(params), axis_a=sl.axis_a, axis_b=sl.axis_b, values=sl.values,
-                 center=center, path=path_xy if path_xy is not None else np.zeros((0, 2)))
-    print(f"{sl!r} -> {a.png}" + (f", {a.npz}" if a.npz else ""))
-    return 0
-
-
-def cmd_scenes(a) -> int:
-    from core.scenes import write_scenes
-
-    for path in write_scenes(Path(a.out), a.seed):
-        print(path)
-    return 0
-
-
-def cmd_bench(a) -> int:
-    from app.bench import main as bench_main
-
-    return bench_main(a)
-
-
-def cmd_serve(a) -> int:
-    from app.workbench import serve
-
-    return serve(a)
-
-
-def cmd_merge(a) -> int:
-    from app.merge_cli import main as merge_main
-
-    return merge_main(a)
-
-
-COMMANDS = {"info": cmd_info, "register": cmd_register, "slice": cmd_slice, "bench": cmd_bench, "serve": cmd_serve,
-            "merge": cmd_merge, "scenes": cmd_scenes}
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # a stdout with no file behind it (in-process callers)
+        pass
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run one command; returns the exit status (0, 2 for bad input, 130 when interrupted)."""
     try:
-        return COMMANDS[args.command](args)
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
+        return exc.code if isinstance(exc.code, int) else 2
+    try:
+        status = importlib.import_module(f"app.commands.{args.command}").run(args)
+        sys.stdout.flush()
+        return status
+    except BrokenPipeError:  # the reader went away (`| head`): nothing more to say
+        _quiet_stdout()
+        return 1
     except InputError as exc:
-        sys.stderr.write(f"rangereg {args.command}: error: {exc}\n")
-        return 2
+        _error(args.command, str(exc))
+    except OSError as exc:  # a file the core reads that the OS refuses; a full stdout (see _error)
+        _error(args.command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
     except KeyboardInterrupt:
-        sys.stderr.write("rangereg: interrupted\n")
+        _error(None, "interrupted")
         return 130
+    return 2
+
+
+def _error(command: str | None, message: str) -> None:
+    try:
+        sys.stdout.flush()  # the result printed before a late failure comes first
+    except OSError:
+        _quiet_stdout()
+    sys.stderr.write(f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n")
 
 
 if __name__ == "__main__":

@@ -10,16 +10,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from app.figures import PHASE_LABEL, PHASE_RGB, axis_label
 from core.events import Event
 from core.landscape import Slice
 from core.scan import Scan
 
-TARGET_RGB = (60, 120, 220)
-SOURCE_RGB = (240, 140, 30)
-TARGET_OVERLAP_RGB = (120, 230, 255)
-SOURCE_OVERLAP_RGB = (255, 225, 60)
-PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200)}
-MINIMUM_RGB = (230, 30, 30)
 MAX_PATH_POINTS = 1500  # the drawn path is thinned to this many points (the trace keeps them all)
 MAX_PLOT_POINTS = 2000
 
@@ -90,6 +85,10 @@ class Trail:
         n_min = int(self.minimum.sum())
         return int((~self.sa).sum()) - n_min, int(self.sa.sum()), n_min
 
+    def minima(self) -> np.ndarray:
+        """(M, 3) float32 page positions of the local minima ICP stopped in (drawn as red markers)."""
+        return self.pos[self.minimum] if self.minimum.any() else np.zeros((0, 3), np.float32)
+
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
         """Line segments (S, 2, 3) and colours (S, 2, 3) for the path, thinned to MAX_PATH_POINTS."""
         pos = self.pos
@@ -118,8 +117,12 @@ class Trail:
 
 
 def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None, current: np.ndarray | None,
-                 title: str):
-    """A Plotly contour map of log10 E with the run's path and the current pose on it."""
+                 title: str, units: str = ""):
+    """A Plotly contour map of log10 E with the run's path and the current pose on it.
+
+    path_xy: (K, 2) the run's poses in the slice's axes, phases: (K,) "icp"/"sa"; current: (2,); units:
+    the scans' length unit (axis labels).
+    """
     import plotly.graph_objects as go
 
     z = np.log10(np.maximum(sl.values, np.nanmin(sl.values[sl.values > 0]) if np.any(sl.values > 0) else 1e-300))
@@ -127,7 +130,7 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
                                colorbar=dict(title="log10 E", thickness=12)))
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
-        for phase, name in (("icp", "ICP"), ("sa", "SA")):
+        for phase, name in PHASE_LABEL.items():
             mask = np.array([p == phase for p in phases])
             xy = np.where(mask[:, None], path_xy, np.nan)
             fig.add_trace(go.Scatter(x=xy[:, 0], y=xy[:, 1], mode="lines", name=name,
@@ -137,10 +140,8 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
     if current is not None:
         fig.add_trace(go.Scatter(x=[current[0]], y=[current[1]], mode="markers", name="current",
                                  marker=dict(symbol="x", color="red", size=12)))
-    unit = lambda n: "deg" if n.startswith("r") else "units"  # noqa: E731
     fig.update_layout(title=dict(text=title, font=dict(size=12)), margin=dict(l=40, r=10, t=30, b=35),
-                      xaxis_title=f"{sl.params[0]} ({unit(sl.params[0])})",
-                      yaxis_title=f"{sl.params[1]} ({unit(sl.params[1])})",
+                      xaxis_title=axis_label(sl.params[0], units), yaxis_title=axis_label(sl.params[1], units),
                       legend=dict(orientation="h", y=-0.25), height=360)
     return fig
 
@@ -158,7 +159,8 @@ def ply_bytes(points: np.ndarray, faces: np.ndarray | None = None, colors: np.nd
         return path.read_bytes()
 
 
-def png_bytes(sl: Slice, path_xy, phases, current, title) -> bytes:
+def png_bytes(sl: Slice, path_xy, phases, current, title, units: str = "") -> bytes:
+    """The slice as a PNG in memory, drawn like the page's figure (same colours and labels)."""
     import tempfile
     from pathlib import Path
 
@@ -166,6 +168,6 @@ def png_bytes(sl: Slice, path_xy, phases, current, title) -> bytes:
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "slice.png"
-        slice_png(sl, out, path_xy, phases, current, title)
+        slice_png(sl, out, path_xy, phases, current, title, units)
         return out.read_bytes()
 

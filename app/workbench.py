@@ -1,8 +1,9 @@
-"""``rangereg serve``: the viser workbench. One server, one :class:`app.session.Session` per tab.
+"""``rangereg serve``: the viser workbench. One server, one :class:`app.tab.tab.Tab` per browser tab.
 
-It listens on 127.0.0.1 unless told otherwise (viser's own default is every interface), refuses a
-taken port instead of moving to another, fetches nothing from the internet and hides viser's share
-button (the share link would go through a public relay).
+It listens on 127.0.0.1 unless told otherwise (viser's own default is every interface), serves
+only its own page (Host and Origin checked, app/access.py), refuses a taken port instead of moving
+to another, fetches nothing from the internet and hides viser's share button (the share link would
+go through a public relay).
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ MAX_LISTED_FILES = 500
 
 
 @dataclass(frozen=True)
-class Options:
+class ServeOptions:
+    """What ``rangereg serve`` was asked for: a pair of scan paths (or a bundled scene), where to listen."""
+
     source: str | None = None
     target: str | None = None
     scene: str = "corner"
@@ -36,6 +39,10 @@ class Options:
     port: int = 8080
     data_dir: str | None = None
     upload_cap_mb: float = 200.0
+
+    def __post_init__(self) -> None:
+        if not self.upload_cap_mb > 0:
+            raise InputError(f"--upload-cap-mb must be positive, got {self.upload_cap_mb}")
 
 
 @cache
@@ -70,8 +77,10 @@ def check_port(host: str, port: int) -> None:
 
 
 class Workbench:
-    def __init__(self, options: Options):
+    def __init__(self, options: ServeOptions):
         import viser
+
+        from app.access import Guard, guarded_viser
 
         self.options = options
         self.scene_names = list(SCENES)
@@ -88,17 +97,25 @@ class Workbench:
         else:
             self.first_pair = self.scene_pair(options.scene)
         check_port(options.host, options.port)
-        self.server = viser.ViserServer(host=options.host, port=options.port, label="rangereg", verbose=False)
+        with guarded_viser(Guard(options.host)):
+            self.server = viser.ViserServer(host=options.host, port=options.port, label="rangereg", verbose=False)
         self.server.gui.configure_theme(show_share_button=False, control_width="large", dark_mode=False)
         self._refuse_big_uploads()
-        self.sessions: dict = {}
+        self.tabs: dict = {}
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
 
     @property
+    def urls(self) -> list[str]:
+        """Where a browser finds the page: each address of this machine when listening on every interface."""
+        from app.access import reachable_addresses
+
+        return [f"http://{f'[{a}]' if ':' in a else a}:{self.options.port}"
+                for a in reachable_addresses(self.options.host)]
+
+    @property
     def url(self) -> str:
-        host = self.options.host if self.options.host not in ("0.0.0.0", "::") else "127.0.0.1"
-        return f"http://{host}:{self.options.port}"
+        return self.urls[0]
 
     def scene_pair(self, name: str) -> tuple[Scan, Scan]:
         if name not in SCENES:
@@ -128,7 +145,7 @@ class Workbench:
         """Drop an upload over the cap as soon as it announces its size, before its bytes arrive.
 
         viser buffers uploads in memory; its upload state is private, so this is best effort, and
-        the session checks the size again when an upload completes.
+        the tab checks the size again when an upload completes.
         """
         from viser import _messages
 
@@ -141,41 +158,43 @@ class Workbench:
         def on_start(client_id, message) -> None:
             if message.size_bytes > self.upload_cap:
                 states.pop(message.transfer_uuid, None)
-                session = self.sessions.get(client_id)
-                if session is not None:
-                    session.notify("Upload refused", f"{message.filename}: {message.size_bytes / 1e6:.0f} MB is over "
+                tab = self.tabs.get(client_id)
+                if tab is not None:
+                    tab.notify("Upload refused", f"{message.filename}: {message.size_bytes / 1e6:.0f} MB is over "
                                    f"the upload cap ({self.upload_cap_mb:g} MB)")
 
         iface.register_handler(_messages.FileTransferStartUpload, on_start)
 
     def _connect(self, client) -> None:
-        from app.session import Session
+        from app.tab.tab import Tab
 
-        session = Session(self, client)
-        self.sessions[client.client_id] = session
+        tab = Tab(self, client)
+        self.tabs[client.client_id] = tab
         try:
-            session.load_pair(*self.first_pair)
+            tab.load_pair(*self.first_pair)
         except InputError as exc:
-            session.notify("Could not open the scans", str(exc))
+            tab.notify("Could not open the scans", str(exc))
 
     def _disconnect(self, client) -> None:
-        session = self.sessions.pop(client.client_id, None)
-        if session is not None:
-            session.close()
+        tab = self.tabs.pop(client.client_id, None)
+        if tab is not None:
+            tab.close()
 
 
-def serve(a) -> int:
-    """Entry point of ``rangereg serve``; blocks until interrupted."""
-    options = Options(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port, data_dir=a.data_dir,
-                      upload_cap_mb=getattr(a, "upload_cap_mb", 200.0))
-    if options.upload_cap_mb <= 0:
-        raise InputError(f"--upload-cap-mb must be positive, got {options.upload_cap_mb}")
+def serve(options: ServeOptions, stop: threading.Event | None = None) -> int:
+    """Entry point of ``rangereg serve``; blocks until interrupted or ``stop`` is set."""
+    from app.access import WILDCARDS
+
     # The optimiser's worker thread is busy Python; a short switch interval lets the server's threads
     # (events, page pushes) take the GIL within milliseconds, so Pause and the 10 Hz path stay live.
     sys.setswitchinterval(0.001)
     wb = Workbench(options)
-    print(f"rangereg workbench: {wb.url}  (Ctrl+C to stop)", flush=True)
-    stop = threading.Event()
+    if options.host in WILDCARDS:
+        print(f"warning: --host {options.host or '(empty)'} listens on every network interface: anyone who can reach "
+              "this machine can open the workbench and read the scans. Use 127.0.0.1 unless you mean it.",
+              file=sys.stderr, flush=True)
+    print(f"rangereg workbench: {'  '.join(wb.urls)}  (Ctrl+C to stop)", flush=True)
+    stop = stop or threading.Event()
     try:
         while not stop.is_set():
             time.sleep(0.5)

@@ -12,6 +12,7 @@ own click waits for the busy page to look stable, which is not what a user waits
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -47,6 +48,7 @@ def main() -> None:
     from playwright.sync_api import sync_playwright
 
     folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
+    print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (the figures are noisy above ~2)")
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -71,6 +73,7 @@ def main() -> None:
             print(f"Pause click to 'paused' on the page: {page.evaluate(PAUSE_JS):.0f} ms")
             page.get_by_role("button", name="Cancel", exact=True).click()
             browser.close()
+            print(f"load average after: {os.getloadavg()[0]:.1f}")
     finally:
         proc.terminate()
         proc.wait(10)

@@ -65,13 +65,24 @@ def open_page(browser, url):
     return page
 
 
+def show_tab(page, name: str) -> None:
+    """Bring one of the panel's tabs (Run, Pose, Scans, Landscape, Model, Export) to the front."""
+    page.get_by_role("tab", name=name, exact=True).click()
+
+
 def initial_E(page) -> float:
     return float(re.search(r"Initial E = ([0-9.eE+-]+)", page.get_by_text("Initial E =").inner_text()).group(1))
 
 
+def text_input(page, label: str):
+    """A text field by its label (viser's text fields carry a label whose "for" names no element)."""
+    return page.locator("label", has_text=re.compile(f"^{re.escape(label)}$")).first.locator(
+        "xpath=ancestor::div[2]").locator("input")
+
+
 def pose_fields(page) -> np.ndarray:
     names = ("tx", "ty", "tz", "rx (deg)", "ry (deg)", "rz (deg)")
-    return np.array([float(page.get_by_label(n, exact=True).input_value()) for n in names])
+    return np.array([float(text_input(page, n).input_value()) for n in names])
 
 
 def canvas_pixels(page) -> np.ndarray:
@@ -111,6 +122,41 @@ def test_scene_renders_and_hybrid_finishes_below_threshold(server, browser):
     page.close()
 
 
+def icp_iterations(page) -> int:
+    return int(re.search(r"Iterations: ICP (\d+)", page.locator("body").inner_text()).group(1))
+
+
+def wait_paused(page, iterations: int | None = None, timeout: float = 60.0) -> int:
+    """Wait until the page says the run is paused (after ``iterations`` ICP iterations when given)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if "· paused ·" in page.locator("body").inner_text():
+            n = icp_iterations(page)
+            if iterations is None or n == iterations:
+                return n
+        time.sleep(0.1)
+    raise AssertionError(f"the run did not pause: {page.locator('body').inner_text()[:400]}")
+
+
+def test_step_next_phase_resume_walk_a_hybrid_run_to_its_end(server, browser):
+    """The corner opens with ICP in two legs (the second on an overlap re-cut at the pose found)."""
+    page = open_page(browser, server[0])
+    page.get_by_role("button", name="Step", exact=True).click()
+    assert wait_paused(page, 1) == 1 and "Method hybrid" in page.locator("body").inner_text()
+    time.sleep(0.5)
+    assert icp_iterations(page) == 1  # a step is one iteration, and the run stays paused
+    page.get_by_role("button", name="Next phase", exact=True).click()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and icp_iterations(page) == 1:
+        time.sleep(0.1)
+    n = wait_paused(page)
+    assert n > 2 and "Finished" not in page.locator("body").inner_text()  # paused where the first leg ended
+    page.get_by_role("button", name="Resume", exact=True).click()
+    assert "below" in wait_finished(page, 60)
+    assert icp_iterations(page) > n
+    page.close()
+
+
 def _gizmo_pixel(px: np.ndarray) -> tuple[int, int] | None:
     """A pixel of the gizmo's red (x) handles: a crimson (about 250, 45, 105) no scan colour has."""
     r, g, b = (px[..., k].astype(int) for k in range(3))
@@ -126,8 +172,10 @@ def _gizmo_pixel(px: np.ndarray) -> tuple[int, int] | None:
 
 def test_dragging_the_gizmo_changes_the_initial_error(server, browser):
     page = open_page(browser, server[0])
+    show_tab(page, "Scans")
     for box in ("Frustums", "Overlap points", "Path"):
         page.get_by_label(box, exact=True).first.uncheck()
+    show_tab(page, "Pose")
     time.sleep(1.5)
     E_before = initial_E(page)
     pose_before = pose_fields(page)
@@ -153,13 +201,15 @@ def test_two_tabs_are_independent(server, browser):
     a, b = open_page(browser, server[0]), open_page(browser, server[0])
     E_a, E_b = initial_E(a), initial_E(b)
     assert E_a == pytest.approx(E_b)
-    tx = a.get_by_label("tx", exact=True)
+    show_tab(a, "Pose")
+    tx = text_input(a, "tx")
     tx.fill(str(float(tx.input_value()) + 40.0))
     a.get_by_role("button", name="Apply pose", exact=True).click()
     deadline = time.monotonic() + 10
     while time.monotonic() < deadline and initial_E(a) == E_a:
         time.sleep(0.2)
     assert initial_E(a) != E_a
+    show_tab(a, "Run")
     a.get_by_role("button", name="Run SA", exact=True).click()  # a long run in tab A ...
     time.sleep(1.0)
     assert initial_E(b) == pytest.approx(E_b)  # ... moves nothing in tab B, whose page still answers
@@ -175,8 +225,7 @@ def test_two_tabs_are_independent(server, browser):
 def test_bad_setting_is_a_notification_and_the_session_lives_on(server, browser):
     page = open_page(browser, server[0])
     page.get_by_text("Settings", exact=True).click()
-    # viser's text fields carry a label whose "for" names no element: find the input in its row
-    thr = page.locator("label", has_text=re.compile(r"^Threshold$")).first.locator("xpath=ancestor::div[2]").locator("input")
+    thr = text_input(page, "Threshold")
     thr.fill("banana")
     thr.press("Enter")
     page.get_by_role("button", name="Run ICP", exact=True).click()
@@ -185,6 +234,95 @@ def test_bad_setting_is_a_notification_and_the_session_lives_on(server, browser)
     thr.press("Enter")
     page.get_by_role("button", name="Run ICP", exact=True).click()
     assert "E =" in wait_finished(page, 60)
+    page.close()
+
+
+def handshake(port: int, host: str, origin: str | None) -> int:
+    """HTTP status of a raw WebSocket opening handshake sent with these Host and Origin headers."""
+    lines = ["GET / HTTP/1.1", f"Host: {host}", "Upgrade: websocket", "Connection: Upgrade",
+             "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==", "Sec-WebSocket-Version: 13"]
+    if origin is not None:
+        lines.append(f"Origin: {origin}")
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        return int(s.recv(4096).split(b" ", 2)[1])
+
+
+def test_websocket_only_from_the_workbench_page(server):
+    port = server[1]
+    assert handshake(port, f"127.0.0.1:{port}", f"http://127.0.0.1:{port}") == 101
+    assert handshake(port, f"localhost:{port}", f"http://localhost:{port}") == 101
+    assert handshake(port, f"127.0.0.1:{port}", "http://evil.example") == 403
+    assert handshake(port, f"evil.example:{port}", f"http://evil.example:{port}") == 403  # DNS rebinding
+    assert handshake(port, "evil.example", None) == 403
+
+
+def test_a_library_websocket_client_from_a_foreign_origin_is_refused(server):
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    port = server[1]
+    with pytest.raises(InvalidStatus) as refused:
+        connect(f"ws://127.0.0.1:{port}", origin="http://evil.example", open_timeout=10)
+    assert refused.value.response.status_code == 403
+    connect(f"ws://127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", open_timeout=10).close()
+
+
+def test_a_page_request_under_a_foreign_host_is_refused(server):
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", server[1], timeout=10)
+    conn.request("GET", "/", headers={"Host": "evil.example"})
+    assert conn.getresponse().status == 403
+    conn = http.client.HTTPConnection("127.0.0.1", server[1], timeout=10)
+    conn.request("GET", "/")
+    assert conn.getresponse().status == 200
+
+
+def test_every_interface_is_said_aloud_with_the_real_addresses():
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--host", "0.0.0.0", "--port", str(port)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        seen = []
+        while not seen or "rangereg workbench:" not in seen[-1]:
+            seen.append(proc.stdout.readline())
+            assert proc.poll() is None, "".join(seen)
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    text = "".join(seen)
+    assert "warning: --host 0.0.0.0 listens on every network interface" in text
+    urls = re.findall(r"http://\S+", seen[-1])
+    assert urls and f"http://127.0.0.1:{port}" in urls and not any("0.0.0.0" in u for u in urls)
+
+
+def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, browser):
+    page = open_page(browser, server[0])
+    show_tab(page, "Pose")
+    E0, tx = initial_E(page), text_input(page, "tx")
+    before = float(tx.input_value())
+    tx.fill("12,5")
+    page.get_by_role("button", name="Apply pose", exact=True).click()
+    page.get_by_text("write decimals with a point").first.wait_for(timeout=10_000)
+    assert initial_E(page) == E0  # nothing applied
+    tx.fill(f"{before + 2.5e-3:.12e}")  # exponent notation, as a user may type it (viser's number field mangled it)
+    page.get_by_role("button", name="Apply pose", exact=True).click()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and initial_E(page) == E0:
+        time.sleep(0.2)
+    assert float(text_input(page, "tx").input_value()) == pytest.approx(before + 2.5e-3, abs=1e-9)
+    # out of range is a notification, not a silent clamp
+    show_tab(page, "Landscape")
+    text_input(page, "Steps").fill("1000000")
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    page.get_by_text("steps must be a whole number from 2 to 201").first.wait_for(timeout=10_000)
+    # a big slice can be cancelled
+    text_input(page, "Steps").fill("201")
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    page.get_by_role("button", name="Cancel slice", exact=True).click()
+    page.get_by_text("cancelled").first.wait_for(timeout=30_000)
+    assert page.locator(".js-plotly-plot").count() == 0
     page.close()
 
 
@@ -222,6 +360,7 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     url, folder = data_server
     page = open_page(browser, url)
     # files from --data-dir, and nothing outside it, are offered; opening them shows them
+    show_tab(page, "Scans")
     body = page.locator("body").inner_text()
     assert "outside" not in body
     page.get_by_role("button", name="Open files", exact=True).click()
@@ -231,15 +370,18 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     page.get_by_text("over the upload cap").first.wait_for(timeout=20_000)
     assert "right → left" in page.locator("body").inner_text()
     # register, then merge into one model
+    show_tab(page, "Run")
     page.get_by_role("button", name="Run ICP", exact=True).click()
     assert "below" in wait_finished(page, 60)
+    show_tab(page, "Model")
     page.get_by_role("button", name="Merge", exact=True).click()
     page.get_by_text(re.compile(r"\d+ vertices, \d+ triangles")).first.wait_for(timeout=120_000)
     # a slice of the error surface around the pose, drawn in the page
+    show_tab(page, "Landscape")
     page.get_by_role("button", name="Compute slice", exact=True).click()
     page.locator(".js-plotly-plot").first.wait_for(timeout=120_000)
     # every export arrives as a download in the browser
-    page.get_by_text("Export", exact=True).click()
+    show_tab(page, "Export")
 
     def download(label: str) -> bytes:
         with page.expect_download(timeout=60_000) as d:

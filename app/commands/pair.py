@@ -1,0 +1,37 @@
+"""What ``register`` and ``slice`` share: the settings checked, the outputs checked, then the two scans
+and the initial guess read (cheap checks first, so a typo never waits for a scan to load)."""
+
+from __future__ import annotations
+
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+
+from app.options import Settings, parse_init, to_config
+
+
+def inputs(a: Namespace) -> list[str]:
+    """Every file the command reads (never to be overwritten by an output)."""
+    files = [a.source, a.target]
+    if getattr(a, "init", None) and Path(a.init).exists():
+        files.append(a.init)
+    if getattr(a, "trace_in", None) is not None:
+        files.append(a.trace_in)
+    return files
+
+
+def config(a: Namespace, **overrides):
+    """The core Config from the parsed flags, through the one settings path (app.options)."""
+    return to_config(Settings.from_mapping(vars(a), **overrides))
+
+
+def load(a: Namespace) -> tuple[object, object, np.ndarray]:
+    """(source, target, T_init (4, 4) T_target_source): ``--init`` if given, else the scans' stored guesses."""
+    from core.io import load_scan
+    from core.problem import relative_guess
+
+    T_init = parse_init(a.init) if a.init is not None else None
+    source = load_scan(a.source, viewpoint=a.viewpoint_source)
+    target = load_scan(a.target, viewpoint=a.viewpoint_target)
+    return source, target, T_init if T_init is not None else relative_guess(source, target)

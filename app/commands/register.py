@@ -1,0 +1,108 @@
+"""``rangereg register``: register SOURCE onto TARGET and print T_target_source.
+
+Outputs (``--out``, ``--trace``) are checked before the scans are read; the trace is collected in a
+temporary file and put in place only when the run ends, and the result is printed before any file
+is written, so a write that fails late (a full disk) loses nothing but that file.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from argparse import Namespace
+
+from app.commands import pair
+from app.outputs import TraceFile, check_distinct, check_output, write_outputs
+from core.errors import InputError
+
+TRACE_SUFFIXES = (".jsonl", ".ndjson", ".json")
+
+
+class Progress:
+    """Readable progress on stderr, at most twice a second."""
+
+    def __init__(self, enabled: bool):
+        self.enabled, self.last = enabled, 0.0
+
+    def __call__(self, e) -> None:
+        now = time.monotonic()
+        if self.enabled and (now - self.last > 0.5 or e.local_minimum):
+            self.last = now
+            extra = f" T={e.temperature:.3g}" if e.temperature is not None else ""
+            mark = "  <- ICP ended in a local minimum" if e.local_minimum else ""
+            sys.stderr.write(f"  {e.phase:3s} iteration {e.iteration:6d}  E={e.error:.6g}{extra}{mark}\n")
+
+
+def run(a: Namespace) -> int:
+    from core.register import register
+
+    cfg = pair.config(a)
+    files = pair.inputs(a)
+    scans = [a.source, a.target]
+    out = check_output(a.out, "--out", (".json",), files, scans) if a.out is not None else None
+    trace_path = check_output(a.trace, "--trace", TRACE_SUFFIXES, files, scans) if a.trace is not None else None
+    check_distinct({"--out": out, "--trace": trace_path})
+    source, target, T_init = pair.load(a)
+    # progress is for someone watching a terminal: a log or a pipe gets the result and at most one error line
+    progress = Progress(not a.json and sys.stderr.isatty())
+    trace = TraceFile(trace_path) if trace_path else None
+
+    def listener(e):
+        if trace is not None:
+            trace.write(json.dumps(e.to_json()))
+        progress(e)
+
+    try:
+        res = register(source, target, T_init, cfg, listener)
+    except BaseException:
+        if trace is not None:
+            trace.discard()
+        raise
+    try:
+        report(res, source, target, cfg, a.json)  # first: a file that cannot be written loses only itself
+    finally:  # the files are written even when stdout is gone (`| head`)
+        failed = []
+        if trace is not None:
+            try:
+                trace.commit()
+            except InputError as exc:
+                failed.append(str(exc))
+        try:
+            write_outputs([(out, "--out", lambda p: _write_transform(p, res))])
+        except InputError as exc:
+            failed.append(str(exc))
+        if failed:
+            raise InputError("; ".join(failed))
+    return 0
+
+
+def _write_transform(path, res) -> None:
+    from core.io import write_transform
+
+    write_transform(path, res.transform, error=res.error, method=res.method)
+
+
+def report(res, source, target, cfg, as_json: bool) -> None:
+    """Print the result: one JSON object, or lines for people (with the truth when the scans carry it)."""
+    if as_json:
+        print(json.dumps(res.to_json()))
+        return
+    print(f"method      {res.method}")
+    print(f"error       {res.error:.6g} {target.units}^2 (threshold {res.threshold:.6g})")
+    print(f"iterations  ICP {res.iterations['icp']}, SA {res.iterations['sa']}  (local minima {res.local_minima})")
+    print(f"stopped     {res.stop_text} after {res.seconds:.2f} s")
+    print("transform (maps SOURCE into TARGET's frame):")
+    for row in res.transform:
+        print("  " + " ".join(f"{v: .8f}" for v in row))
+    if source.pose is not None and target.pose is not None:
+        from core.transforms import invert, pose_error
+
+        rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
+        print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
+    if res.threshold > 0 and res.error >= res.threshold:
+        t_unc = cfg.problem.translation_uncertainty_for(target.size)
+        print(f"note: E stayed above the threshold, so this is probably not the registration. The search covers "
+              f"about twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg, "
+              f"{t_unc:.4g} {target.units}); if the guess may be farther off, give a better --init or a larger "
+              "--rotation-uncertainty / --translation-uncertainty, or try --method basin-hopping.")

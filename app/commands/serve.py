@@ -1,0 +1,24 @@
+"""``rangereg serve``: start the viser workbench with typed options (app.workbench)."""
+
+from __future__ import annotations
+
+from argparse import Namespace
+from pathlib import Path
+
+from core.errors import InputError
+
+
+def run(a: Namespace) -> int:
+    from app.workbench import ServeOptions, serve
+
+    if (a.source is None) != (a.target is None):
+        raise InputError("serve takes two scans (SOURCE TARGET) or none")
+    for p in (a.source, a.target):
+        if p is not None and not Path(p).is_file():
+            raise InputError(f"{p}: {'is a folder, not a scan file' if Path(p).is_dir() else 'no such file'}")
+    if a.data_dir is not None and not Path(a.data_dir).is_dir():
+        raise InputError(f"--data-dir {a.data_dir}: no such folder")
+    if not a.host.strip():
+        raise InputError("--host: expected a host name or address, got nothing")
+    return serve(ServeOptions(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port,
+                              data_dir=a.data_dir, upload_cap_mb=a.upload_cap_mb))

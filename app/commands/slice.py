@@ -1,0 +1,81 @@
+"""``rangereg slice``: E over two of the six pose parameters around a pose (paper Fig. 3 and 7) as a
+PNG (and the numbers as .npz), with a ``register --trace`` run drawn on it."""
+
+from __future__ import annotations
+
+import json
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+
+from app.commands import pair
+from app.options import parse_numbers, read_text_file
+from app.outputs import check_distinct, check_output, write_outputs
+from core.errors import InputError
+
+
+def read_trace(path: str) -> list:
+    """The events of a ``register --trace`` file; anything else is one InputError naming the line."""
+    from core.events import Event
+    from core.transforms import check_rigid
+
+    text = read_text_file(path, "--trace")
+    events = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+            if isinstance(d, dict) and "header" in d and "phase" not in d:
+                continue  # a trace header, when the writer adds one
+            e = Event.from_json(d)
+            check_rigid(e.T, "its transform")
+            if e.phase not in ("icp", "sa") or not np.isfinite(float(e.error)):
+                raise ValueError("a phase icp/sa and a finite error expected")
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"--trace {path}: line {lineno} is not a rangereg trace event ({exc})") from None
+        events.append(e)
+    if not events:
+        raise InputError(f"--trace {path}: holds no events")
+    return events
+
+
+def run(a: Namespace) -> int:
+    from core.landscape import compute_slice, default_span, parse_params, project
+    from core.problem import prepare
+
+    params = parse_params(a.params)
+    spans = parse_numbers(a.span, "--span", 2) if a.span is not None else None
+    if a.center == "end" and a.trace_in is None:
+        raise InputError("--center end needs --trace (the run whose end to slice around)")
+    cfg = pair.config(a)
+    files, scans = pair.inputs(a), [a.source, a.target]
+    png = check_output(a.png, "--png", (".png",), files, scans)
+    npz = check_output(a.npz, "--npz", (".npz",), files, scans) if a.npz is not None else None
+    check_distinct({"--png": png, "--npz": npz})
+    events = read_trace(a.trace_in) if a.trace_in is not None else []
+    source, target, T_init = pair.load(a)
+    problem = prepare(source, target, T_init, cfg.problem, seed=cfg.seed)
+    center = events[-1].T if (a.center == "end" and events) else problem.T_init
+    spans = spans or tuple(default_span(problem, n) for n in params)
+    sl = compute_slice(problem, center, params, spans, a.steps)
+    path_xy = project(problem, center, params, [problem.T_init] + [e.T for e in events]) if events else None
+    phases = ["icp"] + [e.phase for e in events] if events else None
+
+    def write_png(p: Path) -> None:
+        from app.plots import slice_png
+
+        title = f"{Path(a.source).stem} -> {Path(a.target).stem}: E({params[0]}, {params[1]})"
+        slice_png(sl, p, path_xy, phases, title=title, units=target.units)
+
+    def write_npz(p: Path) -> None:
+        with open(p, "wb") as f:  # a file object: savez adds no suffix of its own
+            np.savez(f, params=np.array(params), axis_a=sl.axis_a, axis_b=sl.axis_b, values=sl.values, center=center,
+                     path=path_xy if path_xy is not None else np.zeros((0, 2)))
+
+    try:
+        print(f"{sl!r} -> {png}" + (f", {npz}" if npz else ""))
+    finally:  # the files are written even when stdout is gone (`| head`)
+        write_outputs([(png, "--png", write_png, ".png"), (npz, "--npz", write_npz, ".npz")])
+    return 0

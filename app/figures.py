@@ -1,0 +1,33 @@
+"""One palette and one unit-label helper, shared by the page (viser, Plotly, uPlot) and the PNG export."""
+
+from __future__ import annotations
+
+TARGET_RGB = (60, 120, 220)
+SOURCE_RGB = (240, 140, 30)
+TARGET_OVERLAP_RGB = (120, 230, 255)
+SOURCE_OVERLAP_RGB = (255, 225, 60)
+PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200)}  # the path's legs: ICP green, annealing magenta
+MINIMUM_RGB = (230, 30, 30)
+MODEL_RGB = (200, 200, 190)
+PHASE_LABEL = {"icp": "ICP", "sa": "SA"}
+
+
+def hex_colour(rgb: tuple[int, int, int]) -> str:
+    """'#rrggbb' for a 0-255 RGB triple."""
+    return "#{:02x}{:02x}{:02x}".format(*rgb)
+
+
+def unit_fraction(rgb: tuple[int, int, int]) -> tuple[float, float, float]:
+    """An RGB triple in 0-1 (matplotlib)."""
+    return tuple(c / 255.0 for c in rgb)
+
+
+def unit_label(param: str, units: str = "") -> str:
+    """The unit a pose parameter is shown in: rotations in degrees, translations in the scan's own units."""
+    if param.startswith("r"):
+        return "deg"
+    return units if units and units != "unknown" else "units"
+
+
+def axis_label(param: str, units: str = "") -> str:
+    return f"{param} ({unit_label(param, units)})"

@@ -1,0 +1,250 @@
+"""Plain settings -> a core ``Config``: the one mapping the CLI, the page and ``merge`` share.
+
+Every number a user may type is declared once in :data:`KNOBS` (kind, range, why the bound) and
+checked once by :func:`parse_value`, whether it arrives as CLI text, page text or a number. A
+:class:`Settings` holds checked values (``None``: the core's own default) and :func:`to_config` is
+the only place that turns them into ``core.register.Config`` + ``ProblemConfig``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputError
+
+
+@dataclass(frozen=True)
+class Knob:
+    """A number setting: ``kind`` int or float; ``low``/``high`` bounds (None: open-ended);
+    ``low_open``/``high_open``: the bound itself is refused."""
+
+    flag: str
+    kind: type
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+
+    def bounds(self) -> str:
+        """The range in words, e.g. ``>= 2 and <= 201``."""
+        num = lambda v: f"{int(v)}" if float(v).is_integer() else f"{v:g}"  # noqa: E731
+        parts = [f"{'>' if self.low_open else '>='} {num(self.low)}" if self.low is not None else "",
+                 f"{'<' if self.high_open else '<='} {num(self.high)}" if self.high is not None else ""]
+        return " and ".join(p for p in parts if p)
+
+    def describe(self) -> str:
+        return f"{'a whole number' if self.kind is int else 'a number'} {self.bounds()}".strip()
+
+
+# Upper bounds keep a typo from running for hours or a number from meaning nothing.
+KNOBS: dict[str, Knob] = {
+    "seed": Knob("--seed", int, 0, 2**32 - 1),  # as numpy's legacy seeds; exact in every JSON and page field
+    "max_points": Knob("--max-points", int, 3, 100_000),  # paper: 165-341; one E over 300 points: 0.24 ms
+    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0, 180, low_open=True),  # beyond 180: the other way
+    "translation_uncertainty": Knob("--translation-uncertainty", float, 0, None, low_open=True),
+    "threshold": Knob("--threshold", float, 0, None),
+    "t_start": Knob("--t-start", float, 0, None, low_open=True),
+    "t_min_ratio": Knob("--t-min-ratio", float, 0, 1, low_open=True, high_open=True),
+    "cooling": Knob("--cooling", float, 0, 1, low_open=True, high_open=True),
+    "icp_max_iterations": Knob("--icp-max-iterations", int, 1, 100_000),
+    "sa_max_evaluations": Knob("--sa-max-evaluations", int, 7, 10_000_000),  # 10^7 x 0.24 ms: 40 min
+    "hops": Knob("--hops", int, 0, 100_000),  # each hop is an ICP run (~5-50 ms here): at most about an hour
+    "restarts": Knob("--restarts", int, 1, 100_000),  # likewise
+    "recut_rounds": Knob("--recut-rounds", int, 1, 20),  # measured: a second round rarely differs (core/register.py)
+    "steps": Knob("--steps", int, 2, 201),  # 201 x 201 evaluations take about 10 s here (0.24 ms each)
+    "runs": Knob("--runs", int, 1, 1000),  # a full bench of 10 starts takes about 15 min
+    "port": Knob("--port", int, 1, 65535),  # TCP ports
+    "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
+}
+
+_WHOLE = re.compile(r"[+-]?\d+")
+
+
+def parse_value(name: str, value, label: str | None = None) -> int | float:
+    """``value`` (text as typed, or a number) checked against ``KNOBS[name]``; raises InputError
+    ``"<label> must be ..., got ..."`` (label defaults to the CLI flag)."""
+    knob = KNOBS[name]
+    label = label or knob.flag
+    problem = check_value(knob, value)
+    if isinstance(problem, str):
+        raise InputError(f"{label}: {problem}")
+    return problem
+
+
+def check_value(knob: Knob, value) -> int | float | str:
+    """The checked value, or a message (str) saying what is wrong with it."""
+    shown = repr(value) if isinstance(value, str) else f"{value}"
+    if isinstance(value, bool):
+        return f"expected {knob.describe()}, got {value}"
+    if isinstance(value, str):
+        text = value.strip()
+        if knob.kind is int:
+            if not _WHOLE.fullmatch(text):
+                return f"expected a whole number, got {shown}"
+            v: int | float = int(text)
+        else:
+            try:
+                v = float(text)
+            except ValueError:
+                return f"expected a number, got {shown}"
+    elif isinstance(value, (int, float, np.integer, np.floating)):
+        v = value.item() if isinstance(value, np.generic) else value
+        if knob.kind is int:
+            if isinstance(v, float) and not (math.isfinite(v) and v.is_integer()):
+                return f"expected a whole number, got {shown}"
+            v = int(v)
+    else:
+        return f"expected {knob.describe()}, got {shown}"
+    if knob.kind is float:
+        v = float(v)
+        if not math.isfinite(v):
+            return f"expected a finite number, got {shown}"
+    too_low = knob.low is not None and (v <= knob.low if knob.low_open else v < knob.low)
+    too_high = knob.high is not None and (v >= knob.high if knob.high_open else v > knob.high)
+    if too_low or too_high:
+        return f"must be {knob.bounds()}, got {shown}"
+    return v
+
+
+_AUTO = ("", "auto", "none")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Checked plain values for one registration. ``None``: the core's own default. Values may be
+    given as text (the page's fields): ``Settings(seed="3", threshold="auto")``."""
+
+    method: str = "hybrid"
+    seed: int = 0
+    threshold: float | None = None  # None: estimated from the scans' noise; 0: until annealing gives up
+    max_points: int | None = None
+    frustum: str | None = None
+    rotation_uncertainty: float | None = None  # degrees
+    translation_uncertainty: float | None = None  # units; None: a share of the target's size
+    t_start: float | None = None  # None: from the spread of E over the first simplex
+    t_min_ratio: float | None = None  # reaches annealing in hybrid and annealing alone
+    cooling: float | None = None
+    icp_max_iterations: int | None = None
+    sa_max_evaluations: int | None = None
+    hops: int | None = None
+    restarts: int | None = None
+    recut_rounds: int | None = None
+    polish: bool = False
+    coarse_to_fine: bool = False
+
+    def __post_init__(self):
+        from core.frustum import KINDS
+        from core.register import METHODS
+
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name in KNOBS:
+                if v is None or (isinstance(v, str) and v.strip().lower() in _AUTO and f.name != "seed"):
+                    v = None
+                else:
+                    v = parse_value(f.name, v)
+                object.__setattr__(self, f.name, v)
+        if self.seed is None:
+            raise InputError("--seed: expected a whole number >= 0, got nothing")
+        if self.method not in METHODS:
+            raise InputError(f"--method: unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if self.frustum is not None and self.frustum not in KINDS:
+            raise InputError(f"--frustum: choose one of {', '.join(KINDS)}, got {self.frustum!r}")
+
+    @classmethod
+    def from_mapping(cls, values: dict, **overrides) -> Settings:
+        """Settings from any mapping (argparse's ``vars(args)``, the page's fields); unknown keys are ignored."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in {**values, **overrides}.items() if k in names})
+
+
+def to_config(s: Settings):
+    """The one mapping from settings to ``core.register.Config`` (with its ``ProblemConfig``), validated.
+
+    A setting left ``None`` keeps the core's default. The annealing knobs reach both the hybrid's
+    annealing and annealing alone (each keeps its own default where not given).
+    """
+    from core.register import Config
+
+    def given(**kw):
+        return {k: v for k, v in kw.items() if v is not None}
+
+    base = Config()
+    problem = replace(base.problem, **given(
+        max_points=s.max_points, frustum=s.frustum, rotation_uncertainty_deg=s.rotation_uncertainty,
+        translation_uncertainty=s.translation_uncertainty))
+    anneal = given(t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling, max_evaluations=s.sa_max_evaluations)
+    cfg = replace(base, method=s.method, threshold=s.threshold, seed=s.seed, problem=problem,
+                  icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),
+                  anneal=replace(base.anneal, **anneal), sa_alone=replace(base.sa_alone, **anneal),
+                  polish=s.polish, coarse_to_fine=s.coarse_to_fine,
+                  **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
+    cfg.validate()
+    return cfg
+
+
+def read_text_file(path: str | Path, what: str, limit: int = 1 << 30) -> str:
+    """The text of a small side file (``--init``, ``.conf``, a trace), every failure as InputError."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{what} {p}: no such file")
+    if p.is_dir():
+        raise InputError(f"{what} {p}: is a folder, not a file")
+    try:
+        if p.is_file() and p.stat().st_size > limit:
+            raise InputError(f"{what} {p}: too large ({p.stat().st_size} bytes) for this kind of file")
+        return p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{what} {p}: not a text file") from None
+    except OSError as exc:
+        raise InputError(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
+
+
+_SEPARATORS = re.compile(r"[,;\s\[\]]+")
+
+
+def parse_init(text: str) -> np.ndarray:
+    """``--init``: 16 numbers (row-major T_target_source, spaces or commas) given inline, or a file
+    holding them (or JSON with ``transform``). Returns a checked rigid (4, 4) float64 matrix."""
+    from core.transforms import check_rigid
+
+    if text is None or not str(text).strip():
+        raise InputError("--init: expected 16 numbers or a file, got nothing")
+    p = Path(text)
+    tokens = [t for t in _SEPARATORS.split(str(text).strip()) if t]
+    if not p.exists() and len(tokens) > 1:
+        try:
+            values = np.array([float(t) for t in tokens], dtype=np.float64)
+        except ValueError:
+            raise InputError(f"--init: {text!r} is neither 16 numbers nor an existing file") from None
+        if values.size != 16:
+            raise InputError(f"--init: expected 16 numbers (a row-major 4 x 4 matrix), got {values.size}")
+        try:
+            return check_rigid(values.reshape(4, 4), "--init")
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+    read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
+    from core.io import read_transform
+
+    try:
+        return read_transform(p)
+    except OSError as exc:
+        raise InputError(f"--init {p}: cannot read it ({exc.strerror or exc})") from None
+
+
+def parse_numbers(text: str, flag: str, count: int, positive: bool = True) -> tuple[float, ...]:
+    """``count`` finite numbers given as ``a,b``; ``positive``: each > 0."""
+    try:
+        values = tuple(float(t) for t in str(text).replace(" ", "").split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise InputError(f"{flag}: expected {count} finite numbers separated by commas, got {text!r}")
+    if positive and not all(v > 0 for v in values):
+        raise InputError(f"{flag}: every number must be > 0, got {text!r}")
+    return values

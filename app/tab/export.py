@@ -1,0 +1,80 @@
+"""The Export panel: the transform, the trace, the registered scans, the slice picture, the model, as downloads."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import viser
+
+from app.figures import SOURCE_RGB, TARGET_RGB
+from app.tab.landscape import picture
+from app.views import ply_bytes, png_bytes
+from core.errors import InputError
+from core.transforms import apply
+
+
+@dataclass(eq=False)
+class ExportHandles:
+    transform: viser.GuiButtonHandle
+    trace: viser.GuiButtonHandle
+    scans: viser.GuiButtonHandle
+    slice: viser.GuiButtonHandle
+    model: viser.GuiButtonHandle
+
+
+class ExportPanel:
+    def __init__(self, tab):
+        self.tab, self.state = tab, tab.state
+        gui = tab.gui
+        self.h = ExportHandles(gui.add_button("Transform (JSON)"), gui.add_button("Trace (JSON lines)"),
+                               gui.add_button("Registered scans (PLY)"), gui.add_button("Slice (PNG)"),
+                               gui.add_button("Model (PLY)"))
+        for button, fn in ((self.h.transform, self.transform), (self.h.trace, self.trace), (self.h.scans, self.scans),
+                           (self.h.slice, self.slice), (self.h.model, self.model)):
+            button.on_click(lambda e, fn=fn: tab.guarded(fn))
+
+    def _download(self, name: str, data: bytes) -> None:
+        self.tab.client.send_file_download(name, data, save_immediately=True)
+
+    def transform(self) -> None:
+        st = self.state
+        st.require_scans()
+        with st.lock:
+            T, r = st.T, st.result
+            extra = {"error": float(st.problem.error(T)), "source": st.source.name, "target": st.target.name,
+                     "convention": "maps SOURCE coordinates into TARGET's frame (T_target_source)"}
+            name = f"{st.source.name}_to_{st.target.name}.json"
+        if r is not None:
+            extra.update(method=r.method, threshold=r.threshold, stop_reason=r.stop_text)
+        self._download(name, (json.dumps({"transform": T.tolist(), **extra}, indent=1) + "\n").encode())
+
+    def trace(self) -> None:
+        events = list(self.state.events)
+        if not events:
+            raise InputError("no run yet: nothing to export")
+        self._download("trace.jsonl", "".join(json.dumps(e.to_json()) + "\n" for e in events).encode())
+
+    def scans(self) -> None:
+        st = self.state
+        st.require_scans()
+        with st.lock:
+            src, tgt, T = st.source, st.target, st.T
+        pts = np.vstack([tgt.points, apply(T, src.points)])
+        rgb = np.vstack([np.tile(TARGET_RGB, (len(tgt.points), 1)), np.tile(SOURCE_RGB, (len(src.points), 1))])
+        self._download(f"{tgt.name}+{src.name}_registered.ply", ply_bytes(pts, None, rgb.astype(np.uint8)))
+
+    def slice(self) -> None:
+        st = self.state
+        with st.lock:
+            if st.slice is None:
+                raise InputError("compute a slice first")
+            args, units = picture(st), st.target.units
+        self._download("slice.png", png_bytes(*args, units=units))
+
+    def model(self) -> None:
+        model = self.state.model
+        if model is None:
+            raise InputError("press Merge first")
+        self._download("model.ply", ply_bytes(model.vertices, model.faces))

@@ -1,0 +1,147 @@
+"""The Scans panel: a bundled scene, files under --data-dir, uploads, the sensors' viewpoints, what is shown."""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import viser
+
+from app.tab.fields import parse_vector, show_vector
+from app.tab.scene3d import Visibility
+from core.errors import InputError
+from core.io import load_scan
+from core.scan import Scan
+from core.viewpoint import check_viewpoint
+
+
+@dataclass(eq=False)
+class ShowHandles:
+    frustums: viser.GuiCheckboxHandle
+    overlap: viser.GuiCheckboxHandle
+    surfaces: viser.GuiCheckboxHandle
+    path: viser.GuiCheckboxHandle
+
+
+@dataclass(eq=False)
+class ScansHandles:
+    scene: viser.GuiDropdownHandle
+    open_scene: viser.GuiButtonHandle
+    file_source: viser.GuiDropdownHandle | None  # None: started without --data-dir
+    file_target: viser.GuiDropdownHandle | None
+    open_files: viser.GuiButtonHandle | None
+    upload_source: viser.GuiUploadButtonHandle
+    upload_target: viser.GuiUploadButtonHandle
+    vp_source: viser.GuiTextHandle  # "x y z" in the scan's own frame and units
+    vp_target: viser.GuiTextHandle
+    apply_vp: viser.GuiButtonHandle
+    show: ShowHandles
+
+    def held_by_a_run(self) -> list:
+        return [b for b in (self.open_scene, self.open_files, self.upload_source, self.upload_target, self.apply_vp)
+                if b is not None]
+
+
+def build(gui: viser.GuiApi, wb) -> ScansHandles:
+    scene = gui.add_dropdown("Scene", wb.scene_names, initial_value=wb.options.scene)
+    open_scene = gui.add_button("Open scene")
+    files = wb.data_files()
+    file_source = file_target = open_files = None
+    if files:
+        file_source = gui.add_dropdown("Source file", files, initial_value=files[min(1, len(files) - 1)])
+        file_target = gui.add_dropdown("Target file", files, initial_value=files[0])
+        open_files = gui.add_button("Open files")
+    upload_source = gui.add_upload_button("Upload source", hint=f"up to {wb.upload_cap_mb:g} MB")
+    upload_target = gui.add_upload_button("Upload target", hint=f"up to {wb.upload_cap_mb:g} MB")
+    hint = "the sensor's origin: three numbers (x y z) in the scan's frame and units"
+    vp_source = gui.add_text("Source viewpoint", "0 0 0", hint=hint)
+    vp_target = gui.add_text("Target viewpoint", "0 0 0", hint=hint)
+    apply_vp = gui.add_button("Apply viewpoints")
+    with gui.add_folder("Show"):
+        show = ShowHandles(gui.add_checkbox("Frustums", True), gui.add_checkbox("Overlap points", True),
+                           gui.add_checkbox("Surfaces", False), gui.add_checkbox("Path", True))
+    return ScansHandles(scene, open_scene, file_source, file_target, open_files, upload_source, upload_target,
+                        vp_source, vp_target, apply_vp, show)
+
+
+def load_upload(name: str, content: bytes) -> Scan:
+    """A scan from an upload's bytes. Only the name's suffix reaches the disk, and no message names a server path."""
+    stem = re.sub(r"[^A-Za-z0-9_-]", "_", Path(name.replace("\\", "/")).stem).strip("_") or "upload"
+    suffix = Path(name).suffix.lower()
+    suffix = suffix if re.fullmatch(r"\.[a-z0-9]{1,8}", suffix) else ""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{stem}{suffix}"
+        try:
+            path.write_bytes(content)
+            scan = load_scan(path)
+        except Exception as exc:  # whatever went wrong, the message names the upload, never the server's folder
+            text = str(exc).replace(str(path), name).replace(tmp, "")
+            if not isinstance(exc, InputError):
+                text = f"{name}: could not be read as a scan ({type(exc).__name__}: {text})"
+            raise InputError(text) from None
+    return replace(scan, source=f"upload:{name}")
+
+
+def with_viewpoint(scan: Scan, value) -> Scan:
+    """``scan`` seen from ``value`` (3,), checked; the scan itself when unchanged."""
+    v = np.asarray(value, dtype=np.float64)
+    if np.allclose(v, scan.viewpoint):
+        return scan
+    moved = scan.with_viewpoint(v)
+    check_viewpoint(moved.points, moved.viewpoint, moved.grid, moved.faces, moved.name)
+    return moved
+
+
+class ScansPanel:
+    def __init__(self, tab):
+        self.tab, self.state, self.wb = tab, tab.state, tab.wb
+        self.h = h = build(tab.gui, tab.wb)
+        guarded = tab.guarded
+        h.open_scene.on_click(lambda e: guarded(lambda: tab.load_pair(*self.wb.scene_pair(h.scene.value))))
+        if h.open_files is not None:
+            h.open_files.on_click(lambda e: guarded(self.open_files))
+        h.upload_source.on_upload(lambda e: guarded(self.uploaded, "source", e.target.value))
+        h.upload_target.on_upload(lambda e: guarded(self.uploaded, "target", e.target.value))
+        h.apply_vp.on_click(lambda e: guarded(self.apply_viewpoints))
+        for box in (h.show.frustums, h.show.surfaces, h.show.path):
+            box.on_update(lambda e: guarded(tab.apply_visibility))
+        h.show.overlap.on_update(lambda e: guarded(tab.recolour))
+
+    def visibility(self, model: bool) -> Visibility:
+        s = self.h.show
+        return Visibility(bool(s.frustums.value), bool(s.overlap.value), bool(s.surfaces.value), bool(s.path.value),
+                          model)
+
+    def open_files(self) -> None:
+        self.tab.load_pair(self.wb.load_data_file(self.h.file_source.value),
+                           self.wb.load_data_file(self.h.file_target.value))
+
+    def uploaded(self, which: str, upload) -> None:
+        if len(upload.content) > self.wb.upload_cap:
+            raise InputError(f"{upload.name}: {len(upload.content) / 1e6:.0f} MB is over the upload cap "
+                             f"({self.wb.upload_cap_mb:g} MB)")
+        scan = load_upload(upload.name, upload.content)
+        st = self.state
+        if which == "source":
+            self.tab.load_pair(scan, st.target)
+        else:
+            self.tab.load_pair(st.source, scan)
+        self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points", error=False)
+
+    def apply_viewpoints(self) -> None:
+        st = self.state
+        st.require_scans()
+        self.tab.load_pair(with_viewpoint(st.source, parse_vector(self.h.vp_source.value, "source viewpoint")),
+                           with_viewpoint(st.target, parse_vector(self.h.vp_target.value, "target viewpoint")),
+                           keep_pose=True)
+
+    def show_viewpoints(self, source: Scan, target: Scan) -> None:
+        self.h.vp_source.value = show_vector(source.viewpoint)
+        self.h.vp_target.value = show_vector(target.viewpoint)
+
+    def lock(self, running: bool) -> None:
+        for b in self.h.held_by_a_run():
+            b.disabled = running

@@ -1,0 +1,181 @@
+"""The tab's 3-D scene: typed handles of every node, and the drawing of a pair, its overlap and the path.
+
+The target sits still; the source is one frame node (``/source``) whose pose is the registration's:
+a run moves it by that node's pose, never by re-sending points. Each cloud is drawn twice: all its
+points, and a fixed subset shown while a run moves the scan (the page redraws on every pose push;
+software WebGL draws ~1.3 M points/s on 2 cores).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import viser
+
+from app.figures import (
+    MINIMUM_RGB,
+    MODEL_RGB,
+    SOURCE_OVERLAP_RGB,
+    SOURCE_RGB,
+    TARGET_OVERLAP_RGB,
+    TARGET_RGB,
+)
+from app.tab.state import TabState
+from app.views import Trail
+
+RUN_POINTS = 6000  # while a run moves the scan, each cloud is drawn with at most this many points
+EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
+EMPTY_POINTS = np.zeros((0, 3), np.float32)
+
+
+@dataclass(eq=False)
+class CloudNodes:
+    """One scan's nodes: all points, the light subset drawn during a run (with its indices), frustum, surface."""
+
+    points: viser.PointCloudHandle
+    light: viser.PointCloudHandle | None
+    light_index: np.ndarray | None
+    frustum: viser.LineSegmentsHandle
+    surface: viser.MeshHandle
+    viewpoint: viser.IcosphereHandle
+
+
+@dataclass(eq=False)
+class SceneNodes:
+    source_frame: viser.FrameHandle
+    source: CloudNodes
+    target: CloudNodes
+    gizmo: viser.TransformControlsHandle
+    path: viser.LineSegmentsHandle
+    minima: viser.PointCloudHandle
+    model: viser.MeshHandle | None = None
+
+    def remove(self) -> None:
+        for node in (self.source_frame, self.gizmo, self.path, self.minima, self.model, self.target.points,
+                     self.target.light, self.target.frustum, self.target.surface, self.target.viewpoint):
+            if node is not None:
+                node.remove()  # the source's own nodes go with their frame
+
+
+@dataclass(frozen=True)
+class Visibility:
+    frustums: bool
+    overlap: bool
+    surfaces: bool
+    path: bool
+    model: bool
+
+
+def colours(state: TabState, which: str, overlap: bool) -> np.ndarray:
+    """(N, 3) uint8 per-point colours of the source or target: the overlap points highlighted when shown."""
+    src = which == "source"
+    scan = state.source if src else state.target
+    rgb = np.empty((len(scan.points), 3), np.uint8)
+    rgb[:] = SOURCE_RGB if src else TARGET_RGB
+    p = state.problem
+    if p is not None and overlap and p.source is state.source and p.target is state.target:
+        rgb[p.used if src else p.overlap.target_mask] = SOURCE_OVERLAP_RGB if src else TARGET_OVERLAP_RGB
+    return rgb
+
+
+def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, frustum_kind: str,
+           overlap: bool) -> CloudNodes:
+    d = state.display
+    src = which == "source"
+    root, rgb, base = f"/{which}", colours(state, which, overlap), SOURCE_RGB if src else TARGET_RGB
+    to_page = d.source_local if src else d.points
+    points = scene.add_point_cloud(f"{root}/points", pts, rgb, point_size=size, precision="float32")
+    light = index = None
+    if len(pts) > RUN_POINTS:
+        index = np.sort(np.random.default_rng(0).choice(len(pts), RUN_POINTS, replace=False))
+        light = scene.add_point_cloud(f"{root}/points_run", pts[index], rgb[index], point_size=size,
+                                      precision="float32", point_shading="flat", visible=False)
+    f = state.frusta[frustum_kind][0 if src else 1]
+    frustum = scene.add_line_segments(f"{root}/frustum", to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
+                                      base, thickness=1.5, thickness_units="screen")
+    scan, surface = (state.source, state.surfaces[0]) if src else (state.target, state.surfaces[1])
+    mesh = scene.add_mesh_simple(f"{root}/surface", to_page(scan.points), surface.faces, color=base, opacity=0.6,
+                                 side="double", visible=False)
+    vp = scene.add_icosphere(f"{root}/viewpoint", radius=0.015, color=base, position=to_page(scan.viewpoint))
+    return CloudNodes(points, light, index, frustum, mesh, vp)
+
+
+def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, overlap: bool) -> SceneNodes:
+    """Every node of the pair in ``state`` (call inside ``client.atomic()``)."""
+    d, src, tgt, scene = state.display, state.source, state.target, client.scene
+    size = 0.8 * min(src.spacing, tgt.spacing) / d.size
+    scene.set_up_direction("+y")
+    wxyz, pos = d.node_pose(state.T)
+    frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
+    target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)
+    source = _cloud(scene, state, "source", d.source_local(src.points), size, frustum_kind, overlap)
+    gizmo = scene.add_transform_controls("/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
+                                         translation_limits=((-1e6, 1e6),) * 3)
+    path = scene.add_line_segments("/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
+    minima = scene.add_point_cloud("/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=4 * size, precision="float32")
+    # look from behind the target's sensor, so both scans and their frustums are in view
+    eye = d.points(tgt.viewpoint).astype(np.float64)
+    eye = 1.5 * eye / max(np.linalg.norm(eye), 1e-9) + np.array([0.0, 0.3, 0.0])
+    client.camera.up_direction = (0.0, 1.0, 0.0)
+    client.camera.position = tuple(eye)
+    client.camera.look_at = (0.0, 0.0, 0.0)
+    return SceneNodes(frame, source, target, gizmo, path, minima)
+
+
+def redraw_frustums(scene, nodes: SceneNodes, state: TabState, kind: str) -> None:
+    d = state.display
+    for cloud, f, to_page in ((nodes.source, state.frusta[kind][0], d.source_local),
+                              (nodes.target, state.frusta[kind][1], d.points)):
+        cloud.frustum.points = to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3)
+
+
+def recolour(nodes: SceneNodes, state: TabState, overlap: bool) -> None:
+    """New colours only: the points stay where they are on the page."""
+    for which, cloud in (("target", nodes.target), ("source", nodes.source)):
+        rgb = colours(state, which, overlap)
+        cloud.points.colors = rgb
+        if cloud.light is not None:
+            cloud.light.colors = rgb[cloud.light_index]
+
+
+def show_model(scene, nodes: SceneNodes, state: TabState) -> None:
+    model = state.model
+    if nodes.model is not None:
+        nodes.model.remove()
+    nodes.model = scene.add_mesh_simple("/model", state.display.points(model.vertices), model.faces, color=MODEL_RGB,
+                                        side="double")
+
+
+def apply_visibility(nodes: SceneNodes, show: Visibility, run_drawing: bool) -> None:
+    """Which nodes are drawn; ``run_drawing``: a run moves the scan (light clouds, no frustums)."""
+    model = show.model and nodes.model is not None
+    for cloud in (nodes.source, nodes.target):
+        # frustum wireframes cost a software-rendered page half its frame rate: off while a run draws
+        cloud.frustum.visible = show.frustums and not model and not run_drawing
+        cloud.surface.visible = show.surfaces and not model
+        light = run_drawing and cloud.light is not None
+        cloud.points.visible = not model and not light
+        if cloud.light is not None:
+            cloud.light.visible = not model and light
+    nodes.path.visible = nodes.minima.visible = show.path
+    if nodes.model is not None:
+        nodes.model.visible = model
+
+
+def move_source(nodes: SceneNodes, state: TabState, T: np.ndarray, gizmo: bool = True) -> None:
+    wxyz, pos = state.display.node_pose(T)
+    nodes.source_frame.wxyz, nodes.source_frame.position = wxyz, pos
+    if gizmo:
+        nodes.gizmo.wxyz, nodes.gizmo.position = wxyz, pos
+
+
+def draw_path(nodes: SceneNodes, trail: Trail) -> None:
+    seg, rgb = trail.segments()
+    nodes.path.points, nodes.path.colors = seg, rgb
+    nodes.minima.points = trail.minima()
+
+
+def clear_path(nodes: SceneNodes) -> None:
+    nodes.path.points = EMPTY_SEGMENTS
+    nodes.minima.points = EMPTY_POINTS

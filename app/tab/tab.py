@@ -1,0 +1,202 @@
+"""One browser tab of the workbench: its scans, its GUI, its runs. Tabs never share mutable state.
+
+Everything the page does calls core: loading (core.io), the overlap (core.problem), the runs
+(core.register through app.runner), the slice (core.landscape), the model (core.fuse). The panels
+sit in viser tabs (Run, Pose, Scans, Landscape, Model, Export), one module each; the tab's state
+and its threading contract are in app/tab/state.py; the refresher pushes a run's progress.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import viser
+
+from app.tab import scene3d
+from app.tab.export import ExportPanel
+from app.tab.landscape import LandscapePanel
+from app.tab.model import ModelPanel
+from app.tab.pose import PosePanel
+from app.tab.refresher import Refresher
+from app.tab.run import RunPanel
+from app.tab.scans import ScansPanel
+from app.tab.settings import problem_config
+from app.tab.state import TabState
+from app.views import Display, Trail
+from core.errors import InputError
+from core.frustum import KINDS, frustum_of
+from core.problem import prepare, relative_guess
+from core.register import estimate_threshold
+from core.scan import Scan
+from core.surface import Surface
+from core.transforms import check_rigid, invert
+
+log = logging.getLogger("rangereg.workbench")
+
+
+class Tab:
+    def __init__(self, workbench, client: viser.ClientHandle):
+        self.wb, self.client, self.gui = workbench, client, client.gui
+        self.state = TabState()
+        self.nodes: scene3d.SceneNodes | None = None
+        self.run_drawing = False  # a run moves the scan: the light clouds are drawn
+        self._trail: Trail | None = None
+        self.status = self.gui.add_markdown("Loading...")
+        self.e_init = self.gui.add_markdown("")
+        tabs = self.gui.add_tab_group()
+        with tabs.add_tab("Run"):
+            self.run_panel = RunPanel(self)
+        with tabs.add_tab("Pose"):
+            self.pose = PosePanel(self)
+        with tabs.add_tab("Scans"):
+            self.scans = ScansPanel(self)
+        with tabs.add_tab("Landscape"):
+            self.landscape = LandscapePanel(self)
+        with tabs.add_tab("Model"):
+            self.model = ModelPanel(self)
+        with tabs.add_tab("Export"):
+            self.export = ExportPanel(self)
+        self.refresher = Refresher(self)
+        self.refresher.start()
+
+    # ---- the page's voice --------------------------------------------------------------------------
+    def notify(self, title: str, body: str, error: bool = True) -> None:
+        self.client.add_notification(title, body, color="red" if error else "green", auto_close_seconds=8.0)
+
+    def guarded(self, fn, *args) -> None:
+        """Run a GUI action; bad input becomes a notification and leaves the tab as it was."""
+        try:
+            fn(*args)
+        except InputError as exc:
+            self.notify("Not done", str(exc))
+        except Exception as exc:  # never a dead page: say what happened, keep the tab
+            log.exception("workbench action failed")
+            self.notify("Something went wrong", f"{type(exc).__name__}: {exc}")
+
+    # ---- a pair of scans ---------------------------------------------------------------------------
+    def load_pair(self, source: Scan, target: Scan, keep_pose: bool = False) -> None:
+        """Show a new pair; everything is checked before anything of the old pair is dropped."""
+        st = self.state
+        st.require_idle()
+        settings = self.run_panel.settings()
+        T_file = relative_guess(source, target)
+        T_init = st.T_init if keep_pose else T_file
+        surfaces = Surface.from_scan(source), Surface.from_scan(target)
+        frusta = {k: (frustum_of(source, k), frustum_of(target, k)) for k in KINDS}
+        problem = prepare(source, target, T_init, problem_config(settings), surface=surfaces[1], seed=settings.seed)
+        threshold = settings.threshold
+        if threshold is None:
+            threshold = estimate_threshold(problem, settings.seed)
+        T_truth = invert(target.pose) @ source.pose if source.pose is not None and target.pose is not None else None
+        with st.lock:
+            if st.slice_cancel is not None:
+                st.slice_cancel.set()
+            st.pair += 1
+            st.source, st.target, st.surfaces, st.frusta = source, target, surfaces, frusta
+            st.T_file, st.T_init, st.T_truth, st.threshold = T_file, T_init, T_truth, threshold
+            st.display = Display(target, source)
+            st.set_problem(problem)
+            st.reset_run(T_init)
+            st.slice, st.model = None, None
+        # the page is drawn outside the state's lock: the lock is always taken inside client.atomic(), never around it
+        with self.client.atomic():
+            if self.nodes is not None:
+                self.nodes.remove()
+            self.nodes = scene3d.draw_pair(self.client, st, settings.frustum, self.scans.h.show.overlap.value)
+        self.nodes.gizmo.on_update(lambda e: self.guarded(self.pose.dragged))
+        self.scans.show_viewpoints(source, target)
+        self.pose.lock(False)
+        self.model.forget()
+        self.apply_visibility()
+        self.clear_run_views()
+        self.pose.show(T_init)
+        self.update_status()
+
+    def reprepare(self) -> None:
+        """A new overlap cut (frustum kind or sample size changed, or a new initial pose)."""
+        st = self.state
+        if st.source is None or st.running:
+            return
+        settings = self.run_panel.settings()
+        problem = prepare(st.source, st.target, st.T_init, problem_config(settings), surface=st.surfaces[1],
+                          seed=settings.seed)
+        with st.lock:
+            st.set_problem(problem)
+        scene3d.redraw_frustums(self.client.scene, self.nodes, st, settings.frustum)
+        self.recolour()
+        self.update_status()
+
+    def set_initial(self, T: np.ndarray) -> None:
+        st = self.state
+        st.require_idle()
+        st.require_scans()
+        T = check_rigid(np.asarray(T, dtype=np.float64), "initial pose")
+        with st.lock:
+            st.T_init = T
+            st.reset_run(T)
+        self.reprepare()
+        scene3d.move_source(self.nodes, st, T)
+        self.clear_run_views()
+        self.pose.show(T)
+
+    # ---- the page ----------------------------------------------------------------------------------
+    def trail(self) -> Trail:
+        """The drawing arrays of the current run's events (a new run, a new trail)."""
+        events = self.state.events
+        if self._trail is None or self._trail.events is not events or self._trail.display is not self.state.display:
+            self._trail = Trail(self.state.display, events)
+        return self._trail
+
+    def recolour(self) -> None:
+        if self.nodes is not None:
+            with self.client.atomic():
+                scene3d.recolour(self.nodes, self.state, bool(self.scans.h.show.overlap.value))
+
+    def apply_visibility(self) -> None:
+        if self.nodes is None:
+            return
+        model = bool(self.model.h.show.value and self.state.model is not None)
+        with self.client.atomic():
+            scene3d.apply_visibility(self.nodes, self.scans.visibility(model), self.run_drawing)
+
+    def lock_panels(self, running: bool) -> None:
+        """A run holds the scans: what would change them is disabled until it ends."""
+        self.apply_visibility()
+        self.pose.lock(running)
+        self.scans.lock(running)
+        self.model.lock(running)
+
+    def clear_run_views(self) -> None:
+        with self.client.atomic():
+            scene3d.clear_path(self.nodes)
+            self.run_panel.h.plot.data = Trail(self.state.display, []).plot(self.state.E0)
+
+    def update_status(self) -> None:
+        st = self.state
+        trail = self.trail()
+        with st.lock:
+            n = min(trail.n, len(st.events))
+            last = st.events[n - 1] if n else None
+            running, E0 = st.running, st.E0
+            state = "running" if running and not st.run.paused else ("paused" if running else "idle")
+            n_icp, n_sa, n_min = trail.counts
+            thr = f"{st.threshold:.4g}" if st.threshold is not None else "auto"
+            units = st.target.units if st.target is not None else ""
+            lines = [f"**{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}** "
+                     f"({units}) · overlap {st.problem.used.sum() if st.problem else 0} points",
+                     f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**",
+                     f"Iterations: ICP {n_icp}, SA {n_sa} · local minima {n_min}",
+                     f"E = {last.error:.6g}" if last else f"E = {E0:.6g} (initial)",
+                     f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
+                     else "Temperature -",
+                     f"Threshold {thr}"]
+            if st.finished_text and not running:
+                lines.append(st.finished_text)
+        self.status.content = "  \n".join(lines)
+        self.e_init.content = f"Initial E = {E0:.6g}"
+
+    def close(self) -> None:
+        """The browser tab went away: its run and its slice stop."""
+        self.state.closed = True
+        self.state.cancel_work()

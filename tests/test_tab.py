@@ -1,0 +1,183 @@
+"""The tab's state, its threading contract and the refresher (app/tab/), without a browser."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from app.tab import refresher as refresher_module
+from app.tab.refresher import Refresher
+from app.tab.state import TabState
+from core.errors import InputError
+
+
+def test_worker_results_are_applied_by_the_owner_under_the_lock_in_order():
+    st = TabState()
+    seen = []
+
+    def apply(s):
+        # the lock is held by the applying thread (an RLock: a re-entrant acquire succeeds at once)
+        assert s.lock.acquire(blocking=False)
+        s.lock.release()
+        seen.append(("apply", s.finished_text))
+        s.finished_text = "done"
+
+    worker = threading.Thread(target=lambda: st.hand(apply, lambda: seen.append(("then", st.finished_text))))
+    worker.start()
+    worker.join()
+    assert st.finished_text == "" and seen == []  # a worker never writes the state itself
+    for then in st.apply_handed():
+        then()
+    assert seen == [("apply", ""), ("then", "done")] and st.apply_handed() == []
+
+
+def test_one_reset_forgets_the_run():
+    st = TabState()
+    st.events, st.finished_text, st.result = [1, 2], "Finished", object()
+    st.reset_run()
+    assert (st.events, st.finished_text, st.result) == ([], "", None)
+
+
+def test_a_tab_without_scans_refuses_work_with_a_reason():
+    with pytest.raises(InputError, match="open two scans"):
+        TabState().require_scans()
+
+
+def test_closing_a_tab_ends_its_run_and_its_slice():
+    from app.runner import Run
+    from tests.test_runner import scripted, settle
+
+    st = TabState()
+    st.run = Run(scripted(), mode="step").start()
+    settle(st.run, 1)
+    st.slice_cancel = threading.Event()
+    st.cancel_work()  # what Tab.close does when the browser tab goes away
+    st.run.join(5)
+    assert st.slice_cancel.is_set() and not st.running and st.run.result == ("cancelled", 1)
+
+
+def test_the_refresher_logs_a_failing_tick_and_keeps_going(monkeypatch, caplog):
+    monkeypatch.setattr(refresher_module, "REFRESH", 0.001)
+    monkeypatch.setattr(refresher_module.time, "sleep", lambda s: time.perf_counter())  # no back-off in the test
+    st = TabState()
+    r = Refresher(SimpleNamespace(state=st, client=SimpleNamespace(client_id=7)))
+    ticks = []
+
+    def tick():
+        ticks.append(1)
+        if len(ticks) == 1:
+            raise RuntimeError("a bug in a push")
+        if len(ticks) == 3:
+            st.closed = True
+
+    r.tick = tick
+    with caplog.at_level(logging.ERROR, logger="rangereg.workbench"):
+        r._loop()
+    assert len(ticks) == 3 and r.failures == 1
+    assert "a bug in a push" in caplog.text and "client 7" in caplog.text
+
+
+# ---- the page's settings, uploads and slices (hardening) ---------------------------------------------
+
+
+def settings_handles(**typed):
+    from app.tab.run import SettingsHandles
+
+    values = dict(threshold="auto", t_start="auto", t_min="auto", cooling="0.9", seed="0", icp_max="100",
+                  sa_max="20000", frustum="convex", max_points="300", coarse_to_fine=False, polish=False) | typed
+    return SettingsHandles(**{k: SimpleNamespace(value=v) for k, v in values.items()})
+
+
+def test_the_minimum_temperature_ratio_reaches_annealing_alone():
+    from app.tab.run import read_settings
+    from app.tab.settings import page_config
+    from core.register import Config
+
+    for method in ("sa", "hybrid"):
+        cfg = page_config(read_settings(settings_handles(t_min="0.05")), method)
+        assert cfg.sa_alone.t_min_ratio == cfg.anneal.t_min_ratio == 0.05
+    auto = page_config(read_settings(settings_handles()), "sa")  # auto: each method keeps its own
+    assert auto.sa_alone.t_min_ratio == Config().sa_alone.t_min_ratio and auto.anneal.t_min_ratio == 0.01
+
+
+@pytest.mark.parametrize("field, typed, says", [
+    ("t_start", "inf", "start temperature"), ("t_start", "0", "start temperature"),
+    ("t_min", "1", "minimum temperature ratio"), ("cooling", "12,5", "comma"), ("cooling", "1.5", "cooling"),
+    ("seed", "1e30", "seed"), ("seed", "-1", "seed"), ("seed", "2.5", "seed"), ("icp_max", "0", "ICP iteration cap"),
+    ("sa_max", "6", "SA evaluation cap"), ("max_points", "2", "overlap sample size"), ("threshold", "-1", "threshold"),
+    ("threshold", "banana", "threshold"),
+])
+def test_a_bad_setting_is_refused_with_its_name_not_clamped(field, typed, says):
+    from app.tab.run import read_settings
+
+    with pytest.raises(InputError, match=says):
+        read_settings(settings_handles(**{field: typed}))
+
+
+def test_settings_are_read_as_typed():
+    from app.tab.run import read_settings
+
+    s = read_settings(settings_handles(t_start="2.5e-3", t_min="1e-3", seed="12"))
+    assert (s.t_start, s.t_min_ratio, s.seed) == (2.5e-3, 1e-3, 12)
+
+
+@pytest.mark.parametrize("name", ["..", "../../etc/passwd", "a/../../b.ply", "/var/x.ply", "..\\..\\x.ply", ".", ""])
+def test_an_upload_name_never_puts_a_server_path_in_the_message(name):
+    import tempfile
+
+    from app.tab.scans import load_upload
+
+    with pytest.raises(InputError) as refused:
+        load_upload(name, b"not a scan")
+    assert tempfile.gettempdir() not in str(refused.value)
+
+
+def test_an_upload_with_a_path_in_its_name_still_loads(tmp_path):
+    from app.tab.scans import load_upload
+    from tests.conftest import ASSETS
+
+    scan = load_upload("some/dir/scan1.ply", (ASSETS / "corner" / "scan1.ply").read_bytes())
+    assert scan.name == "scan1" and len(scan.points) > 100 and scan.source == "upload:some/dir/scan1.ply"
+
+
+def test_a_cancelled_slice_stops_within_a_row():
+    from app.tab.landscape import compute
+    from core.io import load_scan
+    from core.problem import prepare, relative_guess
+    from tests.conftest import ASSETS
+
+    src, tgt = load_scan(ASSETS / "corner" / "scan1.ply"), load_scan(ASSETS / "corner" / "scan2.ply")
+    T = relative_guess(src, tgt)
+    problem = prepare(src, tgt, T)
+    cancel, rows = threading.Event(), []
+
+    def progress(fraction):
+        rows.append(fraction)
+        cancel.set()  # as if Cancel (or closing the tab) came during the first row
+
+    assert compute(problem, T, ("tx", "ry"), (1.0, 1.0), 201, cancel, progress) is None
+    assert len(rows) == 1
+    assert compute(problem, T, ("tx", "ry"), (1.0, 1.0), 3, threading.Event()).values.shape == (3, 3)
+
+
+def test_a_reset_drops_the_outcome_of_the_run_it_cancelled():
+    """Reset cancels the run and forgets it: the cancelled run's result, handed over later, must not bring it back."""
+    from app.runner import Run
+    from app.tab.run import RunPanel
+    from tests.test_runner import scripted, settle
+
+    st = TabState()
+    panel = RunPanel.__new__(RunPanel)  # only the hand-over, no page
+    panel.state, panel.tab = st, SimpleNamespace(notify=lambda *a, **k: None)
+    st.run = run = Run(scripted(), mode="step", on_done=panel._done).start()
+    st.events = run.events
+    settle(run, 1)
+    run.cancel()
+    run.join(5)
+    st.reset_run()  # what Reset does once the run has ended
+    st.apply_handed()
+    assert st.finished_text == "" and st.result is None

@@ -1,0 +1,110 @@
+"""What the page draws (app/views.py): the path's colours per phase, its local-minimum markers, the slice figure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.views import MAX_PATH_POINTS, PHASE_RGB, Display, Trail, slice_figure
+from core.events import Event
+from core.io import load_scan
+from core.landscape import Slice
+from core.transforms import from_params
+from tests.conftest import ASSETS
+
+
+@pytest.fixture(scope="module")
+def display() -> Display:
+    return Display(load_scan(ASSETS / "corner" / "scan2.ply"), load_scan(ASSETS / "corner" / "scan1.ply"))
+
+
+def events(phases: list[str], minima: set[int] = frozenset()) -> list[Event]:
+    """One event per phase letter, each pose a small step along x; ``minima``: indices marked local minima."""
+    return [Event(p, k + 1, k + 1, 1, from_params(np.r_[0.01 * k, 0, 0, 0, 0, 0]), 1.0 / (k + 1),
+                  None if p == "icp" else 0.5, True, k in minima) for k, p in enumerate(phases)]
+
+
+def test_each_segment_takes_the_colour_of_the_phase_it_leads_into(display):
+    phases = ["icp"] * 3 + ["sa"] * 4 + ["icp"] * 2
+    trail = Trail(display, events(phases))
+    assert trail.update() == len(phases)
+    seg, rgb = trail.segments()
+    assert seg.shape == (len(phases) - 1, 2, 3) and rgb.shape == seg.shape and rgb.dtype == np.uint8
+    want = np.array([PHASE_RGB[p] for p in phases[1:]], np.uint8)
+    assert np.array_equal(rgb[:, 0], want) and np.array_equal(rgb[:, 1], want)
+    # the segments chain the drawn node positions in order
+    assert np.allclose(seg[1:, 0], seg[:-1, 1]) and np.allclose(seg[0, 0], trail.pos[0])
+
+
+def test_local_minima_are_marked_where_icp_stopped(display):
+    trail = Trail(display, events(["icp"] * 3 + ["sa"] * 2 + ["icp"] * 2, minima={2, 6}))
+    trail.update()
+    assert np.array_equal(np.flatnonzero(trail.minimum), [2, 6])
+    assert np.allclose(trail.minima(), trail.pos[[2, 6]])
+    assert trail.counts == (5 - 2, 2, 2)  # a minimum mark repeats ICP's last pose: not an iteration
+
+
+def test_a_trail_takes_in_new_events_incrementally(display):
+    evs = events(["icp"] * 2)
+    trail = Trail(display, evs)
+    trail.update()
+    evs.extend(events(["icp"] * 2 + ["sa"] * 3)[2:])
+    assert trail.update() == 5 and trail.counts == (2, 3, 0) and len(trail.pos) == 5
+    assert trail.minima().shape == (0, 3)
+
+
+def test_a_long_path_is_thinned_but_keeps_its_last_point(display):
+    trail = Trail(display, events(["sa"] * (3 * MAX_PATH_POINTS)))
+    trail.update()
+    seg, _ = trail.segments()
+    assert len(seg) < MAX_PATH_POINTS and np.allclose(seg[-1, 1], trail.pos[-1])
+
+
+def test_the_chart_starts_both_series_at_the_initial_error(display):
+    trail = Trail(display, events(["icp"] * 2 + ["sa"] * 2))
+    trail.update()
+    it, icp, sa = trail.plot(E0=7.0)
+    assert icp[0] == sa[0] == 7.0 and np.all(np.diff(it) > 0)
+    assert np.isnan(icp[3:]).all() and np.isnan(sa[1:3]).all()
+
+
+def a_slice() -> Slice:
+    a, b = np.linspace(-1, 1, 5), np.linspace(-10, 10, 7)
+    return Slice(("tx", "ry"), a, b, 1.0 + a[:, None] ** 2 + (b[None, :] / 10) ** 2, np.eye(4))
+
+
+def test_slice_figure_draws_both_legs_in_the_page_colours_and_the_current_pose():
+    path = np.array([[0.9, 8.0], [0.5, 5.0], [0.4, 4.0], [0.1, 1.0], [0.0, 0.0]])
+    fig = slice_figure(a_slice(), path, ["icp", "icp", "sa", "sa", "icp"], np.array([0.0, 0.5]), "t")
+    traces = {t.name: t for t in fig.data if t.name}
+    for phase, name in (("icp", "ICP"), ("sa", "SA")):
+        assert traces[name].line.color == f"rgb{PHASE_RGB[phase]}"
+        drawn = ~np.isnan(np.asarray(traces[name].x, float))
+        assert drawn.any()
+    assert np.array_equal(~np.isnan(np.asarray(traces["SA"].x, float)), [False, False, True, True, False])
+    assert (traces["current"].x[0], traces["current"].y[0]) == (0.0, 0.5)
+    assert (traces["start"].x[0], traces["start"].y[0]) == (0.9, 8.0)
+    assert fig.layout.xaxis.title.text.startswith("tx") and "deg" in fig.layout.yaxis.title.text
+
+
+def test_slice_figure_without_a_run_shows_the_surface_and_the_pose_only():
+    fig = slice_figure(a_slice(), None, None, np.array([0.0, 0.0]), "t")
+    assert [t.name for t in fig.data if t.name] == ["current"]
+
+
+def test_the_png_draws_each_leg_in_the_page_colour():
+    import matplotlib.colors as mcolors
+    import matplotlib.pyplot as plt
+
+    from app.plots import slice_axes
+
+    path = np.array([[0.9, 8.0], [0.5, 5.0], [0.4, 4.0], [0.1, 1.0]])
+    fig = slice_axes(a_slice(), path, ["icp", "icp", "sa", "sa"], np.array([0.0, 0.5]), "t", units="m")
+    ax = fig.axes[0]
+    legend = {t.get_text(): line for t, line in zip(ax.get_legend().get_texts(), ax.get_legend().get_lines())}
+    for phase, name in (("icp", "ICP"), ("sa", "SA")):
+        assert mcolors.to_hex(legend[name].get_color()) == "#{:02x}{:02x}{:02x}".format(*PHASE_RGB[phase])
+    drawn = {mcolors.to_hex(line.get_color()) for line in ax.get_lines() if len(line.get_xdata()) > 1}
+    assert drawn == {"#{:02x}{:02x}{:02x}".format(*PHASE_RGB[p]) for p in ("icp", "sa")}
+    assert ax.get_xlabel() == "tx (m)" and ax.get_ylabel() == "ry (deg)"
+    plt.close(fig)

@@ -232,29 +232,21 @@ _SEPARATORS = re.compile(r"[,;\s\[\]]+")
 
 def parse_init(text: str) -> np.ndarray:
     """``--init``: 16 numbers (row-major T_target_source, spaces or commas) given inline, or a file
-    holding them (or JSON with ``transform``). Returns a checked rigid (4, 4) float64 matrix."""
-    from core.transforms import check_rigid
+    holding them (or JSON with ``transform``). Returns a checked rigid (4, 4) float64 matrix
+    (core.io.parse_transform; here only the flag's name and a folder/binary-file check are added)."""
+    from core.io import parse_transform
 
     if text is None or not str(text).strip():
         raise InputError("--init: expected 16 numbers or a file, got nothing")
     p = Path(text)
-    tokens = [t for t in _SEPARATORS.split(str(text).strip()) if t]
-    if not p.exists() and len(tokens) > 1:
-        try:
-            values = np.array([float(t) for t in tokens], dtype=np.float64)
-        except ValueError:
-            raise InputError(f"--init: {text!r} is neither 16 numbers nor an existing file") from None
-        if values.size != 16:
-            raise InputError(f"--init: expected 16 numbers (a row-major 4 x 4 matrix), got {values.size}")
-        try:
-            return check_rigid(values.reshape(4, 4), "--init")
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
-    read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
-    from core.io import read_transform
-
+    if p.exists():
+        read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
+    elif len([t for t in _SEPARATORS.split(str(text).strip()) if t]) < 2:
+        raise InputError(f"--init {text}: no such file (and not 16 numbers)")
     try:
-        return read_transform(p)
+        return parse_transform(str(text))
+    except InputError as exc:
+        raise InputError(f"--init: {exc}") from None
     except OSError as exc:
         raise InputError(f"--init {p}: cannot read it ({exc.strerror or exc})") from None
 

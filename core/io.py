@@ -74,16 +74,18 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     units = side.get("units") or _guess_units(points)
     vp, estimated = (stored_vp, False)
     if side.get("viewpoint") is not None:
-        vp = np.asarray(side["viewpoint"], dtype=np.float64)
+        vp = side["viewpoint"]
+    elif vp is not None and viewpoint is None and not np.all(np.isfinite(vp)):
+        raise InputError(f"{what}: the stored VIEWPOINT {vp.tolist()} is not finite")
     if viewpoint is not None:
-        vp, estimated = np.asarray(viewpoint, dtype=np.float64).reshape(3), False
+        vp, estimated = _vector3(viewpoint, f"{what}: the viewpoint"), False
         check_viewpoint(points, vp, grid, faces, what)
     elif vp is None:
         vp, estimated = estimate_viewpoint(points, grid, faces), True
     scan = Scan(points=points, viewpoint=vp, name=name or path.stem, units=units,
                 viewpoint_estimated=estimated, grid=grid, faces=faces,
                 pose=None if pose is None else np.asarray(pose, dtype=np.float64),
-                guess=None if side.get("guess") is None else np.asarray(side["guess"], dtype=np.float64),
+                guess=side.get("guess"),
                 dropped=dropped, source=str(path))
     return scan
 
@@ -113,14 +115,20 @@ def _load_ply(path: Path):
     if "face" in data and data["face"]:
         counts, flat = next(iter(data["face"].values()))
         faces = _triangulate_polygons(counts, flat)
-        if faces.size and faces.max() >= len(pts):
-            raise InputError(f"{path}: a face refers to vertex {faces.max()} of {len(pts)}")
+        if faces.size and (faces.max() >= len(pts) or faces.min() < 0):
+            bad = faces.max() if faces.max() >= len(pts) else faces.min()
+            raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
     return pts, grid_idx, faces
 
 
 def _triangulate_polygons(counts, flat) -> np.ndarray:
     if len(counts) and np.all(counts == 3):
         return flat.reshape(-1, 3)
+    if len(counts) and counts[0] > 3 and np.all(counts == counts[0]):  # all quads (say): fans, vectorised
+        poly = flat.reshape(len(counts), int(counts[0]))
+        k = poly.shape[1]
+        return np.stack([np.broadcast_to(poly[:, :1], (len(poly), k - 2)), poly[:, 1:-1], poly[:, 2:]],
+                        axis=2).reshape(-1, 3)
     tris, pos = [], 0
     for k in counts:
         poly = flat[pos:pos + k]
@@ -230,15 +238,73 @@ def sidecar_path(path: Path) -> Path:
     return Path(path).with_suffix(".json")
 
 
-def _read_sidecar(path: Path) -> dict:
-    side = sidecar_path(path)
-    if not side.exists():
-        return {}
+def _read_text(path: Path, what: str) -> str:
+    """The text of a side file (sidecar, .conf, transform), or one InputError saying why not."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not {what}")
     try:
-        data = json.loads(side.read_text())
+        return path.read_text(errors="replace")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+
+
+def _read_sidecar(path: Path) -> dict:
+    """The scan's JSON sidecar, checked: {} when there is none."""
+    side = sidecar_path(path)
+    if not side.exists() and not side.is_symlink():
+        return {}
+    text = _read_text(side, "a JSON sidecar")
+    try:
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f"{side}: the sidecar is not valid JSON ({exc})") from None
-    return data if isinstance(data, dict) else {}
+    if not isinstance(data, dict):
+        raise InputError(f"{side}: the sidecar should hold a JSON object, found {type(data).__name__}")
+    return check_sidecar(data, str(side))
+
+
+def check_sidecar(data: dict, what: str) -> dict:
+    """Check a sidecar's known keys; returns them as arrays: viewpoint (3,), pose and guess (4, 4) rigid."""
+    from .transforms import check_rigid
+
+    out = dict(data)
+    if data.get("viewpoint") is not None:
+        out["viewpoint"] = _vector3(data["viewpoint"], f"{what}: 'viewpoint'")
+    for key in ("pose", "guess"):
+        if data.get(key) is None:
+            continue
+        try:
+            T = np.asarray(data[key], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"{what}: {key!r} should be a 4 x 4 rigid transform (rows of numbers), "
+                             f"found {_short(data[key])}") from None
+        try:
+            out[key] = check_rigid(T, f"{what}: {key!r}")
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+    units = data.get("units")
+    if units is not None and (not isinstance(units, str) or not units.strip()):
+        raise InputError(f"{what}: 'units' should be a name such as \"mm\" or \"m\", found {_short(units)}")
+    return out
+
+
+def _vector3(value, what: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        v = None
+    if v is None or v.shape != (3,):
+        raise InputError(f"{what} should be three numbers x, y, z, found {_short(value)}")
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{what} {v.tolist()} is not finite")
+    return v
+
+
+def _short(value) -> str:
+    text = json.dumps(value) if not isinstance(value, np.ndarray) else str(value.tolist())
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def load_conf(path: str | Path) -> dict[str, np.ndarray]:
@@ -248,10 +314,8 @@ def load_conf(path: str | Path) -> dict[str, np.ndarray]:
     data (see its README): ``x_world = R(q*) x_scan + t`` with the CONJUGATE quaternion.
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
     poses = {}
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    for lineno, line in enumerate(_read_text(path, "a Stanford .conf file").splitlines(), 1):
         tok = line.split()
         if not tok or tok[0] != "bmesh":
             continue
@@ -304,29 +368,47 @@ def save_scan(path: str | Path, scan: Scan) -> None:
     write_sidecar(path, scan)
 
 
+def parse_transform(text_or_path: str | Path) -> np.ndarray:
+    """A rigid 4 x 4 transform from a file (16 numbers, row-major, whitespace or commas; or JSON
+    with ``transform``) or, when ``text_or_path`` is a string naming no file, from the text itself
+    (16 numbers, or that JSON)."""
+    if isinstance(text_or_path, str) and not Path(text_or_path).exists() and _looks_like_numbers(text_or_path):
+        text = text_or_path.strip()
+        return _transform_from_text(text, f"the transform {text if len(text) <= 40 else text[:37] + '...'!r}")
+    path = Path(text_or_path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file (and not 16 numbers)")
+    return _transform_from_text(_read_text(path, "a transform file").strip(), str(path))
+
+
 def read_transform(path: str | Path) -> np.ndarray:
-    """A 4 x 4 transform from 16 numbers (row-major, whitespace or commas) or JSON with ``transform``."""
+    """A 4 x 4 transform from a file, or from the text of 16 numbers (see :func:`parse_transform`)."""
+    return parse_transform(path)
+
+
+def _looks_like_numbers(text: str) -> bool:
+    t = text.strip()
+    return t.startswith("{") or bool(re.fullmatch(r"[\s,;\[\]0-9eE+\-.naifNAIF]+", t)) and any(c.isdigit() for c in t)
+
+
+def _transform_from_text(text: str, what: str) -> np.ndarray:
     from .transforms import check_rigid
 
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    text = path.read_text(errors="replace").strip()
     if text.startswith("{"):
         try:
             data = json.loads(text)
             values = np.asarray(data["transform"], dtype=np.float64)
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{path}: expected JSON with a 'transform' 4 x 4 list ({exc})") from None
+            raise InputError(f"{what}: expected JSON with a 'transform' 4 x 4 list ({exc})") from None
     else:
         try:
-            values = np.array([float(t) for t in re.split(r"[,\s\[\]]+", text) if t], dtype=np.float64)
+            values = np.array([float(t) for t in re.split(r"[,;\s\[\]]+", text) if t], dtype=np.float64)
         except ValueError:
-            raise InputError(f"{path}: expected 16 numbers (a row-major 4 x 4 matrix)") from None
+            raise InputError(f"{what}: expected 16 numbers (a row-major 4 x 4 matrix)") from None
     if values.size != 16:
-        raise InputError(f"{path}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
+        raise InputError(f"{what}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
     try:
-        return check_rigid(values.reshape(4, 4), f"{path}")
+        return check_rigid(values.reshape(4, 4), what)
     except ValueError as exc:
         raise InputError(str(exc)) from None
 

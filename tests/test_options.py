@@ -88,7 +88,7 @@ def test_init_takes_16_numbers_inline_or_a_file(tmp_path):
 
 
 @pytest.mark.parametrize("text, fragment", [
-    ("1 2 3", "16 numbers"), ("left a bit", "neither 16 numbers"), ("nope.txt", "no such file"), ("", "nothing"),
+    ("1 2 3", "16 numbers"), ("left a bit", "not 16 numbers"), ("nope.txt", "no such file"), ("", "nothing"),
     (" ".join(["1"] * 16), "last row"), ("2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", "not rigid"),
 ])
 def test_a_bad_init_is_one_message(text, fragment):

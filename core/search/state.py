@@ -19,6 +19,7 @@ from ..config import Config
 from ..error import ErrorTerms, RobustError
 from ..events import Event, Listener
 from ..icp import IcpConfig, icp
+from ..lock import LockFrame
 from ..problem import Problem
 from ..transforms import random_perturbation, rotation_angle
 
@@ -40,7 +41,9 @@ class CountedError:
 class SearchState:
     """One optimisation: counts iterations and evaluations, emits events, keeps the best pose."""
 
-    def __init__(self, problem: Problem, config: Config, listener: Listener | None):
+    def __init__(self, problem: Problem, config: Config, listener: Listener | None, frame: LockFrame | None = None):
+        """``frame``: the lock bound elsewhere (a stage that runs several searches from one guess);
+        by default ``config.lock`` bound to ``problem``'s guess and overlap centroid."""
         self.config, self.listener = config, listener
         self.rng = np.random.default_rng(config.seed)
         # per phase ("icp", "sa"; a new stage emits its own phase and gets its own key):
@@ -51,7 +54,9 @@ class SearchState:
         self.evaluations = 0
         self.refining = False  # searching again on the overlap re-cut at the pose found (resegment)
         lock = config.lock
-        self.frame = lock.bind(problem.T_init, problem.center, problem.scale) if lock.active else None
+        if frame is None and lock.active:
+            frame = lock.bind(problem.T_init, problem.center, problem.scale)
+        self.frame = frame
         self.use(problem)
         self.start_at(problem.T_init)
 

@@ -87,6 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
                        f"(default {pc.rotation_uncertainty_deg:g} deg)")
         s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",
                        help="how far off the guess may be in translation (default 15 %% of the target's size)")
+        s.add_argument("--lock", metavar="SPEC", help="degrees of freedom the search may not move: any of "
+                       "tx,ty,tz,rx,ry,rz (about the overlap centroid; 'rotation' or 'translation' for three), or "
+                       "turntable:px,py,pz,dx,dy,dz (rotation about that line in TARGET's frame only; "
+                       "turntable+translation:... also shifts); default none")
 
     s = sub.add_parser("register", help="register SOURCE onto TARGET", description="Register SOURCE onto TARGET; "
                        "prints the transform that maps SOURCE into TARGET's frame.")

@@ -137,6 +137,7 @@ class Settings:
     recut_rounds: int | None = None
     polish: bool = False
     coarse_to_fine: bool = False
+    lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
         from core.frustum import KINDS
@@ -156,6 +157,7 @@ class Settings:
             raise InputError(f"--method: unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
         if self.frustum is not None and self.frustum not in KINDS:
             raise InputError(f"--frustum: choose one of {', '.join(KINDS)}, got {self.frustum!r}")
+        object.__setattr__(self, "lock", parse_lock(self.lock))
 
     @classmethod
     def from_mapping(cls, values: dict, **overrides) -> Settings:
@@ -183,10 +185,30 @@ def to_config(s: Settings):
     cfg = replace(base, method=s.method, threshold=s.threshold, seed=s.seed, problem=problem,
                   icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),
                   anneal=replace(base.anneal, **anneal), sa_alone=replace(base.sa_alone, **anneal),
-                  polish=s.polish, coarse_to_fine=s.coarse_to_fine,
+                  polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
                   **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg
+
+
+def parse_lock(value):
+    """``--lock`` as a core ``Lock``: text (``rx,ry,tz``: those parameters locked; ``rotation`` or
+    ``translation``: three at once; ``turntable:px,py,pz,dx,dy,dz``: rotation about that line in the
+    target's frame only; ``turntable+translation:...``: and free translation; ``none``), a Lock, or None."""
+    from core.lock import Lock
+
+    if isinstance(value, Lock):
+        try:
+            value.validate()
+        except InputError as exc:
+            raise InputError(f"--lock: {exc}") from None
+        return value
+    if value is not None and not isinstance(value, str):
+        raise InputError(f"--lock: expected text such as rx,ry,tz or turntable:px,py,pz,dx,dy,dz, got {value!r}")
+    try:
+        return Lock.parse(value)
+    except InputError as exc:
+        raise InputError(f"--lock: {exc}") from None
 
 
 def read_text_file(path: str | Path, what: str, limit: int = 1 << 30) -> str:

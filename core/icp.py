@@ -23,7 +23,9 @@ from scipy.spatial.transform import Rotation
 
 from .error import ErrorFunction
 from .errors import InputError
-from .horn import weighted_horn
+from .horn import constrained_horn, weighted_horn
+from .lock import LockFrame
+from .transforms import apply, invert
 
 
 @dataclass(frozen=True)
@@ -67,11 +69,16 @@ def _step_vector(dT: np.ndarray, center: np.ndarray, radius: float) -> np.ndarra
 
 def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig(),
         on_iteration: Callable[[np.ndarray, float], None] | None = None,
-        inside: Callable[[np.ndarray], bool] | None = None) -> IcpResult:
+        inside: Callable[[np.ndarray], bool] | None = None, frame: LockFrame | None = None) -> IcpResult:
     """Run ICP from ``T_start`` (4, 4) T_target_source; ``on_iteration(T, E)`` after each step.
 
     ``inside(T)``, when given, bounds the walk: a step to a pose outside ends ICP where it stands.
+    ``frame`` (a :class:`core.lock.LockFrame`), when given, locks degrees of freedom: ICP starts
+    at ``T_start`` projected onto the allowed set and each Horn step is solved on the free
+    coordinates only (:func:`core.horn.constrained_horn`).
     """
+    if frame is not None:
+        return _icp_locked(error, T_start, config, on_iteration, inside, frame)
     terms = error.terms(T_start)
     T, best_T, best_E = T_start, T_start, terms.error
     it = 0
@@ -109,6 +116,53 @@ def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig
         # Stop on a small change either way; robust weights shift, so E may rise a little mid-walk.
         converged = abs(terms.error - new.error) < config.tolerance * terms.error
         T, terms = T_new, new
+        if converged:
+            break
+    return IcpResult(best_T, best_E, it)
+
+
+def _icp_locked(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig,
+                on_iteration: Callable[[np.ndarray, float], None] | None,
+                inside: Callable[[np.ndarray], bool] | None, frame: LockFrame) -> IcpResult:
+    """:func:`icp` walking the free coordinates z of ``frame``: the same loop, its steps in z."""
+    z = frame.free(T_start)
+    T = frame.pose(z)
+    terms = error.terms(T)
+    best_T, best_E = T, terms.error
+    it = 0
+    previous = None
+    while it < config.max_iterations:
+        w = (terms.d2 < terms.t).astype(float) if config.unweighted else terms.weights
+        if np.count_nonzero(w) < 3:
+            w = terms.weights
+        y = apply(invert(frame.delta(z)), terms.moved)  # the sample at the frame's reference pose
+        z_new = constrained_horn(y, terms.closest, w, frame, z)
+        v = z_new - z  # free search coordinates: translations in search units, rotations in radians
+        T_new = frame.pose(z_new)
+        if inside is not None and not inside(T_new):
+            break
+        new = error.terms(T_new)
+        if config.accelerate and previous is not None and np.linalg.norm(v) > 0:
+            cos = v @ previous / (np.linalg.norm(v) * np.linalg.norm(previous) + 1e-300)
+            s = 2.0
+            while cos > 0.9 and s <= 64 and new.error < terms.error:
+                z_try = z + s * v
+                T_try = frame.pose(z_try)
+                if inside is not None and not inside(T_try):
+                    break
+                tried = error.terms(T_try)
+                if tried.error >= new.error:
+                    break
+                z_new, T_new, new = z_try, T_try, tried
+                s *= 2
+        previous = v
+        it += 1
+        if on_iteration is not None:
+            on_iteration(T_new, new.error)
+        if new.error < best_E:
+            best_T, best_E = T_new, new.error
+        converged = abs(terms.error - new.error) < config.tolerance * terms.error
+        z, T, terms = z_new, T_new, new
         if converged:
             break
     return IcpResult(best_T, best_E, it)

@@ -86,9 +86,14 @@ def _write_transform(path, res) -> None:
 def report(res, source, target, cfg, as_json: bool) -> None:
     """Print the result: one JSON object, or lines for people (with the truth when the scans carry it)."""
     if as_json:
-        print(json.dumps(res.to_json()))
+        out = res.to_json()
+        if cfg.lock.active:
+            out["lock"] = str(cfg.lock)
+        print(json.dumps(out))
         return
     print(f"method      {res.method}")
+    if cfg.lock.active:
+        print(f"locked      {cfg.lock} (free: {', '.join(cfg.lock.free)})")
     print(f"error       {res.error:.6g} {target.units}^2 (threshold {res.threshold:.6g})")
     print(f"iterations  ICP {res.iterations['icp']}, SA {res.iterations['sa']}  (local minima {res.local_minima})")
     print(f"stopped     {res.stop_text} after {res.seconds:.2f} s")

@@ -50,6 +50,9 @@ def run(a: Namespace) -> int:
     if a.center == "end" and a.trace_in is None:
         raise InputError("--center end needs --trace (the run whose end to slice around)")
     cfg = pair.config(a)
+    if cfg.lock.turntable or set(params) & set(cfg.lock.locked):
+        raise InputError(f"--params {','.join(params)}: the slice must vary parameters the search may move "
+                         f"(--lock {cfg.lock} leaves {', '.join(cfg.lock.free)})")
     files, scans = pair.inputs(a), [a.source, a.target]
     png = check_output(a.png, "--png", (".png",), files, scans)
     npz = check_output(a.npz, "--npz", (".npz",), files, scans) if a.npz is not None else None

@@ -1,0 +1,216 @@
+"""The ``global`` method (beyond the paper; issue 13): candidates -> the best few ICP-refined -> the
+paper's hybrid from the best -> the lowest score on the pair's fixed basis.
+
+    1. cut the overlap under the guess (widened when empty, core.cut) and triangulate the target;
+    2. the pair's noise floor, its fixed scoring basis and its stop threshold (core.pair_threshold);
+    3. candidates (core.candidates): the guess, FPFH + RANSAC, KISS-Matcher, rotation samples within
+       the guess's uncertainty; those outside it dropped, the rest scored in one batched query;
+    4. the best ``refine`` candidates that overlap both ways: ICP on the paper's robust E, on the
+       overlap cut at the candidate, then again on the cut at the pose found;
+    5. the best refined pose: trusted (below the pair threshold) -> done; else the paper's hybrid
+       from there (``--method hybrid``, unchanged) and the lower of the two on the fixed basis.
+
+With candidates off (``CandidateConfig.enabled=False``) only the guess is a candidate.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .candidates import (
+    Basis,
+    CandidateConfig,
+    fpfh_candidates,
+    kiss_available,
+    kiss_candidates,
+    make_basis,
+    pair_spacing,
+    rotation_candidates,
+    within,
+)
+from .events import Cancelled, Event, Listener
+from .icp import icp
+from .noise import noise_floor
+from .pair_threshold import PairThreshold, pair_threshold
+from .problem import ProblemConfig, prepare
+from .register import Config, Result, register
+from .scan import Scan
+from .surface import Surface
+
+REFINE_ROTATION_DEG = 15.0  # the cut at a candidate assumes it is this close (the rotation samples' spacing)
+CONVERGED_ROTATION_DEG = 2.0  # ... and, once ICP has converged, this close (core.register's resegment)
+CONVERGED_TRANSLATION = 0.02  # ... as a share of the target's size
+REGION = 2.0  # a refined pose may end within this x the guess's uncertainty (core.register's SEARCH_BOUND)
+
+
+@dataclass(frozen=True)
+class GlobalConfig:
+    """base: the paper's hybrid (its problem holds the guess's uncertainty and the seed);
+    candidates: where candidates come from and how many are refined."""
+
+    base: Config = field(default_factory=Config)
+    candidates: CandidateConfig = field(default_factory=CandidateConfig)
+
+    def validate(self) -> None:
+        self.base.validate()
+        self.candidates.validate()
+
+
+@dataclass(frozen=True, eq=False)
+class GlobalResult:
+    """result: the final pose as a core Result (method 'global'); cut: the overlap cut used under the
+    guess; threshold: how the stop threshold was derived; below_threshold: trust this pose; score:
+    its value on the fixed basis; candidates: how many were scored; sources: per source, how many."""
+
+    result: Result
+    cut: str
+    threshold: PairThreshold
+    below_threshold: bool
+    score: float
+    candidates: int
+    sources: dict
+
+    def __repr__(self) -> str:
+        return (f"GlobalResult({self.result!r}, cut={self.cut}, below_threshold={self.below_threshold}, "
+                f"candidates={self.candidates})")
+
+    def to_json(self) -> dict:
+        return {**self.result.to_json(), "cut": self.cut, "threshold_derivation": self.threshold.to_json(),
+                "below_threshold": self.below_threshold, "score": self.score, "candidates": self.candidates,
+                "candidate_sources": dict(self.sources)}
+
+
+class _Counter:
+    """Numbers the events of every stage in one stream; forwards them to the listener."""
+
+    def __init__(self, listener: Listener | None):
+        self.listener, self.n = listener, {"candidates": 0, "icp": 0, "sa": 0}
+        self.legs = {"candidates": 0, "icp": 0, "sa": 0}
+
+    def emit(self, phase: str, T: np.ndarray, E: float, local_minimum: bool = False) -> None:
+        self.n[phase] += 1
+        if self.listener is not None:
+            self.listener(Event(phase, sum(self.n.values()), self.n[phase], self.legs[phase], T, E,
+                                local_minimum=local_minimum))
+
+    def forward(self, e: Event) -> None:
+        """An event of the hybrid's own run, renumbered into this stream (a local-minimum marker is
+        not a step, as in core.register)."""
+        if not e.local_minimum:
+            self.n[e.phase] += 1
+        if self.listener is not None:
+            self.listener(replace_event(e, iteration=self.total()))
+
+    def total(self) -> int:
+        return self.n["candidates"] + self.n["icp"] + self.n["sa"]
+
+
+def replace_event(e: Event, **kw) -> Event:
+    d = {k: getattr(e, k) for k in ("phase", "iteration", "phase_iteration", "leg", "T", "error", "temperature",
+                                    "accepted", "local_minimum")}
+    d.update(kw)
+    return Event(**d)
+
+
+def gather(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig,
+           seed: int) -> tuple[list[np.ndarray], dict]:
+    """Candidate poses (each (4, 4)), the guess first, and how many came from each source."""
+    r_unc = np.radians(pc.rotation_uncertainty_deg)
+    t_unc = pc.translation_uncertainty_for(target.size)
+    poses, sources = [np.asarray(T_init, dtype=np.float64)], {"guess": 1}
+    # order matters to register_global: guess, rotation samples, then the feature-matching hypotheses
+    if cc.enabled:
+        spacing = pair_spacing(source, target)
+        found = {"rotation samples": rotation_candidates(source, target, T_init, r_unc, t_unc, cc.rotation_samples),
+                 "fpfh-ransac": fpfh_candidates(source, target, spacing, cc.fpfh_voxels, cc.fpfh_seeds, seed)}
+        if cc.kiss_matcher:
+            found["kiss-matcher"] = (kiss_candidates(source, target, spacing, max(cc.fpfh_voxels))
+                                     if kiss_available() else [])
+        for name, Ts in found.items():
+            kept = [T for T in Ts if within(T, T_init, source.centroid, r_unc, t_unc)]
+            poses += kept
+            sources[name] = len(kept)
+        if cc.kiss_matcher and not kiss_available():
+            sources["kiss-matcher"] = "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)"
+    return poses, sources
+
+
+def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
+           on_step=None) -> np.ndarray:
+    """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found."""
+    near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG))
+    conv = replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
+                   translation_uncertainty=CONVERGED_TRANSLATION * target.size)
+    for cfg in (near, conv):
+        p = prepare(source, target, T, cfg, surface=surface)
+        T = icp(p.error, T, icp_config, on_step).T
+    return T
+
+
+def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
+                    config: GlobalConfig = GlobalConfig(), listener: Listener | None = None) -> GlobalResult:
+    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes)."""
+    config.validate()
+    t0 = time.perf_counter()
+    base, cc = config.base, config.candidates
+    pc = replace(base.problem, seed=base.seed)
+    T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
+    problem = prepare(source, target, T_init, pc)
+    T_init, surface = problem.T_init, problem.surface
+    rng = np.random.default_rng(base.seed)
+    floor = float(np.mean([noise_floor(s, rng, len(problem.points)) for s in (source, target)]))
+    basis = make_basis(source, target, surface, floor, rng, cc, pc.frustum)
+    threshold = pair_threshold(floor, cc.min_overlap)
+    run = _Counter(listener)
+    r_unc, t_unc = problem.rotation_uncertainty, problem.translation_uncertainty
+    reason = ""
+    try:
+        poses, sources = gather(source, target, T_init, pc, cc, base.seed)
+        scores = basis.evaluate(np.stack(poses))
+        run.legs["candidates"] += 1
+        for T, s in zip(poses, scores.score):
+            run.emit("candidates", T, float(s))
+        valid = basis.valid(scores)
+        # the best few by score, and always the guess and every feature-matching hypothesis (few, and
+        # a coarse pose pays the cap at most points, so its score before ICP says little)
+        order = [k for k in np.argsort(scores.score, kind="stable") if valid[k]][:cc.refine]
+        n_rot = sources.get("rotation samples", 0)
+        order = list(dict.fromkeys([0] + order + list(range(1 + n_rot, len(poses)))))
+        run.legs["icp"] += 1
+        refined = [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E))
+                   for k in order]
+        refined = [T for T in refined if within(T, T_init, source.centroid, REGION * r_unc, REGION * t_unc)] or \
+            [poses[order[0]]]
+        best, best_s = _best(basis, refined)
+        trusted = threshold.holds(basis, best)
+        if trusted:
+            reason = "a candidate refined below the pair threshold"
+        else:
+            res = register(source, target, best, replace(base, method="hybrid"), run.forward)
+            s_h = float(basis.evaluate(res.transform[None]).score[0])
+            reason = f"hybrid from the best candidate: {res.stop_reason}"
+            if s_h < best_s:
+                best, best_s = res.transform, s_h
+            else:
+                reason += "; the refined candidate scores lower on the fixed basis"
+            trusted = threshold.holds(basis, best)
+    except Cancelled:
+        best, best_s = T_init, float(basis.evaluate(T_init[None]).score[0])
+        poses, sources, trusted, reason = [T_init], {"guess": 1}, False, "cancelled"
+    final = prepare(source, target, best, replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
+                                                  translation_uncertainty=CONVERGED_TRANSLATION * target.size),
+                    surface=surface)
+    E = final.error(best)
+    iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
+    result = Result(best, E, iterations, 0, run.total(), time.perf_counter() - t0, "global", threshold.value, reason)
+    return GlobalResult(result, problem.cut, threshold, trusted, best_s, len(poses), sources)
+
+
+def _best(basis: Basis, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:
+    s = basis.evaluate(np.stack(poses))
+    score = np.where(basis.valid(s), s.score, np.inf)
+    k = int(np.argmin(score)) if np.isfinite(score).any() else int(np.argmin(s.score))
+    return poses[k], float(s.score[k])

@@ -43,6 +43,9 @@ from .surface import Surface
 REFINE_ROTATION_DEG = 15.0  # the cut at a candidate assumes it is this close (the rotation samples' spacing)
 CONVERGED_ROTATION_DEG = 2.0  # ... and, once ICP has converged, this close (core.register's resegment)
 CONVERGED_TRANSLATION = 0.02  # ... as a share of the target's size
+LOCAL_TRANSLATION = 0.05  # the hybrid's translation uncertainty round the best candidate (share of size)
+DISTINCT_ROTATION_DEG = 2.0  # candidates closer than this (and DISTINCT_TRANSLATION) are refined once
+DISTINCT_TRANSLATION = 0.01  # share of the target's size
 REGION = 2.0  # a refined pose may end within this x the guess's uncertainty (core.register's SEARCH_BOUND)
 
 
@@ -141,7 +144,8 @@ def gather(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
            on_step=None) -> np.ndarray:
     """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found."""
-    near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG))
+    # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
+    near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG), visibility=False)
     conv = replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
                    translation_uncertainty=CONVERGED_TRANSLATION * target.size)
     for cfg in (near, conv):
@@ -169,16 +173,19 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     reason = ""
     try:
         poses, sources = gather(source, target, T_init, pc, cc, base.seed)
+        n_rot = sources.get("rotation samples", 0)
+        if n_rot:
+            shifted = basis.shift_to_fit(np.stack(poses[1:1 + n_rot]))
+            poses[1:1 + n_rot] = [T for T in shifted]
         scores = basis.evaluate(np.stack(poses))
         run.legs["candidates"] += 1
         for T, s in zip(poses, scores.score):
             run.emit("candidates", T, float(s))
-        valid = basis.valid(scores)
         # the best few by score, and always the guess and every feature-matching hypothesis (few, and
         # a coarse pose pays the cap at most points, so its score before ICP says little)
-        order = [k for k in np.argsort(scores.score, kind="stable") if valid[k]][:cc.refine]
-        n_rot = sources.get("rotation samples", 0)
-        order = list(dict.fromkeys([0] + order + list(range(1 + n_rot, len(poses)))))
+        order = [int(k) for k in np.argsort(scores.score, kind="stable")[:cc.refine]]
+        order = _distinct(poses, list(dict.fromkeys([0] + order + list(range(1 + n_rot, len(poses))))),
+                          source.centroid, DISTINCT_TRANSLATION * target.size)
         run.legs["icp"] += 1
         refined = [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E))
                    for k in order]
@@ -189,7 +196,10 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         if trusted:
             reason = "a candidate refined below the pair threshold"
         else:
-            res = register(source, target, best, replace(base, method="hybrid"), run.forward)
+            # the candidates covered the stated region; the hybrid searches round the best of them
+            local = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG),
+                            translation_uncertainty=min(t_unc, LOCAL_TRANSLATION * target.size))
+            res = register(source, target, best, replace(base, method="hybrid", problem=local), run.forward)
             s_h = float(basis.evaluate(res.transform[None]).score[0])
             reason = f"hybrid from the best candidate: {res.stop_reason}"
             if s_h < best_s:
@@ -207,6 +217,15 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
     result = Result(best, E, iterations, 0, run.total(), time.perf_counter() - t0, "global", threshold.value, reason)
     return GlobalResult(result, problem.cut, threshold, trusted, best_s, len(poses), sources)
+
+
+def _distinct(poses: list[np.ndarray], order: list[int], center: np.ndarray, trans: float) -> list[int]:
+    """``order`` without the poses that lie within DISTINCT_ROTATION_DEG and ``trans`` of an earlier one."""
+    kept: list[int] = []
+    for k in order:
+        if not any(within(poses[k], poses[j], center, np.radians(DISTINCT_ROTATION_DEG), trans) for j in kept):
+            kept.append(k)
+    return kept
 
 
 def _best(basis: Basis, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:

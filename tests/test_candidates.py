@@ -1,0 +1,89 @@
+"""The global pipeline (issue 13): candidates on one fixed basis, a widened cut, a pair threshold."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.candidates import CandidateConfig, make_basis, super_fibonacci
+from core.global_search import GlobalConfig, register_global
+from core.problem import ProblemConfig, prepare
+from core.register import Config
+from core.surface import Surface
+from core.transforms import apply, invert, perturb, pose_error, rotation_angle
+
+
+def test_candidate_scores_match_a_per_pose_loop(scene):
+    target, source = scene("corner")
+    basis = make_basis(source, target, Surface.from_scan(target), 0.4, np.random.default_rng(3),
+                       CandidateConfig(sample=50))
+    rng = np.random.default_rng(4)
+    poses = [perturb(np.eye(4), np.r_[rng.normal(0, 100, 3), rng.normal(0, 0.3, 3)], source.centroid) for _ in range(7)]
+    scores = basis.evaluate(np.stack(poses))
+    for k, T in enumerate(poses):
+        moved = apply(T, basis.points)
+        d2 = np.array([basis.surface.closest(p[None])[1][0] for p in moved])
+        inside = np.array([basis.target_frustum.contains(p[None])[0] for p in moved])
+        expected = np.mean([min(d, basis.cap) if i else basis.cap for d, i in zip(d2, inside)])
+        assert scores.score[k] == pytest.approx(expected, rel=1e-6)
+        assert scores.inside[k] == pytest.approx(inside.mean())
+        assert scores.inliers[k] == pytest.approx(np.mean(inside & (d2 < basis.cap)))
+
+
+def test_super_fibonacci_rotations_cover_so3_evenly():
+    R = super_fibonacci(720)
+    assert np.allclose(np.einsum("nij,nkj->nik", R, R), np.eye(3), atol=1e-9)
+    rng = np.random.default_rng(0)
+    # any rotation lies within 20 degrees of a sample (720 samples: neighbours ~15 deg apart)
+    from scipy.spatial.transform import Rotation
+
+    for Q in Rotation.random(50, random_state=rng.integers(1 << 31)).as_matrix():
+        assert min(rotation_angle(Q @ S.T) for S in R) < np.radians(20)
+
+
+def test_an_empty_frustum_cut_widens_and_the_pair_still_registers(scene):
+    target, source = scene("corner")
+    from core.simulate import true_transform
+
+    from core.frustum import frustum_of
+
+    T_true = true_transform(source, target)
+    # the guess moves the source 2 m sideways, out of the target's view: the frustum cut is empty
+    T0 = T_true.copy()
+    T0[:3, 3] += 2000.0 * frustum_of(target).basis[0]
+    pc = ProblemConfig(rotation_uncertainty_deg=30.0, translation_uncertainty=2400.0)
+    p = prepare(source, target, T0, pc)
+    assert p.overlap.source_mask.sum() == 0 and p.cut != "frustum"
+    g = register_global(source, target, T0, GlobalConfig(Config(problem=pc)))
+    assert g.cut != "frustum"
+    assert g.to_json()["cut"] == g.cut
+    rot, trans = pose_error(g.result.transform, T_true, source.centroid)
+    assert rot < 1.0 and trans < 0.01 * target.size
+
+
+def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
+    source, target = bunny("bun045"), bunny("bun000")
+    T_true = invert(target.pose) @ source.pose
+    T0 = perturb(T_true, np.r_[0.05, 0.0, -0.05, 0.0, 0.0, np.radians(90)], apply(T_true, source.centroid[None])[0])
+    pc = ProblemConfig(rotation_uncertainty_deg=180.0, translation_uncertainty=0.075)
+    g = register_global(source, target, T0, GlobalConfig(Config(problem=pc)))
+    rot, trans = pose_error(g.result.transform, T_true, source.centroid)
+    assert rot < 2.0 and trans < 0.002
+    assert g.below_threshold
+    assert g.result.iterations["candidates"] > 100
+
+
+def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it(bunny):
+    from core.noise import noise_floor
+    from core.pair_threshold import pair_threshold
+
+    for s, t in (("bun045", "bun000"), ("bun090", "bun000")):
+        source, target = bunny(s), bunny(t)
+        T_true = invert(target.pose) @ source.pose
+        rng = np.random.default_rng(0)
+        floor = float(np.mean([noise_floor(x, rng, 300) for x in (source, target)]))
+        basis = make_basis(source, target, Surface.from_scan(target), floor, rng)
+        thr = pair_threshold(floor, basis.min_overlap)
+        assert thr.holds(basis, T_true)
+        off = perturb(T_true, np.r_[0.004, 0, 0, 0, np.radians(5), 0], apply(T_true, source.centroid[None])[0])
+        assert not thr.holds(basis, off)

@@ -43,9 +43,8 @@ def test_super_fibonacci_rotations_cover_so3_evenly():
 
 def test_an_empty_frustum_cut_widens_and_the_pair_still_registers(scene):
     target, source = scene("corner")
-    from core.simulate import true_transform
-
     from core.frustum import frustum_of
+    from core.simulate import true_transform
 
     T_true = true_transform(source, target)
     # the guess moves the source 2 m sideways, out of the target's view: the frustum cut is empty

@@ -355,8 +355,9 @@ def sweep(a) -> int:
         raise InputError(f"{folder}: no pair of scans named in a .conf overlaps by {MIN_PAIR_OVERLAP:.0%} at the truth")
     sys.stderr.write("pairs: " + ", ".join(f"{s.stem}->{t.stem} ({o:.0%})" for s, t, o in pairs) + "\n")
     levels = SWEEP_LEVELS[:2] if a.quick else SWEEP_LEVELS
-    tasks = [SweepTask(str(s), str(t), rot, trans, k) for rot, trans in levels for s, t, _ in pairs
-             for k in range(runs)]
+    # start k of every level and pair before start k + 1: a partial run covers every level alike
+    tasks = [SweepTask(str(s), str(t), rot, trans, k) for k in range(runs) for rot, trans in levels
+             for s, t, _ in pairs]
 
     def one(task):
         rows = run_sweep_task(task)

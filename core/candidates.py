@@ -35,21 +35,22 @@ from .transforms import apply, invert, rotation_angle
 # (a range bias between views). 0.7 spacing is ~50-65 x the floor on the bunny and the bowl.
 CAP_SPACINGS = 0.7
 KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size
-SHIFT_STEPS = 4  # translation-only steps for each rotation sample (Basis.shift_to_fit)
+SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
+SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 
 
 @dataclass(frozen=True)
 class CandidateConfig:
     enabled: bool = True
-    sample: int = 256  # source points on the fixed basis (~ the paper's 165-341 in E)
+    sample: int = 160  # source points on the fixed basis (the paper's E: 165-341)
     min_overlap: float = 0.1  # share of each scan's sample that must fall in the other's frustum
     rotation_samples: int = ROTATION_SAMPLES  # over all of SO(3); those within the uncertainty are kept
     # FPFH voxel size in point spacings: Open3D's recipe uses 5 cm on scenes ~3 m across (~1/60 of the
     # size); 5 spacings is ~1/60 of a bunny scan; 2 spacings is the sweep peer's (it found bun090->bun000
     # from 180 deg in 3 of 3 starts where 5 spacings alone did not)
     fpfh_voxels: tuple[float, ...] = (2.0, 5.0)
-    fpfh_seeds: int = 2  # RANSAC runs per voxel size
+    fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
     refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)
 
@@ -115,9 +116,10 @@ class Basis:
         all poses in one query per step. A rotation sample placed by centroids alone lies centimetres
         off under partial overlap and pays the cap nearly everywhere; shifted, its score says something."""
         poses = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
-        P, M = len(poses), len(self.points)
+        pts = self.points[:: max(1, len(self.points) // SHIFT_POINTS)]  # spread over the (sorted) sample
+        P, M = len(poses), len(pts)
         for _ in range(steps):
-            moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
+            moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], pts) + poses[:, None, :3, 3]
             closest, d2 = self.surface.closest(moved.reshape(-1, 3))
             d2 = d2.reshape(P, M)
             near = d2 <= np.median(d2, axis=1, keepdims=True)

@@ -204,7 +204,8 @@ def open3d_fpfh_ransac(case: Case, T0: np.ndarray, voxel: float, seed: int) -> n
 # max(offset, 25 mm); never the true error.
 SWEEP_LEVELS = ((5.0, 0.010), (15.0, 0.025), (30.0, 0.050), (60.0, 0.075), (90.0, 0.075), (180.0, 0.075))
 PEERS = ("open3d-icp", "open3d-fpfh-ransac")
-MIN_PAIR_OVERLAP = 0.3  # a pair is shared when this share of each scan's sample matches the other at the truth
+MIN_PAIR_OVERLAP = 0.2  # a pair is shared when this share of each scan's sample matches the other at the truth
+# (measured, 160-point samples: bun090->bun000 0.29, bun315->bun090 0.10-0.15)
 
 
 def told(rot: float, trans: float) -> tuple[float, float]:

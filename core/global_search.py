@@ -118,27 +118,33 @@ def replace_event(e: Event, **kw) -> Event:
     return Event(**d)
 
 
-def gather(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig,
-           seed: int) -> tuple[list[np.ndarray], dict]:
-    """Candidate poses (each (4, 4)), the guess first, and how many came from each source."""
-    r_unc = np.radians(pc.rotation_uncertainty_deg)
-    t_unc = pc.translation_uncertainty_for(target.size)
-    poses, sources = [np.asarray(T_init, dtype=np.float64)], {"guess": 1}
-    # order matters to register_global: guess, rotation samples, then the feature-matching hypotheses
-    if cc.enabled:
-        spacing = pair_spacing(source, target)
-        found = {"rotation samples": rotation_candidates(source, target, T_init, r_unc, t_unc, cc.rotation_samples),
-                 "fpfh-ransac": fpfh_candidates(source, target, spacing, cc.fpfh_voxels, cc.fpfh_seeds, seed)}
-        if cc.kiss_matcher:
-            found["kiss-matcher"] = (kiss_candidates(source, target, spacing, max(cc.fpfh_voxels))
-                                     if kiss_available() else [])
-        for name, Ts in found.items():
-            kept = [T for T in Ts if within(T, T_init, source.centroid, r_unc, t_unc)]
-            poses += kept
-            sources[name] = len(kept)
-        if cc.kiss_matcher and not kiss_available():
-            sources["kiss-matcher"] = "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)"
-    return poses, sources
+def _kept(Ts, T_init, center, r_unc, t_unc) -> list[np.ndarray]:
+    return [T for T in Ts if within(T, T_init, center, r_unc, t_unc)]
+
+
+def sampled(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig) -> list[np.ndarray]:
+    """The rotation samples within the guess's uncertainty (core.candidates.rotation_candidates)."""
+    if not cc.enabled:
+        return []
+    r_unc, t_unc = np.radians(pc.rotation_uncertainty_deg), pc.translation_uncertainty_for(target.size)
+    return _kept(rotation_candidates(source, target, T_init, r_unc, t_unc, cc.rotation_samples), T_init,
+                 source.centroid, r_unc, t_unc)
+
+
+def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig,
+            seed: int) -> dict[str, list[np.ndarray] | str]:
+    """Feature-matching hypotheses within the guess's uncertainty, per method (a string: why none)."""
+    if not cc.enabled:
+        return {}
+    r_unc, t_unc = np.radians(pc.rotation_uncertainty_deg), pc.translation_uncertainty_for(target.size)
+    spacing = pair_spacing(source, target)
+    out: dict = {"fpfh-ransac": _kept(fpfh_candidates(source, target, spacing, cc.fpfh_voxels, cc.fpfh_seeds, seed),
+                                      T_init, source.centroid, r_unc, t_unc)}
+    if cc.kiss_matcher:
+        out["kiss-matcher"] = (_kept(kiss_candidates(source, target, spacing, max(cc.fpfh_voxels)), T_init,
+                                     source.centroid, r_unc, t_unc) if kiss_available() else
+                               "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)")
+    return out
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
@@ -172,26 +178,23 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     r_unc, t_unc = problem.rotation_uncertainty, problem.translation_uncertainty
     reason = ""
     try:
-        poses, sources = gather(source, target, T_init, pc, cc, base.seed)
-        n_rot = sources.get("rotation samples", 0)
-        if n_rot:
-            shifted = basis.shift_to_fit(np.stack(poses[1:1 + n_rot]))
-            poses[1:1 + n_rot] = [T for T in shifted]
-        scores = basis.evaluate(np.stack(poses))
-        run.legs["candidates"] += 1
-        for T, s in zip(poses, scores.score):
-            run.emit("candidates", T, float(s))
-        # the best few by score, and always the guess and every feature-matching hypothesis (few, and
-        # a coarse pose pays the cap at most points, so its score before ICP says little)
-        order = [int(k) for k in np.argsort(scores.score, kind="stable")[:cc.refine]]
-        order = _distinct(poses, list(dict.fromkeys([0] + order + list(range(1 + n_rot, len(poses))))),
-                          source.centroid, DISTINCT_TRANSLATION * target.size)
-        run.legs["icp"] += 1
-        refined = [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E))
-                   for k in order]
-        refined = [T for T in refined if within(T, T_init, source.centroid, REGION * r_unc, REGION * t_unc)] or \
-            [poses[order[0]]]
-        best, best_s = _best(basis, refined)
+        # Round 1, cheap: the guess and the rotation samples (each shifted to fit). Round 2, only when
+        # round 1 found no pose to trust: feature matching (FPFH + RANSAC, KISS-Matcher), which costs
+        # about what the whole Open3D pipeline does.
+        rot = sampled(source, target, T_init, pc, cc)
+        if rot:
+            rot = list(basis.shift_to_fit(np.stack(rot)))
+        poses, sources = [T_init] + rot, {"guess": 1, "rotation samples": len(rot)}
+        refined = self_refined = _round(run, basis, poses, 0, cc.refine, source, target, surface, pc, base)
+        best, best_s = _best(basis, refined, T_init, source.centroid, r_unc, t_unc)
+        if not threshold.holds(basis, best) and cc.enabled:
+            found = matched(source, target, T_init, pc, cc, base.seed)
+            extra = [T for v in found.values() if not isinstance(v, str) for T in v]
+            sources.update({k: (v if isinstance(v, str) else len(v)) for k, v in found.items()})
+            if extra:
+                refined = self_refined + _round(run, basis, extra, 0, len(extra), source, target, surface, pc, base)
+                poses += extra
+                best, best_s = _best(basis, refined, T_init, source.centroid, r_unc, t_unc)
         trusted = threshold.holds(basis, best)
         if trusted:
             reason = "a candidate refined below the pair threshold"
@@ -228,8 +231,25 @@ def _distinct(poses: list[np.ndarray], order: list[int], center: np.ndarray, tra
     return kept
 
 
-def _best(basis: Basis, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:
+def _round(run: _Counter, basis: Basis, poses: list[np.ndarray], first: int, n: int, source: Scan, target: Scan,
+           surface: Surface, pc: ProblemConfig, base: Config) -> list[np.ndarray]:
+    """Score ``poses`` in one query (events of phase 'candidates'), refine pose ``first`` and the best
+    ``n`` by score, once each, with ICP; return the refined poses."""
+    scores = basis.evaluate(np.stack(poses))
+    run.legs["candidates"] += 1
+    for T, s in zip(poses, scores.score):
+        run.emit("candidates", T, float(s))
+    order = [first] + [int(k) for k in np.argsort(scores.score, kind="stable")[:n]]
+    order = _distinct(poses, list(dict.fromkeys(order)), source.centroid, DISTINCT_TRANSLATION * target.size)
+    run.legs["icp"] += 1
+    return [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E)) for k in order]
+
+
+def _best(basis: Basis, poses: list[np.ndarray], T_init: np.ndarray, center: np.ndarray, r_unc: float,
+          t_unc: float) -> tuple[np.ndarray, float]:
+    """The lowest score among ``poses`` that overlap both ways and lie within REGION x the uncertainty."""
     s = basis.evaluate(np.stack(poses))
-    score = np.where(basis.valid(s), s.score, np.inf)
+    ok = basis.valid(s) & np.array([within(T, T_init, center, REGION * r_unc, REGION * t_unc) for T in poses])
+    score = np.where(ok, s.score, np.inf)
     k = int(np.argmin(score)) if np.isfinite(score).any() else int(np.argmin(s.score))
     return poses[k], float(s.score[k])

@@ -191,7 +191,7 @@ def _pair_and_config(a, method="hybrid", threshold=None, **options):
     if a.seed < 0:
         raise InputError(f"--seed must be >= 0, got {a.seed}")
     pc = ProblemConfig(max_points=a.max_points, frustum=a.frustum, rotation_uncertainty_deg=a.rotation_uncertainty,
-                       translation_uncertainty=a.translation_uncertainty, seed=a.seed)
+                       translation_uncertainty=a.translation_uncertainty)
     cfg = Config(method=method, threshold=threshold, seed=a.seed, problem=pc, **options)
     cfg.validate()
     return source, target, T_init, cfg
@@ -241,7 +241,7 @@ def cmd_register(a) -> int:
     print(f"method      {res.method}")
     print(f"error       {res.error:.6g} {target.units}^2 (threshold {res.threshold:.6g})")
     print(f"iterations  ICP {res.iterations['icp']}, SA {res.iterations['sa']}  (local minima {res.local_minima})")
-    print(f"stopped     {res.stop_reason} after {res.seconds:.2f} s")
+    print(f"stopped     {res.stop_text} after {res.seconds:.2f} s")
     print("transform (maps SOURCE into TARGET's frame):")
     for row in res.transform:
         print("  " + " ".join(f"{v: .8f}" for v in row))
@@ -268,7 +268,7 @@ def cmd_slice(a) -> int:
     if a.steps < 2:
         raise InputError(f"--steps must be at least 2, got {a.steps}")
     source, target, T_init, cfg = _pair_and_config(a)
-    problem = prepare(source, target, T_init, cfg.problem)
+    problem = prepare(source, target, T_init, cfg.problem, seed=cfg.seed)
     events = []
     if a.trace:
         tp = Path(a.trace)

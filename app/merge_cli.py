@@ -39,7 +39,7 @@ def main(a) -> int:
     truth = _poses_for(load_conf(a.truth), scans, a.truth) if a.truth else None
     if truth is None and all(s.pose is not None for s in scans):
         truth = [s.pose for s in scans]  # ground truth stored with the scans (sidecar or .conf beside them)
-    config = Config(seed=a.seed, problem=ProblemConfig(rotation_uncertainty_deg=25.0, seed=a.seed))
+    config = Config(seed=a.seed, problem=ProblemConfig(rotation_uncertainty_deg=25.0))
     say = (lambda msg: sys.stderr.write(f"  {msg}\n")) if not a.json else None
     res = merge(scans, initial, config, progress=say)
     out = Path(a.out)

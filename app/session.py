@@ -249,7 +249,7 @@ class Session:
         T_init = self.T_init if keep_pose else T_file
         surfaces = Surface.from_scan(source), Surface.from_scan(target)
         frusta = {k: (frustum_of(source, k), frustum_of(target, k)) for k in KINDS}
-        problem = prepare(source, target, T_init, self._problem_config(), surface=surfaces[1])
+        problem = prepare(source, target, T_init, self._problem_config(), surface=surfaces[1], seed=int(self.h.seed.value))
         threshold = self._threshold_setting()
         if threshold is None:
             threshold = estimate_threshold(problem, int(self.h.seed.value))
@@ -270,8 +270,7 @@ class Session:
         self._update_status()
 
     def _problem_config(self) -> ProblemConfig:
-        return ProblemConfig(max_points=int(self.h.max_points.value), frustum=self.h.frustum.value,
-                             seed=int(self.h.seed.value))
+        return ProblemConfig(max_points=int(self.h.max_points.value), frustum=self.h.frustum.value)
 
     def _threshold_setting(self) -> float | None:
         text = str(self.h.threshold.value).strip().lower()
@@ -288,7 +287,8 @@ class Session:
     def _reprepare(self) -> None:
         if self.source is None or self.running:
             return
-        problem = prepare(self.source, self.target, self.T_init, self._problem_config(), surface=self.surfaces[1])
+        problem = prepare(self.source, self.target, self.T_init, self._problem_config(), surface=self.surfaces[1],
+                          seed=int(self.h.seed.value))
         with self.lock:
             self.problem = problem
         self._draw_overlap()
@@ -489,7 +489,7 @@ class Session:
 
         def work(listener):
             return register(source, target, T_init, cfg, listener, problem=prepare(
-                source, target, T_init, replace(cfg.problem, seed=cfg.seed), surface=problem.surface))
+                source, target, T_init, cfg.problem, surface=problem.surface, seed=cfg.seed))
 
         with self.lock:
             self.T = T_init
@@ -538,7 +538,7 @@ class Session:
                 self.threshold = r.threshold
             below = "below" if r.error < r.threshold else "above"
             self.finished_text = (f"**Finished**: E = {r.error:.6g} ({below} the threshold {r.threshold:.4g}); "
-                                  f"stopped: {r.stop_reason}; {r.seconds:.2f} s")
+                                  f"stopped: {r.stop_text}; {r.seconds:.2f} s")
         self.result = run.result
 
     def _set_controls(self, running: bool) -> None:
@@ -729,7 +729,7 @@ class Session:
         extra = {"error": float(self.problem.error(self.T)), "source": self.source.name, "target": self.target.name,
                  "convention": "maps SOURCE coordinates into TARGET's frame (T_target_source)"}
         if r is not None:
-            extra.update(method=r.method, threshold=r.threshold, stop_reason=r.stop_reason)
+            extra.update(method=r.method, threshold=r.threshold, stop_reason=r.stop_text)
         self._download(f"{self.source.name}_to_{self.target.name}.json",
                        (json.dumps({"transform": self.T.tolist(), **extra}, indent=1) + "\n").encode())
 

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import InputError
+
 
 @dataclass(frozen=True)
 class AnnealConfig:
@@ -35,6 +37,18 @@ class AnnealConfig:
     # below this fraction of the start temperature the simplex restarts at the best point found after
     # every temperature (it settles there); above, it roams. See the module docstring.
     settle_below: float = 0.1
+
+    def validate(self) -> None:
+        if not 0 < self.cooling < 1:
+            raise InputError(f"cooling must be between 0 and 1, got {self.cooling}")
+        if not 0 < self.t_min_ratio < 1:
+            raise InputError(f"the minimum temperature ratio must be between 0 and 1, got {self.t_min_ratio}")
+        if self.moves_per_temperature < 1 or self.max_evaluations < 7:
+            raise InputError("annealing needs at least 1 move per temperature and 7 evaluations")
+        if not 0 <= self.settle_below <= 1:
+            raise InputError(f"settle_below must be between 0 and 1, got {self.settle_below}")
+        if self.t_start is not None and not self.t_start > 0:
+            raise InputError(f"the start temperature must be positive, got {self.t_start}")
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,6 +10,7 @@ not be tagged as outliers to lower the score (the paper's corner example).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -44,20 +45,45 @@ class ErrorTerms:
     t: float
 
 
+class ErrorFunction(Protocol):
+    """What ICP and the search evaluate: a :class:`RobustError` or a view of one (a run's counter)."""
+
+    def terms(self, T_target_source: np.ndarray) -> ErrorTerms: ...
+
+    def __call__(self, T_target_source: np.ndarray) -> float: ...
+
+
 class RobustError:
-    """E(T) for fixed source points (N, 3, source frame) against a target surface; counts evaluations."""
+    """E(T) for fixed source points (N, 3, source frame) against a target surface. Read-only, so one
+    prepared problem can serve many runs: a run counts its own evaluations (``core.search.state``)."""
 
     def __init__(self, points: np.ndarray, surface: Surface, widen: float = 1.0):
-        self.points = np.asarray(points, dtype=np.float64)
-        self.surface = surface
-        self.widen = widen
-        self.evaluations = 0
+        self._points = np.array(points, dtype=np.float64)  # a copy: nobody else can change it
+        self._points.flags.writeable = False
+        self._surface = surface
+        self._widen = float(widen)
+
+    @property
+    def points(self) -> np.ndarray:
+        return self._points
+
+    @property
+    def surface(self) -> Surface:
+        return self._surface
+
+    @property
+    def widen(self) -> float:
+        """The factor on the outlier cap t (see :func:`robust_weights`)."""
+        return self._widen
+
+    def widened(self, widen: float) -> RobustError:
+        """The same error with its outlier cap t widened ``widen`` times (coarse-to-fine, paper section 4)."""
+        return self if widen == self._widen else RobustError(self._points, self._surface, widen)
 
     def terms(self, T_target_source: np.ndarray) -> ErrorTerms:
-        moved = apply(T_target_source, self.points)
-        closest, d2 = self.surface.closest(moved)
-        w, t = robust_weights(d2, self.widen)
-        self.evaluations += 1
+        moved = apply(T_target_source, self._points)
+        closest, d2 = self._surface.closest(moved)
+        w, t = robust_weights(d2, self._widen)
         return ErrorTerms(float(np.mean(w * d2)), moved, closest, d2, w, t)
 
     def __call__(self, T_target_source: np.ndarray) -> float:

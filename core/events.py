@@ -22,8 +22,8 @@ class Event:
 
     phase: str  # "icp" or "sa"
     iteration: int  # 1-based count over the whole run (ICP + SA)
-    phase_iteration: int  # 1-based count within this phase's leg
-    leg: int  # which ICP or SA leg of the run, from 1
+    phase_iteration: int  # 1-based count within this leg (0: a marker before the leg's first step)
+    leg: int  # which ICP or SA leg of the run, from 1 (a basin-hopping hop is a one-move SA leg)
     T: np.ndarray
     error: float
     temperature: float | None = None

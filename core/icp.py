@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .error import RobustError
+from .error import ErrorFunction
+from .errors import InputError
 from .horn import weighted_horn
 
 
@@ -31,6 +32,10 @@ class IcpConfig:
     tolerance: float = 1e-3  # stop when |E_prev - E| < tolerance * E_prev
     accelerate: bool = True  # extrapolate along consistent steps (Besl and McKay)
     unweighted: bool = False  # the paper's suggested final polish: outliers (d^2 >= t) dropped, others weight 1
+
+    def validate(self) -> None:
+        if self.max_iterations < 1 or not self.tolerance >= 0:
+            raise InputError("ICP needs at least 1 iteration and a tolerance >= 0")
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,7 +65,7 @@ def _step_vector(dT: np.ndarray, center: np.ndarray, radius: float) -> np.ndarra
     return np.r_[t, r * radius]
 
 
-def icp(error: RobustError, T_start: np.ndarray, config: IcpConfig = IcpConfig(),
+def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig(),
         on_iteration: Callable[[np.ndarray, float], None] | None = None,
         inside: Callable[[np.ndarray], bool] | None = None) -> IcpResult:
     """Run ICP from ``T_start`` (4, 4) T_target_source; ``on_iteration(T, E)`` after each step.

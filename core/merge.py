@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -81,7 +81,7 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     for i, j, frac in candidates:
         say(f"registering {scans[j].name} onto {scans[i].name}")
         T0 = invert(initial[i]) @ initial[j]
-        problem = prepare(scans[j], scans[i], T0, replace(config.problem, seed=config.seed), surface=surfaces[i])
+        problem = prepare(scans[j], scans[i], T0, config.problem, surface=surfaces[i], seed=config.seed)
         res = register(scans[j], scans[i], T0, config, problem=problem)
         pairs.append(PairResult(i, j, res.transform, res.error, frac))
     if len(pairs) >= 3:

@@ -29,7 +29,6 @@ class ProblemConfig:
     visibility: bool = True  # also drop points hidden behind the target's surface (beyond the paper)
     rotation_uncertainty_deg: float = 15.0  # how wrong the initial guess may be
     translation_uncertainty: float | None = None  # units; None: 15 % of the target's size
-    seed: int = 0
 
     def validate(self) -> None:
         if self.max_points < 3:
@@ -85,8 +84,9 @@ class Problem:
 
 
 def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: ProblemConfig = ProblemConfig(),
-            surface: Surface | None = None) -> Problem:
-    """Triangulate the target, cut the overlap under ``T_init`` and sample the source points."""
+            surface: Surface | None = None, seed: int = 0) -> Problem:
+    """Triangulate the target, cut the overlap under ``T_init`` and sample the source points
+    (the sample drawn with ``seed``: a registration passes its ``Config.seed``)."""
     config.validate()
     T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
     for s in (source, target):
@@ -101,7 +101,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
                          f"its frustum opened by the rotation uncertainty ({config.rotation_uncertainty_deg:g} deg)")
     overlap, used = Overlap(cut.source_mask, cut.target_mask), cut.used
     idx = np.flatnonzero(used)
-    rng = np.random.default_rng(config.seed)
+    rng = np.random.default_rng(seed)
     if len(idx) > config.max_points:
         idx = np.sort(rng.choice(idx, config.max_points, replace=False))
     points = source.points[idx]

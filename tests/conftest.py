@@ -67,3 +67,20 @@ def brute_closest(point: np.ndarray, tris: np.ndarray) -> float:
                 q = a + ab * vb * denom + ac * vc * denom
         best = min(best, float(np.sum((point - q) ** 2)))
     return best
+
+
+@pytest.fixture
+def scene_start(scene):
+    """(target, source, T_true, T_start) of a simulated scene: the truth perturbed by a seeded random
+    rotation of ``rot_deg`` and translation of ``trans`` about the source's centroid."""
+    from core.simulate import true_transform
+    from core.transforms import apply, perturb, random_perturbation
+
+    def make(name: str, rot_deg: float, trans: float, seed: int = 0):
+        a, b = scene(name)
+        Tt = true_transform(b, a)
+        t, r = random_perturbation(np.random.default_rng(seed), rot_deg, trans)
+        c = apply(Tt, b.points.mean(0)[None])[0]
+        return a, b, Tt, perturb(Tt, np.r_[t, r], c)
+
+    return make

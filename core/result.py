@@ -1,0 +1,73 @@
+"""What a registration returns: the pose, its error, why the search stopped, and the counts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+
+class StopReason(StrEnum):
+    """Why a search stopped. Control flow compares members; the readable text is :class:`Stop`'s."""
+
+    BELOW_THRESHOLD = "error below threshold"
+    ICP_ABOVE_THRESHOLD = "ICP converged above the threshold"
+    NO_BETTER_POINT = "annealing found no better point"
+    MIN_TEMPERATURE = "minimum temperature reached"
+    RESTARTS_SPENT = "restart budget spent"
+    HOPS_SPENT = "hop budget spent"
+    CANCELLED = "cancelled"
+
+
+@dataclass(frozen=True)
+class Stop:
+    """A stop reason and its readable text (with the counts it names, e.g. "after 3 ICP runs")."""
+
+    reason: StopReason
+    text: str = ""
+
+    def __str__(self) -> str:
+        return self.text or self.reason.value
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """transform: (4, 4) T_target_source; error: final robust E (squared units); threshold: the E
+    below which the pose is trusted (squared units); iterations: {"icp": n, "sa": n} (more keys may
+    follow); evaluations: of E over the run; seconds: wall time from the call to the result."""
+
+    transform: np.ndarray
+    error: float
+    iterations: dict
+    local_minima: int
+    evaluations: int
+    seconds: float
+    method: str
+    threshold: float
+    stop: Stop
+
+    @property
+    def stop_reason(self) -> StopReason:
+        return self.stop.reason
+
+    @property
+    def stop_text(self) -> str:
+        """Why the search stopped, in words, e.g. "restart budget (40 ICP runs) spent"."""
+        return str(self.stop)
+
+    @property
+    def below_threshold(self) -> bool:
+        """E ended below the threshold: the pose is at the truth as far as E can tell."""
+        return bool(self.error < self.threshold)
+
+    def __repr__(self) -> str:
+        it = self.iterations
+        return (f"Result({self.method}: E={self.error:.6g}, iterations icp={it['icp']} sa={it['sa']}, "
+                f"local_minima={self.local_minima}, {self.seconds:.2f} s, stopped: {self.stop_text})")
+
+    def to_json(self) -> dict:
+        return {"transform": self.transform.tolist(), "error": self.error, "iterations": dict(self.iterations),
+                "local_minima": self.local_minima, "evaluations": self.evaluations, "seconds": self.seconds,
+                "method": self.method, "threshold": self.threshold, "stop_reason": self.stop_text,
+                "below_threshold": self.below_threshold}

@@ -1,0 +1,35 @@
+"""The result (core.result): why the search stopped, as an enum and as text; below the threshold."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from core.result import Result, Stop, StopReason
+
+
+def _result(error=0.5, threshold=1.0, stop=Stop(StopReason.BELOW_THRESHOLD)):
+    return Result(np.eye(4), error, {"icp": 12, "sa": 30}, 1, 80, 0.25, "hybrid", threshold, stop)
+
+
+def test_the_stop_reason_is_an_enum_member_and_its_text_names_the_counts():
+    r = _result(error=3.0, stop=Stop(StopReason.RESTARTS_SPENT, "restart budget (40 ICP runs) spent"))
+    assert r.stop_reason is StopReason.RESTARTS_SPENT
+    assert r.stop_text == "restart budget (40 ICP runs) spent"
+    assert _result().stop_text == "error below threshold"  # no text: the reason's own words
+    assert "stopped: restart budget (40 ICP runs) spent" in repr(r)
+
+
+def test_below_threshold_says_whether_to_trust_the_pose():
+    assert _result(error=0.5, threshold=1.0).below_threshold
+    assert not _result(error=1.0, threshold=1.0).below_threshold
+    assert not _result(error=0.5, threshold=0.0).below_threshold  # threshold 0: searched until SA gave up
+
+
+def test_json_keeps_its_keys_with_readable_text_and_adds_below_threshold():
+    out = json.loads(json.dumps(_result().to_json()))
+    assert set(out) == {"transform", "error", "iterations", "local_minima", "evaluations", "seconds", "method",
+                        "threshold", "stop_reason", "below_threshold"}
+    assert out["stop_reason"] == "error below threshold" and out["below_threshold"] is True
+    assert out["iterations"] == {"icp": 12, "sa": 30}

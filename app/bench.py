@@ -266,14 +266,12 @@ def _sweep_start(task: SweepTask, s, t) -> np.ndarray:
 
 def run_sweep_task(task: SweepTask) -> list[dict]:
     """One start on one pair at one offset: every method, each timed from reading the files to the pose."""
-    from core.global_search import GlobalConfig, register_global
-
     out = []
     s, t, load_s = _load_pair(task)
     T_true = invert(t.pose) @ s.pose
     T0 = _sweep_start(task, s, t)
     r_unc, t_unc = told(task.rot, task.trans)
-    pc = ProblemConfig(rotation_uncertainty_deg=r_unc, translation_uncertainty=t_unc, seed=task.start)
+    pc = ProblemConfig(rotation_uncertainty_deg=r_unc, translation_uncertainty=t_unc)
     name = f"{Path(task.source).stem}->{Path(task.target).stem}"
 
     def row(method, T, seconds, **extra):
@@ -283,8 +281,8 @@ def run_sweep_task(task: SweepTask) -> list[dict]:
                     "trans_error": tr, "seconds": seconds, **extra})
 
     t0 = time.perf_counter()
-    g = register_global(s, t, T0, GlobalConfig(Config(seed=task.start, problem=pc)))
-    row("global", g.result.transform, load_s + time.perf_counter() - t0, load_seconds=load_s,
+    g = register(s, t, T0, Config(method="global", seed=task.start, problem=pc))
+    row("global", g.transform, load_s + time.perf_counter() - t0, load_seconds=load_s,
         below_threshold=g.below_threshold, cut=g.cut)
     case = Case(name, s, t, T_true, task.rot, task.trans, 2.0, 0.002, pc)
     voxel = 2.0 * t.spacing

@@ -1,4 +1,4 @@
-"""Evidence for the pair threshold (core/pair_threshold.py): on every shared pair (any .conf folder)
+"""Evidence for the pair threshold (core/threshold.py, the pair threshold): on every shared pair (any .conf folder)
 and the simulated scenes, where the truth and the nearest wrong minimum lie on the candidates' basis.
 
 For each case: the pair's noise floor; at the true pose, the median matched d^2 over the floor and the
@@ -29,10 +29,10 @@ from core.global_search import refine  # noqa: E402
 from core.icp import IcpConfig  # noqa: E402
 from core.io import load_scan  # noqa: E402
 from core.noise import noise_floor  # noqa: E402
-from core.pair_threshold import FACTOR, MIN_TRUST_OVERLAP  # noqa: E402
 from core.problem import ProblemConfig  # noqa: E402
 from core.simulate import SCENES, make_scene, true_transform  # noqa: E402
 from core.surface import Surface  # noqa: E402
+from core.threshold import FACTOR, MIN_TRUST_OVERLAP  # noqa: E402
 from core.transforms import apply, invert, perturb, pose_error, random_perturbation  # noqa: E402
 
 
@@ -95,7 +95,7 @@ def main() -> int:
         print(f"{name}: left out of the fit ({why})")
     hi, lo = max(r["truth_ratio"] for r in fit), min(r["nearest_wrong_ratio"] for r in fit)
     print(f"\nall cases: largest truth ratio {hi:.2f}, nearest wrong {lo:.2f}, geometric mean {np.sqrt(hi * lo):.2f} "
-          f"(core.pair_threshold.FACTOR = {FACTOR:g})")
+          f"(core.threshold.FACTOR = {FACTOR:g})")
     print("leave-one-out factor (geometric mean of the other cases' largest truth ratio and smallest wrong ratio):")
     factors = []
     for r in fit:

@@ -17,11 +17,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .anneal import AnnealConfig
+from .candidates import CandidateConfig
 from .errors import InputError
 from .icp import IcpConfig
 from .problem import ProblemConfig
 
-METHODS = ("hybrid", "icp", "sa", "icp-restarts", "basin-hopping")
+METHODS = ("hybrid", "icp", "sa", "icp-restarts", "basin-hopping", "global")
 
 __all__ = ["METHODS", "AnnealConfig", "Config", "IcpConfig", "ProblemConfig", "SearchConfig", "ThresholdConfig"]
 
@@ -101,6 +102,7 @@ class Config:
     recut_rounds: int = 1  # hybrid: search again from an overlap cut at the pose found, this many times at most
     search: SearchConfig = field(default_factory=SearchConfig)
     threshold_estimate: ThresholdConfig = field(default_factory=ThresholdConfig)
+    candidates: CandidateConfig = field(default_factory=CandidateConfig)  # method "global" (core.global_search)
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -123,3 +125,4 @@ class Config:
         self.problem.validate()
         self.search.validate()
         self.threshold_estimate.validate()
+        self.candidates.validate()

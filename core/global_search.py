@@ -2,13 +2,15 @@
 paper's hybrid from the best -> the lowest score on the pair's fixed basis.
 
     1. cut the overlap under the guess (widened when empty, core.cut) and triangulate the target;
-    2. the pair's noise floor, its fixed scoring basis and its stop threshold (core.pair_threshold);
-    3. candidates (core.candidates): the guess, FPFH + RANSAC, KISS-Matcher, rotation samples within
-       the guess's uncertainty; those outside it dropped, the rest scored in one batched query;
-    4. the best ``refine`` candidates that overlap both ways: ICP on the paper's robust E, on the
-       overlap cut at the candidate, then again on the cut at the pose found;
-    5. the best refined pose: trusted (below the pair threshold) -> done; else the paper's hybrid
-       from there (``--method hybrid``, unchanged) and the lower of the two on the fixed basis.
+    2. the pair's noise floor, its fixed scoring basis and its stop threshold (core.threshold's
+       pair threshold);
+    3. round 1: the guess and the rotation samples within its uncertainty (core.candidates), shifted
+       to fit and scored in one batched query; the guess and the best ``refine`` refined by ICP on the
+       paper's robust E (on the overlap cut at the candidate, then on the cut at the pose found);
+    4. round 2, only when round 1 found no pose to trust: FPFH + RANSAC and KISS-Matcher hypotheses
+       within the uncertainty, scored and refined alike;
+    5. the best refined pose (lowest score among those overlapping both ways): trusted -> done; else
+       the paper's hybrid from there (``--method hybrid``, unchanged) and the lower of the two.
 
 With candidates off (``CandidateConfig.enabled=False``) only the guess is a candidate.
 """
@@ -16,7 +18,7 @@ With candidates off (``CandidateConfig.enabled=False``) only the guess is a cand
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -31,14 +33,15 @@ from .candidates import (
     rotation_candidates,
     within,
 )
+from .config import Config
 from .events import Cancelled, Event, Listener
 from .icp import icp
 from .noise import noise_floor
-from .pair_threshold import PairThreshold, pair_threshold
 from .problem import ProblemConfig, prepare
-from .register import Config, Result, register
+from .result import Result, Stop, StopReason
 from .scan import Scan
 from .surface import Surface
+from .threshold import pair_threshold
 
 REFINE_ROTATION_DEG = 15.0  # the cut at a candidate assumes it is this close (the rotation samples' spacing)
 CONVERGED_ROTATION_DEG = 2.0  # ... and, once ICP has converged, this close (core.register's resegment)
@@ -47,43 +50,6 @@ LOCAL_TRANSLATION = 0.05  # the hybrid's translation uncertainty round the best 
 DISTINCT_ROTATION_DEG = 2.0  # candidates closer than this (and DISTINCT_TRANSLATION) are refined once
 DISTINCT_TRANSLATION = 0.01  # share of the target's size
 REGION = 2.0  # a refined pose may end within this x the guess's uncertainty (core.register's SEARCH_BOUND)
-
-
-@dataclass(frozen=True)
-class GlobalConfig:
-    """base: the paper's hybrid (its problem holds the guess's uncertainty and the seed);
-    candidates: where candidates come from and how many are refined."""
-
-    base: Config = field(default_factory=Config)
-    candidates: CandidateConfig = field(default_factory=CandidateConfig)
-
-    def validate(self) -> None:
-        self.base.validate()
-        self.candidates.validate()
-
-
-@dataclass(frozen=True, eq=False)
-class GlobalResult:
-    """result: the final pose as a core Result (method 'global'); cut: the overlap cut used under the
-    guess; threshold: how the stop threshold was derived; below_threshold: trust this pose; score:
-    its value on the fixed basis; candidates: how many were scored; sources: per source, how many."""
-
-    result: Result
-    cut: str
-    threshold: PairThreshold
-    below_threshold: bool
-    score: float
-    candidates: int
-    sources: dict
-
-    def __repr__(self) -> str:
-        return (f"GlobalResult({self.result!r}, cut={self.cut}, below_threshold={self.below_threshold}, "
-                f"candidates={self.candidates})")
-
-    def to_json(self) -> dict:
-        return {**self.result.to_json(), "cut": self.cut, "threshold_derivation": self.threshold.to_json(),
-                "below_threshold": self.below_threshold, "score": self.score, "candidates": self.candidates,
-                "candidate_sources": dict(self.sources)}
 
 
 class _Counter:
@@ -148,35 +114,38 @@ def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
-           on_step=None) -> np.ndarray:
+           on_step=None, seed: int = 0) -> np.ndarray:
     """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found."""
     # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
     near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG), visibility=False)
     conv = replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
                    translation_uncertainty=CONVERGED_TRANSLATION * target.size)
     for cfg in (near, conv):
-        p = prepare(source, target, T, cfg, surface=surface)
+        p = prepare(source, target, T, cfg, surface=surface, seed=seed)
         T = icp(p.error, T, icp_config, on_step).T
     return T
 
 
-def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
-                    config: GlobalConfig = GlobalConfig(), listener: Listener | None = None) -> GlobalResult:
-    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes)."""
+def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: Config = Config(method="global"),
+                    listener: Listener | None = None) -> Result:
+    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes);
+    ``config.candidates`` holds its own knobs, the rest is the paper's hybrid's."""
+    from .register import register  # the front runs this pipeline for method "global"
+
     config.validate()
     t0 = time.perf_counter()
-    base, cc = config.base, config.candidates
-    pc = replace(base.problem, seed=base.seed)
+    cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
-    problem = prepare(source, target, T_init, pc)
+    problem = prepare(source, target, T_init, pc, seed=config.seed)
     T_init, surface = problem.T_init, problem.surface
-    rng = np.random.default_rng(base.seed)
+    rng = np.random.default_rng(config.seed)
     floor = float(np.mean([noise_floor(s, rng, len(problem.points)) for s in (source, target)]))
     basis = make_basis(source, target, surface, floor, rng, cc, pc.frustum)
     threshold = pair_threshold(floor, cc.min_overlap)
     run = _Counter(listener)
     r_unc, t_unc = problem.rotation_uncertainty, problem.translation_uncertainty
-    reason = ""
+    hybrid = replace(config, method="hybrid")
+    stop = Stop(StopReason.TRUSTED)
     try:
         # Round 1, cheap: the guess and the rotation samples (each shifted to fit). Round 2, only when
         # round 1 found no pose to trust: feature matching (FPFH + RANSAC, KISS-Matcher), which costs
@@ -185,41 +154,41 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         if rot:
             rot = list(basis.shift_to_fit(np.stack(rot)))
         poses, sources = [T_init] + rot, {"guess": 1, "rotation samples": len(rot)}
-        refined = self_refined = _round(run, basis, poses, 0, cc.refine, source, target, surface, pc, base)
+        refined = first = _round(run, basis, poses, 0, cc.refine, source, target, surface, pc, hybrid)
         best, best_s = _best(basis, refined, T_init, source.centroid, r_unc, t_unc)
         if not threshold.holds(basis, best) and cc.enabled:
-            found = matched(source, target, T_init, pc, cc, base.seed)
+            found = matched(source, target, T_init, pc, cc, config.seed)
             extra = [T for v in found.values() if not isinstance(v, str) for T in v]
             sources.update({k: (v if isinstance(v, str) else len(v)) for k, v in found.items()})
             if extra:
-                refined = self_refined + _round(run, basis, extra, 0, len(extra), source, target, surface, pc, base)
+                refined = first + _round(run, basis, extra, 0, len(extra), source, target, surface, pc, hybrid)
                 poses += extra
                 best, best_s = _best(basis, refined, T_init, source.centroid, r_unc, t_unc)
         trusted = threshold.holds(basis, best)
-        if trusted:
-            reason = "a candidate refined below the pair threshold"
-        else:
-            # the candidates covered the stated region; the hybrid searches round the best of them
+        if not trusted:
+            # the candidates covered the stated region; the paper's hybrid searches round the best of them
             local = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG),
                             translation_uncertainty=min(t_unc, LOCAL_TRANSLATION * target.size))
-            res = register(source, target, best, replace(base, method="hybrid", problem=local), run.forward)
+            res = register(source, target, best, replace(hybrid, problem=local), run.forward)
             s_h = float(basis.evaluate(res.transform[None]).score[0])
-            reason = f"hybrid from the best candidate: {res.stop_reason}"
+            text = f"hybrid from the best candidate: {res.stop_text}"
             if s_h < best_s:
                 best, best_s = res.transform, s_h
             else:
-                reason += "; the refined candidate scores lower on the fixed basis"
+                text += "; the refined candidate scores lower on the fixed basis"
+            stop = Stop(res.stop_reason, text)
             trusted = threshold.holds(basis, best)
     except Cancelled:
         best, best_s = T_init, float(basis.evaluate(T_init[None]).score[0])
-        poses, sources, trusted, reason = [T_init], {"guess": 1}, False, "cancelled"
+        poses, sources, trusted, stop = [T_init], {"guess": 1}, False, Stop(StopReason.CANCELLED)
     final = prepare(source, target, best, replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
                                                   translation_uncertainty=CONVERGED_TRANSLATION * target.size),
-                    surface=surface)
-    E = final.error(best)
+                    surface=surface, seed=config.seed)
     iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
-    result = Result(best, E, iterations, 0, run.total(), time.perf_counter() - t0, "global", threshold.value, reason)
-    return GlobalResult(result, problem.cut, threshold, trusted, best_s, len(poses), sources)
+    details = {"threshold_derivation": threshold.to_json(), "score": best_s, "candidates": len(poses),
+               "candidate_sources": sources}
+    return Result(best, final.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",
+                  threshold.value, stop, cut=problem.cut, trusted=trusted, details=details)
 
 
 def _distinct(poses: list[np.ndarray], order: list[int], center: np.ndarray, trans: float) -> list[int]:
@@ -242,7 +211,8 @@ def _round(run: _Counter, basis: Basis, poses: list[np.ndarray], first: int, n: 
     order = [first] + [int(k) for k in np.argsort(scores.score, kind="stable")[:n]]
     order = _distinct(poses, list(dict.fromkeys(order)), source.centroid, DISTINCT_TRANSLATION * target.size)
     run.legs["icp"] += 1
-    return [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E)) for k in order]
+    return [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed)
+            for k in order]
 
 
 def _best(basis: Basis, poses: list[np.ndarray], T_init: np.ndarray, center: np.ndarray, r_unc: float,

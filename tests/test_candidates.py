@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from core.candidates import CandidateConfig, make_basis, super_fibonacci
-from core.global_search import GlobalConfig, register_global
 from core.problem import ProblemConfig, prepare
-from core.register import Config
+from core.register import Config, register
 from core.surface import Surface
 from core.transforms import apply, invert, perturb, pose_error, rotation_angle
 
@@ -53,10 +52,10 @@ def test_an_empty_frustum_cut_widens_and_the_pair_still_registers(scene):
     pc = ProblemConfig(rotation_uncertainty_deg=30.0, translation_uncertainty=2400.0)
     p = prepare(source, target, T0, pc)
     assert p.overlap.source_mask.sum() == 0 and p.cut != "frustum"
-    g = register_global(source, target, T0, GlobalConfig(Config(problem=pc)))
+    g = register(source, target, T0, Config(method="global", problem=pc))
     assert g.cut != "frustum"
     assert g.to_json()["cut"] == g.cut
-    rot, trans = pose_error(g.result.transform, T_true, source.centroid)
+    rot, trans = pose_error(g.transform, T_true, source.centroid)
     assert rot < 1.0 and trans < 0.01 * target.size
 
 
@@ -65,16 +64,16 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     T_true = invert(target.pose) @ source.pose
     T0 = perturb(T_true, np.r_[0.05, 0.0, -0.05, 0.0, 0.0, np.radians(90)], apply(T_true, source.centroid[None])[0])
     pc = ProblemConfig(rotation_uncertainty_deg=180.0, translation_uncertainty=0.075)
-    g = register_global(source, target, T0, GlobalConfig(Config(problem=pc)))
-    rot, trans = pose_error(g.result.transform, T_true, source.centroid)
+    g = register(source, target, T0, Config(method="global", problem=pc))
+    rot, trans = pose_error(g.transform, T_true, source.centroid)
     assert rot < 2.0 and trans < 0.002
     assert g.below_threshold
-    assert g.result.iterations["candidates"] > 100
+    assert g.iterations["candidates"] > 100
 
 
 def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it(bunny):
     from core.noise import noise_floor
-    from core.pair_threshold import pair_threshold
+    from core.threshold import pair_threshold
 
     for s, t in (("bun045", "bun000"), ("bun090", "bun000")):
         source, target = bunny(s), bunny(t)

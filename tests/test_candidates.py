@@ -71,12 +71,27 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     assert g.iterations["candidates"] > 100
 
 
-def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it(bunny):
+def test_with_candidates_off_only_the_guess_is_tried(scene):
+    from core.simulate import true_transform
+
+    target, source = scene("corner")
+    T_true = true_transform(source, target)
+    T0 = perturb(T_true, np.r_[50.0, 0, 0, 0, np.radians(3), 0], apply(T_true, source.centroid[None])[0])
+    res = register(source, target, T0, Config(method="global", candidates=CandidateConfig(enabled=False)))
+    assert res.details["candidates"] == 1 and res.iterations["candidates"] == 1
+    assert pose_error(res.transform, T_true, source.centroid)[0] < 1.0
+
+
+def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it_on_every_shared_pair(bunny):
+    from app.bench import shared_pairs
     from core.noise import noise_floor
     from core.threshold import pair_threshold
+    from tests.conftest import BUNNY
 
-    for s, t in (("bun045", "bun000"), ("bun090", "bun000")):
-        source, target = bunny(s), bunny(t)
+    pairs = shared_pairs(BUNNY)
+    assert len(pairs) >= 5 and ("bun090", "bun000") in {(s.stem, t.stem) for s, t, _ in pairs}
+    for s, t, _ in pairs:
+        source, target = bunny(s.stem), bunny(t.stem)
         T_true = invert(target.pose) @ source.pose
         rng = np.random.default_rng(0)
         floor = float(np.mean([noise_floor(x, rng, 300) for x in (source, target)]))

@@ -53,25 +53,33 @@ REGION = 2.0  # a refined pose may end within this x the guess's uncertainty (co
 
 
 class _Counter:
-    """Numbers the events of every stage in one stream; forwards them to the listener."""
+    """Numbers the events of every stage in one stream (iteration over the run, phase_iteration within
+    the leg, as core.events documents); forwards them to the listener."""
 
     def __init__(self, listener: Listener | None):
-        self.listener, self.n = listener, {"candidates": 0, "icp": 0, "sa": 0}
+        self.listener = listener
+        self.n = {"candidates": 0, "icp": 0, "sa": 0}  # steps per phase over the run
         self.legs = {"candidates": 0, "icp": 0, "sa": 0}
+        self.in_leg = 0
 
-    def emit(self, phase: str, T: np.ndarray, E: float, local_minimum: bool = False) -> None:
+    def leg(self, phase: str) -> None:
+        """A new leg of ``phase`` begins (a round's scoring, one candidate's ICP)."""
+        self.legs[phase] += 1
+        self.in_leg = 0
+
+    def emit(self, phase: str, T: np.ndarray, E: float) -> None:
         self.n[phase] += 1
+        self.in_leg += 1
         if self.listener is not None:
-            self.listener(Event(phase, sum(self.n.values()), self.n[phase], self.legs[phase], T, E,
-                                local_minimum=local_minimum))
+            self.listener(Event(phase, self.total(), self.in_leg, self.legs[phase], T, E))
 
     def forward(self, e: Event) -> None:
         """An event of the hybrid's own run, renumbered into this stream (a local-minimum marker is
-        not a step, as in core.register)."""
+        not a step, as in core.register); its legs follow this stream's."""
         if not e.local_minimum:
             self.n[e.phase] += 1
         if self.listener is not None:
-            self.listener(replace_event(e, iteration=self.total()))
+            self.listener(replace_event(e, iteration=self.total(), leg=self.legs[e.phase] + e.leg))
 
     def total(self) -> int:
         return self.n["candidates"] + self.n["icp"] + self.n["sa"]
@@ -205,14 +213,16 @@ def _round(run: _Counter, basis: Basis, poses: list[np.ndarray], first: int, n: 
     """Score ``poses`` in one query (events of phase 'candidates'), refine pose ``first`` and the best
     ``n`` by score, once each, with ICP; return the refined poses."""
     scores = basis.evaluate(np.stack(poses))
-    run.legs["candidates"] += 1
+    run.leg("candidates")
     for T, s in zip(poses, scores.score):
         run.emit("candidates", T, float(s))
     order = [first] + [int(k) for k in np.argsort(scores.score, kind="stable")[:n]]
     order = _distinct(poses, list(dict.fromkeys(order)), source.centroid, DISTINCT_TRANSLATION * target.size)
-    run.legs["icp"] += 1
-    return [refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed)
-            for k in order]
+    out = []
+    for k in order:
+        run.leg("icp")
+        out.append(refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed))
+    return out
 
 
 def _best(basis: Basis, poses: list[np.ndarray], T_init: np.ndarray, center: np.ndarray, r_unc: float,

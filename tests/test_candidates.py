@@ -100,3 +100,19 @@ def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it_on_every_s
         assert thr.holds(basis, T_true)
         off = perturb(T_true, np.r_[0.004, 0, 0, 0, np.radians(5), 0], apply(T_true, source.centroid[None])[0])
         assert not thr.holds(basis, off)
+
+
+def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
+    from core.simulate import true_transform
+
+    target, source = scene("corner")
+    T_true = true_transform(source, target)
+    T0 = perturb(T_true, np.r_[80.0, 0, 0, 0, np.radians(5), 0], apply(T_true, source.centroid[None])[0])
+    events = []
+    res = register(source, target, T0, Config(method="global"), events.append)
+    phases = [e.phase for e in events]
+    assert phases[0] == "candidates" and "icp" in phases
+    assert phases.count("candidates") == res.iterations["candidates"] == res.details["candidates"]
+    steps = [e.iteration for e in events if not e.local_minimum]
+    assert steps == list(range(1, len(steps) + 1))
+    assert all(e.phase_iteration >= 1 and e.leg >= 1 for e in events)

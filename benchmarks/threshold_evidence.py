@@ -65,30 +65,38 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int) -> dict:
         rot, trans = pose_error(T, T_true, s.centroid)
         if rot >= ok_rot or trans >= ok_trans:
             sc = basis.evaluate(T[None])
-            wrong.append((float(sc.inlier_median[0] / floor), float(sc.inliers[0]), float(sc.score[0] / basis.cap), rot))
+            wrong.append((float(sc.inlier_median[0] / floor), float(sc.inliers[0]), float(sc.score[0] / basis.cap), rot,
+                          trans))
     passing = [w for w in wrong if w[1] >= MIN_TRUST_OVERLAP]  # the others fail the test on overlap
     return {"case": name, "floor": floor, "truth_ratio": float(truth.inlier_median[0] / floor),
             "truth_share": float(truth.inliers[0]), "truth_score": float(truth.score[0] / basis.cap),
             "wrong": len(wrong), "nearest_wrong_ratio": min((w[0] for w in passing), default=np.inf),
+            "nearest_wrong_pose": min(passing, default=(0, 0, 0, np.nan, np.nan))[3:],
             "wrong_share_max": max((w[1] for w in wrong), default=0.0),
             "lowest_wrong_score": min((w[2] for w in wrong), default=np.inf)}
 
 
-AMBIGUOUS = {"wing": "E is flat along the panel by design (README): wrong minima match as well as the truth"}
+AMBIGUOUS = {"wing": "E is flat along the panel by design (README): wrong minima match as well as the truth",
+             "corner": "three planes: its twin turned 120 deg about the corner's diagonal fits at the noise level; "
+                       "no test of one pose tells them apart (the fixed-basis score still ranks the truth first)"}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=20)
     ap.add_argument("--folder", default=str(ROOT.parent / "shared" / "data" / "bunny"))
+    ap.add_argument("--cases", help="only these cases, comma-separated (e.g. corner,bowl)")
     a = ap.parse_args()
     rows = []
     for c in cases(Path(a.folder)):
+        if a.cases and c[0] not in a.cases.split(","):
+            continue
         rows.append(measure(*c, starts=a.starts))
         r = rows[-1]
         print(f"{r['case']:16s} floor {r['floor']:.3g}  truth: median/floor {r['truth_ratio']:.2f} share "
               f"{r['truth_share']:.2f} score/cap {r['truth_score']:.3f} | {r['wrong']} wrong minima: nearest "
-              f"median/floor {r['nearest_wrong_ratio']:.2f}, largest share {r['wrong_share_max']:.2f}, lowest "
+              f"median/floor {r['nearest_wrong_ratio']:.2f} ({r['nearest_wrong_pose'][0]:.2f} deg, "
+              f"{r['nearest_wrong_pose'][1]:.3g} off), largest share {r['wrong_share_max']:.2f}, lowest "
               f"score/cap {r['lowest_wrong_score']:.3f}", flush=True)
     fit = [r for r in rows if r["case"] not in AMBIGUOUS]
     for name, why in AMBIGUOUS.items():
@@ -104,9 +112,11 @@ def main() -> int:
         lo_wrong = min(o["nearest_wrong_ratio"] for o in others)
         k = float(np.sqrt(hi_truth * lo_wrong))
         factors.append(k)
-        holds = r["truth_ratio"] < min(k, FACTOR) and max(k, FACTOR) < r["nearest_wrong_ratio"]
-        print(f"  {r['case']:16s} factor {k:6.2f}: truth {r['truth_ratio']:.2f} < {k:.2f} and {FACTOR:g} < nearest wrong "
-              f"{r['nearest_wrong_ratio']:.2f}: {'holds' if holds else 'FAILS'}; truth scores below every wrong "
+        holds = r["truth_ratio"] < FACTOR < r["nearest_wrong_ratio"]
+        loo = r["truth_ratio"] < k < r["nearest_wrong_ratio"]
+        print(f"  {r['case']:16s} truth {r['truth_ratio']:.2f} < {FACTOR:g} < nearest wrong {r['nearest_wrong_ratio']:.2f}: "
+              f"{'holds' if holds else 'FAILS'}; with the factor fitted without it ({k:.2f}): "
+              f"{'holds' if loo else 'FAILS'}; truth scores below every wrong "
               f"minimum: {r['truth_score'] < r['lowest_wrong_score']}")
     print(f"factor: spread {min(factors):.2f}-{max(factors):.2f} (inf: no wrong minimum passes the overlap test)")
     return 0

@@ -83,8 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
         s.add_argument("--seed", type=_knob("seed"), default=0, help="seed of every random choice (default 0)")
         s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), default=pc.rotation_uncertainty_deg,
-                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180] "
-                       f"(default {pc.rotation_uncertainty_deg:g} deg)")
+                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180]; 180: "
+                       f"no guess at all (register's default method takes it) (default {pc.rotation_uncertainty_deg:g} deg)")
         s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",
                        help="how far off the guess may be in translation (default 15 %% of the target's size)")
         s.add_argument("--lock", metavar="SPEC", help="degrees of freedom the search may not move: any of "
@@ -95,7 +95,14 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("register", help="register SOURCE onto TARGET", description="Register SOURCE onto TARGET; "
                        "prints the transform that maps SOURCE into TARGET's frame.")
     pair(s)
-    s.add_argument("--method", choices=METHODS, default="hybrid")
+    s.add_argument("--method", choices=METHODS, help="global (default; hybrid with --lock): candidate poses "
+                   "from rotation samples within the uncertainty and feature matching, scored by the robust E, the "
+                   "best refined by ICP and the paper's hybrid; hybrid: the paper's Fig. 6 alone; icp, sa, "
+                   "icp-restarts: the paper's baselines; basin-hopping: hops from ICP's minima")
+    s.add_argument("--no-candidates", dest="candidates", action="store_false", help="global: try the guess alone "
+                   "(no rotation samples, no feature matching)")
+    s.add_argument("--rotation-samples", type=_knob("rotation_samples"), metavar="N", help="global: rotations "
+                   "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
                    "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")

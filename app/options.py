@@ -58,6 +58,7 @@ KNOBS: dict[str, Knob] = {
     "recut_rounds": Knob("--recut-rounds", int, 1, 20),  # measured: a second round rarely differs (core/register.py)
     "steps": Knob("--steps", int, 2, 201),  # 201 x 201 evaluations take about 10 s here (0.24 ms each)
     "runs": Knob("--runs", int, 1, 1000),  # a full bench of 10 starts takes about 15 min
+    "rotation_samples": Knob("--rotation-samples", int, 0, 100_000),  # scored in one batch: 720 take ~50 ms
     "workers": Knob("--workers", int, 1, 1024),  # Dask worker processes (merge); more than the cores only queue
     "port": Knob("--port", int, 1, 65535),  # TCP ports
     "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
@@ -137,6 +138,8 @@ class Settings:
     recut_rounds: int | None = None
     polish: bool = False
     coarse_to_fine: bool = False
+    candidates: bool = True  # method global: candidate poses beyond the guess (False: the guess alone)
+    rotation_samples: int | None = None  # method global: over all of SO(3)
     lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
@@ -186,6 +189,8 @@ def to_config(s: Settings):
                   icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),
                   anneal=replace(base.anneal, **anneal), sa_alone=replace(base.sa_alone, **anneal),
                   polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
+                  candidates=replace(base.candidates, enabled=s.candidates,
+                                     **given(rotation_samples=s.rotation_samples)),
                   **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg

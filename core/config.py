@@ -18,14 +18,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .anneal import AnnealConfig
+from .candidates import CandidateConfig
 from .errors import InputError
 from .icp import IcpConfig
 from .lock import Lock
 from .problem import ProblemConfig
 
-METHODS = ("hybrid", "icp", "sa", "icp-restarts", "basin-hopping")
+METHODS = ("hybrid", "icp", "sa", "icp-restarts", "basin-hopping", "global")
 
-__all__ = ["METHODS", "AnnealConfig", "Config", "IcpConfig", "Lock", "ProblemConfig", "SearchConfig", "ThresholdConfig"]
+__all__ = ["METHODS", "AnnealConfig", "CandidateConfig", "Config", "IcpConfig", "Lock", "ProblemConfig", "SearchConfig",
+           "ThresholdConfig"]
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,7 @@ class Config:
     search: SearchConfig = field(default_factory=SearchConfig)
     threshold_estimate: ThresholdConfig = field(default_factory=ThresholdConfig)
     lock: Lock = field(default_factory=Lock)  # nothing locked: the search runs as without one
+    candidates: CandidateConfig = field(default_factory=CandidateConfig)  # method "global" (core.global_search)
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -129,3 +132,4 @@ class Config:
         if not isinstance(self.lock, Lock):
             raise InputError(f"lock must be a core.lock.Lock (Lock.parse('rx,ry,tz')), got {self.lock!r}")
         self.lock.validate()
+        self.candidates.validate()

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from app.commands import pair
+from app.figures import PHASE_LABEL
 from app.options import parse_numbers, read_text_file
 from app.outputs import check_distinct, check_output, write_outputs
 from core.errors import InputError
@@ -31,8 +32,8 @@ def read_trace(path: str) -> list:
                 continue  # a trace header, when the writer adds one
             e = Event.from_json(d)
             check_rigid(e.T, "its transform")
-            if e.phase not in ("icp", "sa") or not np.isfinite(float(e.error)):
-                raise ValueError("a phase icp/sa and a finite error expected")
+            if e.phase not in PHASE_LABEL or not np.isfinite(float(e.error)):
+                raise ValueError(f"a phase {'/'.join(PHASE_LABEL)} and a finite error expected")
         except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"--trace {path}: line {lineno} is not a rangereg trace event ({exc})") from None
         events.append(e)

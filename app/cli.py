@@ -136,6 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--json", help="write the rows as JSON to this file")
     s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
+    s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "
+                   "(default), N = a local Dask cluster of N processes")
+    s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="--sweep: run the starts on an existing Dask cluster")
     s.add_argument("--bunny", default=str(Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"),
                    help="folder of the Stanford bunny scans")
 

@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from app.bench import shared_pairs  # noqa: E402
+from app.sweep import shared_pairs  # noqa: E402
 from core.candidates import CandidateConfig, make_basis  # noqa: E402
 from core.global_search import refine  # noqa: E402
 from core.icp import IcpConfig  # noqa: E402

@@ -83,7 +83,7 @@ def test_with_candidates_off_only_the_guess_is_tried(scene):
 
 
 def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it_on_every_shared_pair(bunny):
-    from app.bench import shared_pairs
+    from app.sweep import shared_pairs
     from core.noise import noise_floor
     from core.threshold import pair_threshold
     from tests.conftest import BUNNY

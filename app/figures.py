@@ -9,6 +9,8 @@ SOURCE_OVERLAP_RGB = (255, 225, 60)
 PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200)}  # the path's legs: ICP green, annealing magenta
 MINIMUM_RGB = (230, 30, 30)
 MODEL_RGB = (200, 200, 190)
+SOURCE_PICK_RGB = (255, 60, 0)  # picked point pairs: darker than the scans they sit on
+TARGET_PICK_RGB = (0, 40, 160)
 PHASE_LABEL = {"icp": "ICP", "sa": "SA"}
 
 

@@ -17,6 +17,7 @@ from app.tab import scene3d
 from app.tab.export import ExportPanel
 from app.tab.landscape import LandscapePanel
 from app.tab.model import ModelPanel
+from app.tab.pairs import PairsPanel
 from app.tab.pose import PosePanel
 from app.tab.refresher import Refresher
 from app.tab.run import RunPanel
@@ -49,6 +50,7 @@ class Tab:
             self.run_panel = RunPanel(self)
         with tabs.add_tab("Pose"):
             self.pose = PosePanel(self)
+            self.pairs = PairsPanel(self)
         with tabs.add_tab("Scans"):
             self.scans = ScansPanel(self)
         with tabs.add_tab("Landscape"):
@@ -108,6 +110,7 @@ class Tab:
         self.scans.show_viewpoints(source, target)
         self.pose.lock(False)
         self.model.forget()
+        self.pairs.forget()
         self.apply_visibility()
         self.clear_run_views()
         self.pose.show(T_init)

@@ -1,0 +1,126 @@
+"""The teaching features of the workbench in a real browser: point pairs, residuals, replay.
+
+The workbench runs in this process (so a test can reach a tab's server-side handlers); the page is
+Debian's Chromium driven by Playwright, as in tests/test_workbench.py.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tests.test_workbench import CHROMIUM, FLAGS, free_port, open_page, show_tab
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.fixture(scope="module")
+def bench():
+    from app.workbench import ServeOptions, Workbench
+
+    port = free_port()
+    wb = Workbench(ServeOptions(port=port))
+    yield wb, f"http://127.0.0.1:{port}"
+    wb.server.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not CHROMIUM.exists():
+        pytest.skip("Debian's chromium is not installed (scripts/install --browser)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+        yield b
+        b.close()
+
+
+def open_tab(bench, browser):
+    """A page and the server's Tab object behind it."""
+    wb, url = bench
+    before = set(wb.tabs)
+    page = open_page(browser, url)
+    (new,) = set(wb.tabs) - before
+    return page, wb.tabs[new]
+
+
+def wait_for(predicate, timeout=30.0, what="the page"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"{what} did not change in {timeout} s")
+
+
+def angle_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    return float(np.degrees(Rotation.from_matrix(T_a[:3, :3] @ T_b[:3, :3].T).magnitude()))
+
+
+def spread_overlap_points(tab, k: int = 3) -> list[int]:
+    """k source points far apart whose true partner is on the target (farthest-point choice)."""
+    from core.transforms import apply
+
+    st = tab.state
+    moved = apply(st.T_truth, st.source.points)
+    d, _ = st.target.tree.query(moved)
+    inside = np.flatnonzero(d < st.target.spacing)
+    centre = moved[inside].mean(0)
+    chosen = [inside[np.argmin(np.linalg.norm(moved[inside] - centre, axis=1))]]
+    for _ in range(k):
+        gap = np.min([np.linalg.norm(moved[inside] - moved[c], axis=1) for c in chosen], axis=0)
+        chosen.append(inside[np.argmax(gap)])
+    return [int(c) for c in chosen[1:]]
+
+
+def ray_to(tab, which: str, index: int):
+    """A ray from the scan's own sensor to one of its points: the point is the first it meets."""
+    from core.transforms import apply
+
+    st = tab.state
+    scan, T = (st.source, st.T) if which == "source" else (st.target, np.eye(4))
+    origin = st.display.points(apply(T, scan.viewpoint[None]))[0].astype(np.float64)
+    return origin, tab.pairs.page_points(which)[index] - origin
+
+
+def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
+    from core.transforms import apply
+
+    page, tab = open_tab(bench, browser)
+    st = tab.state
+    assert angle_deg(st.T_init, st.T_truth) > 2.0  # the file pose is off: the pairs have work to do
+    show_tab(page, "Pose")
+    page.get_by_label("Pick point pairs", exact=True).check()
+    wait_for(lambda: tab.pairs._callback is not None, what="picking mode")
+    # a real click in the scene reaches the handler (the scans fill the middle of the view)
+    calls = []
+    handler = tab.pairs.clicked
+    tab.pairs.clicked = lambda o, d: calls.append((o, d)) or handler(o, d)
+    box = page.locator("canvas").first.bounding_box()
+    for _ in range(10):  # the page turns on click reporting when its message arrives: click until it has
+        page.mouse.click(box["x"] + 0.4 * box["width"], box["y"] + 0.5 * box["height"])
+        time.sleep(1.0)
+        if calls:
+            break
+    assert calls, "a click in the scene never reached the handler"
+    tab.pairs.clicked = handler
+    page.get_by_role("button", name="Clear pairs", exact=True).click()
+    wait_for(lambda: not len(tab.pairs.pairs) and tab.pairs.pairs.pending is None, what="Clear pairs")
+    # three pairs through the same handler, on rays from the page's camera
+    for i in spread_overlap_points(tab):
+        picked = tab.pairs.clicked(*ray_to(tab, "source", i))
+        assert picked is not None
+        _, j = st.target.tree.query(apply(st.T_truth, st.source.points[picked]))
+        assert tab.pairs.clicked(*ray_to(tab, "target", j)) is not None
+    assert len(tab.pairs.pairs) == 3
+    assert angle_deg(tab.pairs.pairs.align(st.source.points, st.target.points), st.T_truth) < 2.0
+    wait_for(lambda: "pair 3: source" in page.locator("body").inner_text(), what="the pair list")
+    page.get_by_role("button", name="Align from pairs", exact=True).click()
+    wait_for(lambda: angle_deg(st.T_init, st.T_truth) < 2.0, what="the initial pose")
+    units = st.target.units
+    assert f"({units})" in page.locator("body").inner_text()
+    page.close()

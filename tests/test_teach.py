@@ -124,3 +124,24 @@ def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
     units = st.target.units
     assert f"({units})" in page.locator("body").inner_text()
     page.close()
+
+
+def test_after_a_run_the_source_is_coloured_by_residual_with_its_histogram(bench, browser):
+    from app.figures import SOURCE_RGB
+    from tests.test_workbench import wait_finished
+
+    page, tab = open_tab(bench, browser)
+    page.get_by_role("button", name="Run hybrid", exact=True).click()
+    wait_finished(page)
+    show_tab(page, "Model")
+    page.get_by_label("Colour by residual", exact=True).check()
+    wait_for(lambda: "Distance to the target surface" in page.locator("body").inner_text(), what="the histogram")
+    body = page.locator("body").inner_text()
+    units = tab.state.target.units
+    assert "inliers (d < √t)" in body and "outliers" in body and "cap √t" in body
+    assert f"distance ({units})" in body
+    colours = tab.nodes.source.points.colors
+    assert len(np.unique(colours, axis=0)) > 20 and not np.all(colours == SOURCE_RGB)
+    r = tab.model.residuals.current
+    assert 0.5 < r.inliers.mean() < 1.0 and np.allclose(r.T, tab.state.result.transform)
+    page.close()

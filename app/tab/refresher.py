@@ -67,6 +67,7 @@ class Refresher:
             tab.update_status()
             if st.slice is not None:
                 tab.landscape.draw()
+            tab.model.residuals.refresh()
         self.was_running = running
 
     def push(self, running: bool) -> None:

@@ -155,6 +155,7 @@ class RunPanel:
         self.tab.nodes.gizmo.visible = False
         self.set_controls(running=True)
         run.start()
+        self.tab.model.residuals.refresh()  # a moving scan drops its residual colours
 
     def _done(self, run: Run) -> None:
         """On the run's thread: hand the outcome to the refresher (the state's owner)."""

@@ -111,6 +111,7 @@ class Tab:
         self.pose.lock(False)
         self.model.forget()
         self.pairs.forget()
+        self.model.residuals.refresh()
         self.apply_visibility()
         self.clear_run_views()
         self.pose.show(T_init)
@@ -142,6 +143,7 @@ class Tab:
         scene3d.move_source(self.nodes, st, T)
         self.clear_run_views()
         self.pose.show(T)
+        self.model.residuals.refresh()
 
     # ---- the page ----------------------------------------------------------------------------------
     def trail(self) -> Trail:

@@ -145,3 +145,29 @@ def test_after_a_run_the_source_is_coloured_by_residual_with_its_histogram(bench
     r = tab.model.residuals.current
     assert 0.5 < r.inliers.mean() < 1.0 and np.allclose(r.T, tab.state.result.transform)
     page.close()
+
+
+def test_scrubbing_the_timeline_moves_the_scan_and_says_the_event(bench, browser):
+    from tests.test_workbench import wait_finished
+
+    page, tab = open_tab(bench, browser)
+    st = tab.state
+    page.get_by_role("button", name="Run hybrid", exact=True).click()
+    wait_finished(page)
+    show_tab(page, "Landscape")
+    n = len(st.events)
+    wait_for(lambda: f"Event {n} of {n}" in page.locator("body").inner_text(), what="the timeline")
+    end = np.array(tab.nodes.source_frame.position)
+    slider = page.get_by_role("slider").first
+    slider.focus()
+    page.keyboard.press("Home")  # the start of the timeline: the initial pose
+    wait_for(lambda: f"Event 0 of {n}" in page.locator("body").inner_text(), what="the replay line")
+    assert np.allclose(st.T, st.T_init) and not np.allclose(tab.nodes.source_frame.position, end)
+    for _ in range(3):
+        page.keyboard.press("ArrowRight")
+    wait_for(lambda: f"Event 3 of {n}" in page.locator("body").inner_text(), what="the replay line")
+    assert np.allclose(st.T, st.events[2].T) and "phase ICP" in page.locator("body").inner_text()
+    page.get_by_role("button", name="Play", exact=True).click()  # plays on to the end
+    wait_for(lambda: f"Event {n} of {n}" in page.locator("body").inner_text(), what="Play")
+    assert np.allclose(st.T, st.events[-1].T)
+    page.close()

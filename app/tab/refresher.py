@@ -68,6 +68,7 @@ class Refresher:
             if st.slice is not None:
                 tab.landscape.draw()
             tab.model.residuals.refresh()
+            tab.replay.reset()
         self.was_running = running
 
     def push(self, running: bool) -> None:

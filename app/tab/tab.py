@@ -20,6 +20,7 @@ from app.tab.model import ModelPanel
 from app.tab.pairs import PairsPanel
 from app.tab.pose import PosePanel
 from app.tab.refresher import Refresher
+from app.tab.replay import ReplayPanel
 from app.tab.run import RunPanel
 from app.tab.scans import ScansPanel
 from app.tab.settings import problem_config
@@ -55,6 +56,7 @@ class Tab:
             self.scans = ScansPanel(self)
         with tabs.add_tab("Landscape"):
             self.landscape = LandscapePanel(self)
+            self.replay = ReplayPanel(self)
         with tabs.add_tab("Model"):
             self.model = ModelPanel(self)
         with tabs.add_tab("Export"):
@@ -111,6 +113,7 @@ class Tab:
         self.pose.lock(False)
         self.model.forget()
         self.pairs.forget()
+        self.replay.forget()
         self.model.residuals.refresh()
         self.apply_visibility()
         self.clear_run_views()
@@ -143,6 +146,7 @@ class Tab:
         scene3d.move_source(self.nodes, st, T)
         self.clear_run_views()
         self.pose.show(T)
+        self.replay.forget()
         self.model.residuals.refresh()
 
     # ---- the page ----------------------------------------------------------------------------------
@@ -171,6 +175,7 @@ class Tab:
         self.pose.lock(running)
         self.scans.lock(running)
         self.model.lock(running)
+        self.replay.lock(running)
 
     def clear_run_views(self) -> None:
         with self.client.atomic():

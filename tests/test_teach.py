@@ -147,14 +147,22 @@ def test_after_a_run_the_source_is_coloured_by_residual_with_its_histogram(bench
     page.close()
 
 
-def test_scrubbing_the_timeline_moves_the_scan_and_says_the_event(bench, browser):
-    from tests.test_workbench import wait_finished
+def test_scrubbing_the_timeline_moves_the_scan_and_its_marker_on_the_terrain(bench, browser):
+    from tests.test_workbench import text_input, wait_finished
 
     page, tab = open_tab(bench, browser)
     st = tab.state
     page.get_by_role("button", name="Run hybrid", exact=True).click()
     wait_finished(page)
     show_tab(page, "Landscape")
+    text_input(page, "Steps").fill("15")
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    wait_for(lambda: st.slice is not None, timeout=120, what="the slice")
+    page.get_by_label("Show as 3-D terrain", exact=True).check()
+    wait_for(lambda: tab.landscape.terrain is not None, what="the terrain")
+    terrain = tab.landscape.terrain
+    assert len(terrain.segments.points) == len(st.events)  # the whole run drawn on the surface
+    assert {tuple(c) for c in terrain.segments.colors[:, 0]} == {(30, 170, 70)}  # ICP green only: no annealing
     n = len(st.events)
     wait_for(lambda: f"Event {n} of {n}" in page.locator("body").inner_text(), what="the timeline")
     end = np.array(tab.nodes.source_frame.position)
@@ -163,10 +171,12 @@ def test_scrubbing_the_timeline_moves_the_scan_and_says_the_event(bench, browser
     page.keyboard.press("Home")  # the start of the timeline: the initial pose
     wait_for(lambda: f"Event 0 of {n}" in page.locator("body").inner_text(), what="the replay line")
     assert np.allclose(st.T, st.T_init) and not np.allclose(tab.nodes.source_frame.position, end)
+    marker = np.array(terrain.current.position)
     for _ in range(3):
         page.keyboard.press("ArrowRight")
     wait_for(lambda: f"Event 3 of {n}" in page.locator("body").inner_text(), what="the replay line")
     assert np.allclose(st.T, st.events[2].T) and "phase ICP" in page.locator("body").inner_text()
+    assert not np.allclose(terrain.current.position, marker)
     page.get_by_role("button", name="Play", exact=True).click()  # plays on to the end
     wait_for(lambda: f"Event {n} of {n}" in page.locator("body").inner_text(), what="Play")
     assert np.allclose(st.T, st.events[-1].T)

@@ -88,5 +88,7 @@ class Refresher:
             scene3d.draw_path(tab.nodes, trail)
             tab.run_panel.h.plot.data = trail.plot(E0)
             tab.update_status()
+        if tab.landscape.terrain is not None:
+            tab.landscape.update_terrain()
         if st.slice is not None and time.monotonic() - tab.landscape.drawn_at > SLICE_REFRESH:
             tab.landscape.draw()

@@ -137,6 +137,8 @@ class ReplayPanel:
         with tab.client.atomic():
             scene3d.move_source(tab.nodes, st, T, gizmo=False)
             self.describe(k)
+            if tab.landscape.terrain is not None:
+                tab.landscape.terrain.mark(T)
         if self.slider.value != k:
             self.slider.value = k
         if st.slice is not None and time.monotonic() - self._drawn_at > 0.3:

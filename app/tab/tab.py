@@ -114,6 +114,7 @@ class Tab:
         self.model.forget()
         self.pairs.forget()
         self.replay.forget()
+        self.landscape.update_terrain()
         self.model.residuals.refresh()
         self.apply_visibility()
         self.clear_run_views()
@@ -181,6 +182,8 @@ class Tab:
         with self.client.atomic():
             scene3d.clear_path(self.nodes)
             self.run_panel.h.plot.data = Trail(self.state.display, []).plot(self.state.E0)
+        if self.landscape.terrain is not None:
+            self.landscape.update_terrain()
 
     def update_status(self) -> None:
         st = self.state

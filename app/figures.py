@@ -33,3 +33,8 @@ def unit_label(param: str, units: str = "") -> str:
 
 def axis_label(param: str, units: str = "") -> str:
     return f"{param} ({unit_label(param, units)})"
+
+
+def squared_unit(units: str = "") -> str:
+    """The unit of E, a mean squared distance: the scans' length unit squared."""
+    return f"{unit_label('t', units)}²"

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from app.figures import squared_unit
 from app.tab import scene3d
 from core.errors import InputError
 from core.events import Event
@@ -121,7 +122,7 @@ class ReplayPanel:
         temp = f"{e.temperature:.4g}" if e.temperature is not None else "-"
         mark = " · **local minimum**" if e.local_minimum else ""
         self.info.content = (f"Event {k} of {n} · phase **{e.phase.upper()}** (leg {e.leg}) · "
-                             f"E = {e.error:.6g} · temperature {temp}{mark}")
+                             f"E = {e.error:.6g} {squared_unit(self.state.target.units)} · temperature {temp}{mark}")
 
     def show(self, k: int) -> None:
         """Scrub to event ``k`` (0: the initial pose): the shown pose, the line above, the marker on the slice."""

@@ -13,6 +13,7 @@ import logging
 import numpy as np
 import viser
 
+from app.figures import squared_unit
 from app.tab import scene3d
 from app.tab.export import ExportPanel
 from app.tab.landscape import LandscapePanel
@@ -111,6 +112,7 @@ class Tab:
         self.nodes.gizmo.on_update(lambda e: self.guarded(self.pose.dragged))
         self.scans.show_viewpoints(source, target)
         self.pose.lock(False)
+        self.pose.name_units(target.units)
         self.model.forget()
         self.pairs.forget()
         self.replay.forget()
@@ -196,18 +198,19 @@ class Tab:
             n_icp, n_sa, n_min = trail.counts
             thr = f"{st.threshold:.4g}" if st.threshold is not None else "auto"
             units = st.target.units if st.target is not None else ""
+            e_unit = squared_unit(units)
             lines = [f"**{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}** "
                      f"({units}) · overlap {st.problem.used.sum() if st.problem else 0} points",
                      f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**",
                      f"Iterations: ICP {n_icp}, SA {n_sa} · local minima {n_min}",
-                     f"E = {last.error:.6g}" if last else f"E = {E0:.6g} (initial)",
+                     f"E = {last.error:.6g} {e_unit}" if last else f"E = {E0:.6g} {e_unit} (initial)",
                      f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
                      else "Temperature -",
-                     f"Threshold {thr}"]
+                     f"Threshold {thr} {e_unit}"]
             if st.finished_text and not running:
                 lines.append(st.finished_text)
         self.status.content = "  \n".join(lines)
-        self.e_init.content = f"Initial E = {E0:.6g}"
+        self.e_init.content = f"Initial E = {E0:.6g} {e_unit}"
 
     def close(self) -> None:
         """The browser tab went away: its run and its slice stop."""

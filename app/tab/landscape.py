@@ -92,6 +92,8 @@ class LandscapePanel:
         self.h.terrain.on_update(lambda e: tab.guarded(self.update_terrain))
         self.drawn_at = 0.0
         self.terrain: Terrain | None = None
+        self.terrain_lock = threading.Lock()  # one builder at a time (a checkbox and the refresher may race); taken
+        # outside client.atomic() and the state's lock, never inside them
 
     def start(self) -> None:
         st, h = self.state, self.h
@@ -169,6 +171,16 @@ class LandscapePanel:
 
     def update_terrain(self) -> None:
         """The 3-D terrain of the current slice with the path so far, when shown; gone otherwise."""
+        with self.terrain_lock:
+            self._update_terrain()
+
+    def mark_terrain(self, T) -> None:
+        """Move the terrain's marker of the shown pose (replay)."""
+        with self.terrain_lock:
+            if self.terrain is not None:
+                self.terrain.mark(T)
+
+    def _update_terrain(self) -> None:
         st, tab = self.state, self.tab
         with st.lock:
             view, events, T_init, T, units = st.slice, st.events, st.T_init, st.T, st.target.units if st.target else ""

@@ -138,8 +138,7 @@ class ReplayPanel:
         with tab.client.atomic():
             scene3d.move_source(tab.nodes, st, T, gizmo=False)
             self.describe(k)
-            if tab.landscape.terrain is not None:
-                tab.landscape.terrain.mark(T)
+        tab.landscape.mark_terrain(T)
         if self.slider.value != k:
             self.slider.value = k
         if st.slice is not None and time.monotonic() - self._drawn_at > 0.3:

@@ -17,6 +17,7 @@ from core.transforms import apply
 
 BINS = 40
 COLOUR_SPAN = 2.0  # the colour scale ends at this many caps (sqrt t): every outlier is the last colour
+HISTOGRAM_SPAN = 4.0  # the histogram shows distances up to this many caps; its last bar holds all beyond
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,7 +58,8 @@ def histogram_figure(r: Residuals, units: str):
 
     unit = unit_label("t", units)
     top = COLOUR_SPAN * r.cap
-    edges = np.linspace(0.0, max(top * 1.5, float(np.percentile(r.distances, 99))), BINS + 1)
+    # points outside the overlap lie far off: they go in the last bar, so the cap's neighbourhood stays readable
+    edges = np.linspace(0.0, HISTOGRAM_SPAN * r.cap, BINS + 1)
     counts, _ = np.histogram(np.minimum(r.distances, edges[-1]), edges)
     centre, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
     fig = go.Figure()
@@ -67,7 +69,8 @@ def histogram_figure(r: Residuals, units: str):
                              marker=dict(color=centre[mask], colorscale="Viridis", cmin=0.0, cmax=top,
                                          showscale=opacity == 1.0, colorbar=dict(title=f"d ({unit})", thickness=12))))
     fig.add_vline(x=r.cap, line=dict(color="red", dash="dash"), annotation_text=f"cap √t = {r.cap:.3g} {unit}")
-    fig.update_layout(title=dict(text=f"Distance to the target surface ({unit})", font=dict(size=12), y=0.98),
+    title = f"Distance to the target surface ({unit}); last bar: ≥ {edges[-1]:.3g}"
+    fig.update_layout(title=dict(text=title, font=dict(size=12), y=0.98),
                       xaxis_title=f"distance ({unit})", yaxis_title="source points", bargap=0.0, height=320,
                       margin=dict(l=45, r=10, t=60, b=35), showlegend=True, legend=dict(orientation="h", x=0.0, y=1.12))
     return fig

@@ -121,7 +121,7 @@ class Terrain:
         self.segments = scene.add_line_segments("/terrain/path", np.zeros((0, 2, 3), np.float32), (0, 0, 0),
                                                 thickness=3.0, thickness_units="screen")
         self.minima_node = scene.add_point_cloud("/terrain/minima", np.zeros((0, 3), np.float32), MINIMUM_RGB,
-                                                 point_size=0.03, precision="float32")
+                                                 point_size=0.015, precision="float32")
         self.current = scene.add_icosphere("/terrain/current", radius=0.02, color=(255, 255, 255))
 
     def update(self, T_shown: np.ndarray) -> None:

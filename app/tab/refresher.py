@@ -80,7 +80,7 @@ class Refresher:
             tab.update_status()
             return
         with st.lock:
-            if n and running:
+            if n and running and st.result is None:  # once the run's result is in, its pose is the one shown
                 st.T = st.events[n - 1].T
             T, E0 = st.T, st.E0
         with tab.client.atomic():

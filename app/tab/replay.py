@@ -134,6 +134,8 @@ class ReplayPanel:
             if st.events is not self.events and list(st.events) != self.events:
                 return  # a new pair or a reset: nothing to replay
             T = st.T_init if k == 0 else self.events[k - 1].T
+            if k == len(self.events) and st.result is not None and st.result.transform is not None:
+                T = st.result.transform  # the end of the timeline is the run's outcome (its best pose)
             st.T = T
         with tab.client.atomic():
             scene3d.move_source(tab.nodes, st, T, gizmo=False)

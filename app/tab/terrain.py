@@ -56,11 +56,15 @@ def surface(sl: Slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return vertices, faces, rgba
 
 
-def on_surface(sl: Slice, xy: np.ndarray) -> np.ndarray:
+def height_lookup(sl: Slice) -> RegularGridInterpolator:
+    return RegularGridInterpolator((sl.axis_a, sl.axis_b), heights(sl), bounds_error=False, fill_value=None)
+
+
+def on_surface(sl: Slice, xy: np.ndarray, lookup: RegularGridInterpolator | None = None) -> np.ndarray:
     """(K, 3) float32 page points on the terrain (lifted by LIFT) for slice coordinates (K, 2)."""
     if not len(xy):
         return np.zeros((0, 3), np.float32)
-    lookup = RegularGridInterpolator((sl.axis_a, sl.axis_b), heights(sl), bounds_error=False, fill_value=None)
+    lookup = lookup or height_lookup(sl)
     a = np.clip(xy[:, 0], sl.axis_a[0], sl.axis_a[-1])
     b = np.clip(xy[:, 1], sl.axis_b[0], sl.axis_b[-1])
     x, z = to_box(sl, xy)
@@ -76,6 +80,7 @@ class PathOnSlice:
         self.sa = np.zeros(1, bool)
         self.minimum = np.zeros(1, bool)
         self.n = 0
+        self.lookup = height_lookup(sl)  # built once per slice, used on every redraw
 
     def update(self) -> int:
         n = len(self.events)
@@ -93,12 +98,12 @@ class PathOnSlice:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
         keep = np.unique(np.r_[np.linspace(0, len(self.xy) - 1, min(len(self.xy), MAX_TERRAIN_PATH)).astype(int),
                                len(self.xy) - 1])
-        p = on_surface(self.slice, self.xy[keep])
+        p = on_surface(self.slice, self.xy[keep], self.lookup)
         rgb = np.where(self.sa[keep][1:, None], np.array(PHASE_RGB["sa"]), np.array(PHASE_RGB["icp"])).astype(np.uint8)
         return np.stack([p[:-1], p[1:]], axis=1), np.repeat(rgb[:, None, :], 2, axis=1)
 
     def minima(self) -> np.ndarray:
-        return on_surface(self.slice, self.xy[self.minimum])
+        return on_surface(self.slice, self.xy[self.minimum], self.lookup)
 
 
 class Terrain:
@@ -136,7 +141,7 @@ class Terrain:
     def mark(self, T_shown: np.ndarray) -> None:
         sl = self.view.slice
         xy = project(self.view.problem, sl.T_center, sl.params, [T_shown])
-        self.current.position = tuple(on_surface(sl, xy)[0])
+        self.current.position = tuple(on_surface(sl, xy, self.path.lookup)[0])
 
     def remove(self) -> None:
         self.frame.remove()

@@ -5,15 +5,13 @@ Every method starts from the same seeded poses: the truth perturbed by a random 
 for the 4 ft corner, scaled to each scene's size (the paper's spread); 15 degrees and 25 mm on the
 bunny pairs. A run succeeds when its pose is within 1 degree and 1 % of the scene's size of the
 truth (bunny: 2 degrees and 2 mm, the issue's target), measured at the source's centroid.
-``--sweep`` compares hybrid with Open3D's point-to-plane ICP and FPFH + RANSAC + ICP on the very
-same starts, over growing start offsets.
+``--sweep``: app/sweep.py.
 """
 
 from __future__ import annotations
 
 import json
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,8 +25,6 @@ from core.transforms import invert, perturb, pose_error, random_perturbation
 
 BUNNY_PAIRS = (("bun045", "bun000"), ("bun315", "bun000"), ("bun090", "bun045"), ("bun090", "bun000"))
 SCENE_START = {"corner": 250.0, "wing": 250.0 * 3 / 4, "bowl": 250.0 * 600 / 1219.2}  # mm, 5 deg rotation
-SWEEP = ((5.0, 0.010), (15.0, 0.025), (30.0, 0.050), (60.0, 0.075))  # degrees, metres
-SWEEP_METHODS = ("hybrid", "basin-hopping", "open3d-icp", "open3d-fpfh-ransac")
 EXTRAS = {"hybrid+polish": dict(method="hybrid", polish=True),
           "hybrid+coarse-to-fine": dict(method="hybrid", coarse_to_fine=True)}
 
@@ -131,6 +127,8 @@ def main(a) -> int:
     if a.runs is not None and a.runs < 1:
         raise InputError(f"--runs must be at least 1, got {a.runs}")
     if a.sweep:
+        from app.sweep import sweep
+
         return sweep(a)
     runs = a.runs or (2 if a.quick else 10)
     methods = ("hybrid", "icp", "basin-hopping") if a.quick else METHODS + tuple(EXTRAS)
@@ -158,81 +156,6 @@ def main(a) -> int:
             notes.append(f"{r['scene']}: in {r['runs_where_E_prefers_a_wrong_pose']} failed {r['method']} run(s) E(found) < "
                          "E(truth): the error, not the search, is at fault there")
     print("\n".join(notes))
-    if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
-    return 0
-
-
-# ---- the sweep: hybrid against Open3D's well-known peers, on the very same starts -----------------------
-def _o3d_cloud(scan, voxel):
-    import open3d as o3d
-
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points)).voxel_down_sample(voxel)
-    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
-    pcd.orient_normals_towards_camera_location(scan.viewpoint)
-    return pcd
-
-
-def open3d_icp(case: Case, T0: np.ndarray, voxel: float) -> np.ndarray:
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    src, tgt = _o3d_cloud(case.source, voxel), _o3d_cloud(case.target, voxel)
-    return np.asarray(reg.registration_icp(src, tgt, 5 * voxel, T0, reg.TransformationEstimationPointToPlane(),
-                                           reg.ICPConvergenceCriteria(max_iteration=100)).transformation)
-
-
-def open3d_fpfh_ransac(case: Case, T0: np.ndarray, voxel: float, seed: int) -> np.ndarray:
-    """Global FPFH + RANSAC on the source placed by the start (features do not use T0), then ICP."""
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    o3d.utility.random.seed(seed)
-    src, tgt = _o3d_cloud(case.source, voxel), _o3d_cloud(case.target, voxel)
-    src.transform(T0)
-    param = o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
-    fs, ft = reg.compute_fpfh_feature(src, param), reg.compute_fpfh_feature(tgt, param)
-    dist = 1.5 * voxel
-    ransac = reg.registration_ransac_based_on_feature_matching(
-        src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
-        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
-        reg.RANSACConvergenceCriteria(100000, 0.999))
-    fine = reg.registration_icp(src, tgt, 2 * voxel, ransac.transformation, reg.TransformationEstimationPointToPlane())
-    return np.asarray(fine.transformation) @ T0
-
-
-def sweep(a) -> int:
-    runs = a.runs or (2 if a.quick else 5)
-    folder = Path(a.bunny)
-    if not folder.is_dir():
-        raise InputError(f"--sweep needs the shared bunny scans; {folder} is absent")
-    pairs = BUNNY_PAIRS[:3]
-    rows = []
-    for rot, trans in SWEEP:
-        for case in bunny_cases(folder, pairs, rot, trans):
-            voxel = 2.0 * case.target.spacing
-            found = {method: [] for method in SWEEP_METHODS}
-            for k, T0 in enumerate(starts(case, runs, seed=int(rot))):
-                for method in ("hybrid", "basin-hopping"):
-                    t0 = time.perf_counter()
-                    found[method].append((run_method(case, method, T0, k)["T"], time.perf_counter() - t0))
-                t0 = time.perf_counter()
-                found["open3d-icp"].append((open3d_icp(case, T0, voxel), time.perf_counter() - t0))
-                t0 = time.perf_counter()
-                found["open3d-fpfh-ransac"].append((open3d_fpfh_ransac(case, T0, voxel, k), time.perf_counter() - t0))
-            for method, res in found.items():
-                ok = [all(v < lim for v, lim in zip(pose_error(T, case.T_true, case.source.centroid),
-                                                     (case.ok_rot, case.ok_trans))) for T, _ in res]
-                rows.append({"offset": f"{rot:g} deg / {trans * 1000:g} mm", "scene": case.name, "method": method,
-                             "success_rate": float(np.mean(ok)), "median_seconds": float(np.median([s for _, s in res])),
-                             "runs": len(res)})
-                sys.stderr.write(f"  {rows[-1]['offset']:16s} {case.name:16s} {method:20s} {np.mean(ok):.0%}\n")
-    print("| offset | method | success (all pairs) | median s |\n|---|---|---|---|")
-    for off in dict.fromkeys(r["offset"] for r in rows):
-        for method in SWEEP_METHODS:
-            sel = [r for r in rows if r["offset"] == off and r["method"] == method]
-            rate = sum(r["success_rate"] * r["runs"] for r in sel) / sum(r["runs"] for r in sel)
-            print(f"| {off} | {method} | {rate:.0%} | {np.median([r['median_seconds'] for r in sel]):.2f} |")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
     return 0

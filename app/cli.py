@@ -64,6 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "viewpoint, range grid, surface triangles, point spacing.")
     s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .obj .stl .off)")
     s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated)")
+    s.add_argument("--triangles", action="store_true", help="count the surface's triangles even for a large scan "
+                   "without a range grid (a 2.5-D Delaunay: about 30 s for 2M points)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
 
     pc, cfg = ProblemConfig(), Config()
@@ -81,15 +83,26 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
         s.add_argument("--seed", type=_knob("seed"), default=0, help="seed of every random choice (default 0)")
         s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), default=pc.rotation_uncertainty_deg,
-                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180] "
-                       f"(default {pc.rotation_uncertainty_deg:g} deg)")
+                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180]; 180: "
+                       f"no guess at all (register's default method takes it) (default {pc.rotation_uncertainty_deg:g} deg)")
         s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",
                        help="how far off the guess may be in translation (default 15 %% of the target's size)")
+        s.add_argument("--lock", metavar="SPEC", help="degrees of freedom the search may not move: any of "
+                       "tx,ty,tz,rx,ry,rz (about the overlap centroid; 'rotation' or 'translation' for three), or "
+                       "turntable:px,py,pz,dx,dy,dz (rotation about that line in TARGET's frame only; "
+                       "turntable+translation:... also shifts); default none")
 
     s = sub.add_parser("register", help="register SOURCE onto TARGET", description="Register SOURCE onto TARGET; "
                        "prints the transform that maps SOURCE into TARGET's frame.")
     pair(s)
-    s.add_argument("--method", choices=METHODS, default="hybrid")
+    s.add_argument("--method", choices=METHODS, help="global (default; hybrid with --lock): candidate poses "
+                   "from rotation samples within the uncertainty and feature matching, scored by the robust E, the "
+                   "best refined by ICP and the paper's hybrid; hybrid: the paper's Fig. 6 alone; icp, sa, "
+                   "icp-restarts: the paper's baselines; basin-hopping: hops from ICP's minima")
+    s.add_argument("--no-candidates", dest="candidates", action="store_false", help="global: try the guess alone "
+                   "(no rotation samples, no feature matching)")
+    s.add_argument("--rotation-samples", type=_knob("rotation_samples"), metavar="N", help="global: rotations "
+                   "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
                    "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")
@@ -123,6 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--json", help="write the rows as JSON to this file")
     s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
+    s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "
+                   "(default), N = a local Dask cluster of N processes")
+    s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="--sweep: run the starts on an existing Dask cluster")
     s.add_argument("--bunny", default=str(Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"),
                    help="folder of the Stanford bunny scans")
 
@@ -143,6 +159,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
     s.add_argument("--out", default="model.ply", help="the fused mesh (.ply)")
     s.add_argument("--seed", type=_knob("seed"), default=0)
+    s.add_argument("--workers", type=_knob("workers"), default=None, help="pairwise registrations at once: 1 = a "
+                   "plain loop here, N = a local Dask cluster of N processes (default: one per core)")
+    s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the pairwise registrations on an existing "
+                   "Dask cluster (started with 'dask scheduler' and 'dask worker')")
+    s.add_argument("--pairs", choices=("init", "chain", "overlap"), help="candidate pairs: init = each scan's "
+                   "best-overlapping partners under the initial poses (default with initial poses); chain = "
+                   "consecutive scans and the last with the first (default without); overlap = every overlapping pair")
     s.add_argument("--json", action="store_true")
 
     s = sub.add_parser("scenes", help="regenerate the bundled default scenes",

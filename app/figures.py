@@ -6,12 +6,13 @@ TARGET_RGB = (60, 120, 220)
 SOURCE_RGB = (240, 140, 30)
 TARGET_OVERLAP_RGB = (120, 230, 255)
 SOURCE_OVERLAP_RGB = (255, 225, 60)
-PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200)}  # the path's legs: ICP green, annealing magenta
+# the path's legs: ICP green, annealing magenta, the global pipeline's candidate poses orange
+PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200), "candidates": (245, 150, 20)}
 MINIMUM_RGB = (230, 30, 30)
 MODEL_RGB = (200, 200, 190)
 SOURCE_PICK_RGB = (255, 60, 0)  # picked point pairs: darker than the scans they sit on
 TARGET_PICK_RGB = (0, 40, 160)
-PHASE_LABEL = {"icp": "ICP", "sa": "SA"}
+PHASE_LABEL = {"icp": "ICP", "sa": "SA", "candidates": "candidates"}
 
 
 def hex_colour(rgb: tuple[int, int, int]) -> str:

@@ -58,6 +58,8 @@ KNOBS: dict[str, Knob] = {
     "recut_rounds": Knob("--recut-rounds", int, 1, 20),  # measured: a second round rarely differs (core/register.py)
     "steps": Knob("--steps", int, 2, 201),  # 201 x 201 evaluations take about 10 s here (0.24 ms each)
     "runs": Knob("--runs", int, 1, 1000),  # a full bench of 10 starts takes about 15 min
+    "rotation_samples": Knob("--rotation-samples", int, 0, 100_000),  # scored in one batch: 720 take ~50 ms
+    "workers": Knob("--workers", int, 1, 1024),  # Dask worker processes (merge); more than the cores only queue
     "port": Knob("--port", int, 1, 65535),  # TCP ports
     "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
 }
@@ -136,6 +138,9 @@ class Settings:
     recut_rounds: int | None = None
     polish: bool = False
     coarse_to_fine: bool = False
+    candidates: bool = True  # method global: candidate poses beyond the guess (False: the guess alone)
+    rotation_samples: int | None = None  # method global: over all of SO(3)
+    lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
         from core.frustum import KINDS
@@ -155,6 +160,7 @@ class Settings:
             raise InputError(f"--method: unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
         if self.frustum is not None and self.frustum not in KINDS:
             raise InputError(f"--frustum: choose one of {', '.join(KINDS)}, got {self.frustum!r}")
+        object.__setattr__(self, "lock", parse_lock(self.lock))
 
     @classmethod
     def from_mapping(cls, values: dict, **overrides) -> Settings:
@@ -182,10 +188,32 @@ def to_config(s: Settings):
     cfg = replace(base, method=s.method, threshold=s.threshold, seed=s.seed, problem=problem,
                   icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),
                   anneal=replace(base.anneal, **anneal), sa_alone=replace(base.sa_alone, **anneal),
-                  polish=s.polish, coarse_to_fine=s.coarse_to_fine,
+                  polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
+                  candidates=replace(base.candidates, enabled=s.candidates,
+                                     **given(rotation_samples=s.rotation_samples)),
                   **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg
+
+
+def parse_lock(value):
+    """``--lock`` as a core ``Lock``: text (``rx,ry,tz``: those parameters locked; ``rotation`` or
+    ``translation``: three at once; ``turntable:px,py,pz,dx,dy,dz``: rotation about that line in the
+    target's frame only; ``turntable+translation:...``: and free translation; ``none``), a Lock, or None."""
+    from core.lock import Lock
+
+    if isinstance(value, Lock):
+        try:
+            value.validate()
+        except InputError as exc:
+            raise InputError(f"--lock: {exc}") from None
+        return value
+    if value is not None and not isinstance(value, str):
+        raise InputError(f"--lock: expected text such as rx,ry,tz or turntable:px,py,pz,dx,dy,dz, got {value!r}")
+    try:
+        return Lock.parse(value)
+    except InputError as exc:
+        raise InputError(f"--lock: {exc}") from None
 
 
 def read_text_file(path: str | Path, what: str, limit: int = 1 << 30) -> str:
@@ -210,29 +238,21 @@ _SEPARATORS = re.compile(r"[,;\s\[\]]+")
 
 def parse_init(text: str) -> np.ndarray:
     """``--init``: 16 numbers (row-major T_target_source, spaces or commas) given inline, or a file
-    holding them (or JSON with ``transform``). Returns a checked rigid (4, 4) float64 matrix."""
-    from core.transforms import check_rigid
+    holding them (or JSON with ``transform``). Returns a checked rigid (4, 4) float64 matrix
+    (core.io.parse_transform; here only the flag's name and a folder/binary-file check are added)."""
+    from core.io import parse_transform
 
     if text is None or not str(text).strip():
         raise InputError("--init: expected 16 numbers or a file, got nothing")
     p = Path(text)
-    tokens = [t for t in _SEPARATORS.split(str(text).strip()) if t]
-    if not p.exists() and len(tokens) > 1:
-        try:
-            values = np.array([float(t) for t in tokens], dtype=np.float64)
-        except ValueError:
-            raise InputError(f"--init: {text!r} is neither 16 numbers nor an existing file") from None
-        if values.size != 16:
-            raise InputError(f"--init: expected 16 numbers (a row-major 4 x 4 matrix), got {values.size}")
-        try:
-            return check_rigid(values.reshape(4, 4), "--init")
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
-    read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
-    from core.io import read_transform
-
+    if p.exists():
+        read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
+    elif len([t for t in _SEPARATORS.split(str(text).strip()) if t]) < 2:
+        raise InputError(f"--init {text}: no such file (and not 16 numbers)")
     try:
-        return read_transform(p)
+        return parse_transform(str(text))
+    except InputError as exc:
+        raise InputError(f"--init: {exc}") from None
     except OSError as exc:
         raise InputError(f"--init {p}: cannot read it ({exc.strerror or exc})") from None
 

@@ -36,7 +36,8 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
         ax.plot(*path_xy[0], "o", color="white", mec="k", ms=8, label="start")
         ax.plot(*path_xy[-1], "*", color="yellow", mec="k", ms=13, label="end")
         for phase, name in PHASE_LABEL.items():
-            ax.plot([], [], color=unit_fraction(PHASE_RGB[phase]), label=name)
+            if phase in phases:
+                ax.plot([], [], color=unit_fraction(PHASE_RGB[phase]), label=name)
         ax.legend(loc="upper right", fontsize=8)
     if current is not None:
         ax.plot(*current, "x", color="white", ms=10, mew=2, label="_current")

@@ -94,7 +94,7 @@ CASES: list[Case] = [
     C("init not rigid inline", [*R.split(), "--init", EYE.replace("1.0", "2.0", 1)], "not rigid"),
     C("init nan inline", [*R.split(), "--init", "nan " + EYE.split(" ", 1)[1]], "NaN"),
     C("init last row", [*R.split(), "--init", EYE[:-3] + "2.0"], "last row"),
-    C("init words", [*R.split(), "--init", "turn left a bit"], "neither 16 numbers"),
+    C("init words", [*R.split(), "--init", "turn left a bit"], "not 16 numbers"),
     C("init missing file", f"{R} --init nope.txt", "no such file"),
     C("init a folder", f"{R} --init folder.ply", "folder"),
     C("init empty file", f"{R} --init empty.xyz", "16 numbers"),

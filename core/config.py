@@ -6,6 +6,7 @@
     AnnealConfig       annealing's legs (core.anneal): ``anneal`` in the hybrid, ``sa_alone`` alone
     ThresholdConfig    how the stop threshold is estimated from the scans' noise (core.threshold)
     SearchConfig       the search region and the refinements beyond the paper (core.search)
+    Lock               the degrees of freedom the search may not move (core.lock)
 
 One seed: ``Config.seed`` draws the overlap sample (``prepare(..., seed=)``) and every random move.
 """
@@ -17,13 +18,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .anneal import AnnealConfig
+from .candidates import CandidateConfig
 from .errors import InputError
 from .icp import IcpConfig
+from .lock import Lock
 from .problem import ProblemConfig
 
-METHODS = ("hybrid", "icp", "sa", "icp-restarts", "basin-hopping")
+METHODS = ("hybrid", "icp", "sa", "icp-restarts", "basin-hopping", "global")
 
-__all__ = ["METHODS", "AnnealConfig", "Config", "IcpConfig", "ProblemConfig", "SearchConfig", "ThresholdConfig"]
+__all__ = ["METHODS", "AnnealConfig", "CandidateConfig", "Config", "IcpConfig", "Lock", "ProblemConfig", "SearchConfig",
+           "ThresholdConfig"]
 
 
 @dataclass(frozen=True)
@@ -101,6 +105,8 @@ class Config:
     recut_rounds: int = 1  # hybrid: search again from an overlap cut at the pose found, this many times at most
     search: SearchConfig = field(default_factory=SearchConfig)
     threshold_estimate: ThresholdConfig = field(default_factory=ThresholdConfig)
+    lock: Lock = field(default_factory=Lock)  # nothing locked: the search runs as without one
+    candidates: CandidateConfig = field(default_factory=CandidateConfig)  # method "global" (core.global_search)
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -123,3 +129,7 @@ class Config:
         self.problem.validate()
         self.search.validate()
         self.threshold_estimate.validate()
+        if not isinstance(self.lock, Lock):
+            raise InputError(f"lock must be a core.lock.Lock (Lock.parse('rx,ry,tz')), got {self.lock!r}")
+        self.lock.validate()
+        self.candidates.validate()

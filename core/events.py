@@ -29,21 +29,27 @@ class Event:
     temperature: float | None = None
     accepted: bool = True
     local_minimum: bool = False  # ICP ended here above the threshold
+    # under a lock (core.lock): the six coordinates the pose was made from, the locked ones exact
+    coords: np.ndarray | None = None
 
     @property
     def params(self) -> np.ndarray:
         return to_params(self.T)
 
     def to_json(self) -> dict:
-        return {"phase": self.phase, "iteration": self.iteration, "phase_iteration": self.phase_iteration,
-                "leg": self.leg, "params": self.params.tolist(), "transform": self.T.tolist(),
-                "error": float(self.error), "temperature": None if self.temperature is None else float(self.temperature),
-                "accepted": bool(self.accepted), "local_minimum": bool(self.local_minimum)}
+        d = {"phase": self.phase, "iteration": self.iteration, "phase_iteration": self.phase_iteration,
+             "leg": self.leg, "params": self.params.tolist(), "transform": self.T.tolist(),
+             "error": float(self.error), "temperature": None if self.temperature is None else float(self.temperature),
+             "accepted": bool(self.accepted), "local_minimum": bool(self.local_minimum)}
+        if self.coords is not None:
+            d["coords"] = np.asarray(self.coords).tolist()
+        return d
 
     @classmethod
     def from_json(cls, d: dict) -> Event:
         return cls(d["phase"], d["iteration"], d["phase_iteration"], d["leg"], np.asarray(d["transform"]),
-                   d["error"], d.get("temperature"), d.get("accepted", True), d.get("local_minimum", False))
+                   d["error"], d.get("temperature"), d.get("accepted", True), d.get("local_minimum", False),
+                   None if d.get("coords") is None else np.asarray(d["coords"], dtype=np.float64))
 
 
 Listener = Callable[[Event], None]

@@ -23,7 +23,9 @@ from scipy.spatial.transform import Rotation
 
 from .error import ErrorFunction
 from .errors import InputError
-from .horn import weighted_horn
+from .horn import constrained_horn, weighted_horn
+from .lock import LockFrame
+from .transforms import apply, invert
 
 
 @dataclass(frozen=True)
@@ -65,40 +67,82 @@ def _step_vector(dT: np.ndarray, center: np.ndarray, radius: float) -> np.ndarra
     return np.r_[t, r * radius]
 
 
+class _RigidSteps:
+    """Free 6-DOF steps: weighted Horn on the correspondences; a step taken s times over is a screw
+    about the moved points' centroid. ``v``: the step in (units, units) for the acceleration test."""
+
+    def __init__(self, T_start: np.ndarray):
+        self.T = T_start
+
+    def propose(self, terms, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._dT = weighted_horn(terms.moved, terms.closest, w)
+        self._center = terms.moved.mean(0)
+        radius = float(np.sqrt(np.mean(np.sum((terms.moved - self._center) ** 2, axis=1)))) or 1.0
+        return _step_vector(self._dT, self._center, radius), self._dT @ self.T
+
+    def scaled(self, s: float) -> np.ndarray:
+        return _scaled_step(self._dT, self._center, s) @ self.T
+
+    def take(self, T_new: np.ndarray, s: float) -> None:
+        self.T = T_new
+
+
+class _LockedSteps:
+    """Steps on the free coordinates z of a lock frame (core.lock): the constrained Horn step
+    (core.horn.constrained_horn); a step taken s times over is z + s v, so locked values stay exact."""
+
+    def __init__(self, frame: LockFrame, T_start: np.ndarray):
+        self.frame, self.z = frame, frame.free(T_start)
+        self.T = frame.pose(self.z)
+
+    def propose(self, terms, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        y = apply(invert(self.frame.delta(self.z)), terms.moved)  # the sample at the frame's reference pose
+        self._z_new = constrained_horn(y, terms.closest, w, self.frame, self.z)
+        self._v = self._z_new - self.z  # translations in search units, rotations in radians
+        return self._v, self.frame.pose(self._z_new)
+
+    def scaled(self, s: float) -> np.ndarray:
+        return self.frame.pose(self.z + s * self._v)
+
+    def take(self, T_new: np.ndarray, s: float) -> None:
+        self.z, self.T = (self._z_new if s == 1 else self.z + s * self._v), T_new
+
+
 def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig(),
         on_iteration: Callable[[np.ndarray, float], None] | None = None,
-        inside: Callable[[np.ndarray], bool] | None = None) -> IcpResult:
+        inside: Callable[[np.ndarray], bool] | None = None, frame: LockFrame | None = None) -> IcpResult:
     """Run ICP from ``T_start`` (4, 4) T_target_source; ``on_iteration(T, E)`` after each step.
 
     ``inside(T)``, when given, bounds the walk: a step to a pose outside ends ICP where it stands.
+    ``frame`` (a :class:`core.lock.LockFrame`), when given, locks degrees of freedom: ICP starts
+    at ``T_start`` projected onto the allowed set and each Horn step is solved on the free
+    coordinates only (:func:`core.horn.constrained_horn`).
     """
-    terms = error.terms(T_start)
-    T, best_T, best_E = T_start, T_start, terms.error
+    steps = _LockedSteps(frame, T_start) if frame is not None else _RigidSteps(T_start)
+    terms = error.terms(steps.T)
+    best_T, best_E = steps.T, terms.error
     it = 0
     previous = None
     while it < config.max_iterations:
         w = (terms.d2 < terms.t).astype(float) if config.unweighted else terms.weights
         if np.count_nonzero(w) < 3:
             w = terms.weights
-        dT = weighted_horn(terms.moved, terms.closest, w)
-        center = terms.moved.mean(0)
-        radius = float(np.sqrt(np.mean(np.sum((terms.moved - center) ** 2, axis=1)))) or 1.0
-        v = _step_vector(dT, center, radius)
-        T_new = dT @ T
+        v, T_new = steps.propose(terms, w)
         if inside is not None and not inside(T_new):
             break
         new = error.terms(T_new)
+        taken = 1.0
         if config.accelerate and previous is not None and np.linalg.norm(v) > 0:
             cos = v @ previous / (np.linalg.norm(v) * np.linalg.norm(previous) + 1e-300)
             s = 2.0
             while cos > 0.9 and s <= 64 and new.error < terms.error:
-                T_try = _scaled_step(dT, center, s) @ T
+                T_try = steps.scaled(s)
                 if inside is not None and not inside(T_try):
                     break
                 tried = error.terms(T_try)
                 if tried.error >= new.error:
                     break
-                T_new, new = T_try, tried
+                T_new, new, taken = T_try, tried, s
                 s *= 2
         previous = v
         it += 1
@@ -108,7 +152,8 @@ def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig
             best_T, best_E = T_new, new.error
         # Stop on a small change either way; robust weights shift, so E may rise a little mid-walk.
         converged = abs(terms.error - new.error) < config.tolerance * terms.error
-        T, terms = T_new, new
+        steps.take(T_new, taken)
+        terms = new
         if converged:
             break
     return IcpResult(best_T, best_E, it)

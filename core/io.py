@@ -3,16 +3,26 @@ Stanford ``.conf`` poses and our JSON sidecar (viewpoint, units, ground truth)."
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
 from .scan import RangeGrid, Scan, clean_points
+from .sidefiles import (  # noqa: F401  (callers read side files through core.io too)
+    check_sidecar,
+    load_conf,
+    parse_transform,
+    pose_from_conf_beside,
+    read_sidecar,
+    read_transform,
+    sidecar_path,
+    vector3,
+    write_sidecar,
+    write_transform,
+)
 from .viewpoint import check_viewpoint, estimate_viewpoint
 
 POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
@@ -67,23 +77,25 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     if faces is not None:
         faces = faces[np.all(keep[faces], axis=1)]
         faces = remap[faces]
-    side = _read_sidecar(path)
+    side = read_sidecar(path)
     pose = side.get("pose")
     if pose is None:
-        pose = _pose_from_conf_beside(path)
+        pose = pose_from_conf_beside(path)
     units = side.get("units") or _guess_units(points)
     vp, estimated = (stored_vp, False)
     if side.get("viewpoint") is not None:
-        vp = np.asarray(side["viewpoint"], dtype=np.float64)
+        vp = side["viewpoint"]
+    elif vp is not None and viewpoint is None and not np.all(np.isfinite(vp)):
+        raise InputError(f"{what}: the stored VIEWPOINT {vp.tolist()} is not finite")
     if viewpoint is not None:
-        vp, estimated = np.asarray(viewpoint, dtype=np.float64).reshape(3), False
+        vp, estimated = vector3(viewpoint, f"{what}: the viewpoint"), False
         check_viewpoint(points, vp, grid, faces, what)
     elif vp is None:
         vp, estimated = estimate_viewpoint(points, grid, faces), True
     scan = Scan(points=points, viewpoint=vp, name=name or path.stem, units=units,
                 viewpoint_estimated=estimated, grid=grid, faces=faces,
                 pose=None if pose is None else np.asarray(pose, dtype=np.float64),
-                guess=None if side.get("guess") is None else np.asarray(side["guess"], dtype=np.float64),
+                guess=side.get("guess"),
                 dropped=dropped, source=str(path))
     return scan
 
@@ -113,14 +125,20 @@ def _load_ply(path: Path):
     if "face" in data and data["face"]:
         counts, flat = next(iter(data["face"].values()))
         faces = _triangulate_polygons(counts, flat)
-        if faces.size and faces.max() >= len(pts):
-            raise InputError(f"{path}: a face refers to vertex {faces.max()} of {len(pts)}")
+        if faces.size and (faces.max() >= len(pts) or faces.min() < 0):
+            bad = faces.max() if faces.max() >= len(pts) else faces.min()
+            raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
     return pts, grid_idx, faces
 
 
 def _triangulate_polygons(counts, flat) -> np.ndarray:
     if len(counts) and np.all(counts == 3):
         return flat.reshape(-1, 3)
+    if len(counts) and counts[0] > 3 and np.all(counts == counts[0]):  # all quads (say): fans, vectorised
+        poly = flat.reshape(len(counts), int(counts[0]))
+        k = poly.shape[1]
+        return np.stack([np.broadcast_to(poly[:, :1], (len(poly), k - 2)), poly[:, 1:-1], poly[:, 2:]],
+                        axis=2).reshape(-1, 3)
     tris, pos = [], 0
     for k in counts:
         poly = flat[pos:pos + k]
@@ -226,74 +244,6 @@ def _guess_units(points: np.ndarray) -> str:
     return "m" if size < 20 else "mm"
 
 
-def sidecar_path(path: Path) -> Path:
-    return Path(path).with_suffix(".json")
-
-
-def _read_sidecar(path: Path) -> dict:
-    side = sidecar_path(path)
-    if not side.exists():
-        return {}
-    try:
-        data = json.loads(side.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{side}: the sidecar is not valid JSON ({exc})") from None
-    return data if isinstance(data, dict) else {}
-
-
-def load_conf(path: str | Path) -> dict[str, np.ndarray]:
-    """Stanford ``.conf`` -> {scan name (file stem): T_world_scan (4, 4)}.
-
-    Each ``bmesh NAME tx ty tz qx qy qz qw`` line is read with the convention measured on the bunny
-    data (see its README): ``x_world = R(q*) x_scan + t`` with the CONJUGATE quaternion.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    poses = {}
-    for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
-        tok = line.split()
-        if not tok or tok[0] != "bmesh":
-            continue
-        if len(tok) != 9:
-            raise InputError(f"{path}: line {lineno} should be 'bmesh NAME tx ty tz qx qy qz qw'")
-        try:
-            tx, ty, tz, qx, qy, qz, qw = map(float, tok[2:])
-        except ValueError:
-            raise InputError(f"{path}: line {lineno} holds a value that is not a number") from None
-        q = np.array([-qx, -qy, -qz, qw])
-        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
-            raise InputError(f"{path}: line {lineno} has a zero or invalid quaternion")
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
-        T[:3, 3] = (tx, ty, tz)
-        poses[Path(tok[1]).stem] = T
-    if not poses:
-        raise InputError(f"{path}: no 'bmesh' lines: not a Stanford .conf file")
-    return poses
-
-
-def _pose_from_conf_beside(path: Path):
-    for conf in sorted(path.parent.glob("*.conf")):
-        try:
-            poses = load_conf(conf)
-        except InputError:
-            continue
-        if path.stem in poses:
-            return poses[path.stem]
-    return None
-
-
-def write_sidecar(path: Path, scan: Scan, **extra) -> None:
-    data = {"name": scan.name, "units": scan.units, "viewpoint": scan.viewpoint.tolist()}
-    if scan.pose is not None:
-        data["pose"] = scan.pose.tolist()
-    if scan.guess is not None:
-        data["guess"] = scan.guess.tolist()
-    data.update(extra)
-    sidecar_path(path).write_text(json.dumps(data, indent=1) + "\n")
-
-
 def save_scan(path: str | Path, scan: Scan) -> None:
     """Write a scan as PLY (a Stanford range-grid PLY when it has a grid) plus its JSON sidecar."""
     path = Path(path)
@@ -302,34 +252,3 @@ def save_scan(path: str | Path, scan: Scan) -> None:
     else:
         write_ply(path, scan.points, scan.faces)
     write_sidecar(path, scan)
-
-
-def read_transform(path: str | Path) -> np.ndarray:
-    """A 4 x 4 transform from 16 numbers (row-major, whitespace or commas) or JSON with ``transform``."""
-    from .transforms import check_rigid
-
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    text = path.read_text(errors="replace").strip()
-    if text.startswith("{"):
-        try:
-            data = json.loads(text)
-            values = np.asarray(data["transform"], dtype=np.float64)
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{path}: expected JSON with a 'transform' 4 x 4 list ({exc})") from None
-    else:
-        try:
-            values = np.array([float(t) for t in re.split(r"[,\s\[\]]+", text) if t], dtype=np.float64)
-        except ValueError:
-            raise InputError(f"{path}: expected 16 numbers (a row-major 4 x 4 matrix)") from None
-    if values.size != 16:
-        raise InputError(f"{path}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
-    try:
-        return check_rigid(values.reshape(4, 4), f"{path}")
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
-
-
-def write_transform(path: str | Path, T: np.ndarray, **extra) -> None:
-    Path(path).write_text(json.dumps({"transform": np.asarray(T).tolist(), **extra}, indent=1) + "\n")

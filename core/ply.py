@@ -38,11 +38,21 @@ def _parse_header(raw: bytes):
         if tok[0] == "format":
             fmt = tok[1]
         elif tok[0] == "element":
-            elements.append([tok[1], int(tok[2]), []])
+            if len(tok) != 3:
+                raise PlyError(f"header line {line.strip()!r} should be 'element NAME COUNT'")
+            try:
+                count = int(tok[2])
+            except ValueError:
+                raise PlyError(f"header line {line.strip()!r}: the count {tok[2]!r} is not a whole number") from None
+            if count < 0:
+                raise PlyError(f"header line {line.strip()!r}: a negative count of {tok[1]} rows")
+            elements.append([tok[1], count, []])
         elif tok[0] == "property":
             if not elements:
                 raise PlyError("property before any element")
             if tok[1] == "list":
+                if tok[2] not in _TYPES or tok[3] not in _TYPES:
+                    raise PlyError(f"unknown list property types in {line.strip()!r}")
                 elements[-1][2].append((tok[4], "list", _TYPES[tok[2]], _TYPES[tok[3]]))
             else:
                 if tok[1] not in _TYPES:
@@ -76,12 +86,16 @@ def read_ply(path: Path) -> tuple[dict, dict]:
             if all(len(p) == 2 for p in props):
                 n = count * len(props)
                 if pos + n > len(values):
-                    raise PlyError(f"file ends inside element {name!r}")
+                    held = (len(values) - pos) // max(len(props), 1)
+                    raise PlyError(f"the file ends inside element {name!r}: the header says {count} {name} rows "
+                                   f"(element {name} {count}) but the file holds only {held}")
                 block = values[pos:pos + n].reshape(count, len(props))
                 out[name] = {p[0]: block[:, i].astype(p[1]) for i, p in enumerate(props)}
                 pos += n
             else:
                 out[name], pos = _ascii_rows(values, pos, count, props, name)
+        if pos < len(values):
+            raise PlyError(_leftover(elements, len(values) - pos, "numbers"))
         return out, obj_info
     order = "<" if fmt == "binary_little_endian" else ">"
     buf = memoryview(raw)[start:]
@@ -90,13 +104,30 @@ def read_ply(path: Path) -> tuple[dict, dict]:
         if all(len(p) == 2 for p in props):
             dt = np.dtype([(p[0], order + p[1]) for p in props])
             if pos + dt.itemsize * count > len(buf):
-                raise PlyError(f"file ends inside element {name!r}")
+                held = (len(buf) - pos) // dt.itemsize
+                raise PlyError(f"the file ends inside element {name!r}: the header says {count} {name} rows "
+                               f"(element {name} {count}, {dt.itemsize} bytes "
+                               f"each) but the file holds only {held} ({len(buf) - pos} bytes)")
             arr = np.frombuffer(buf, dtype=dt, count=count, offset=pos)
             out[name] = {p[0]: arr[p[0]].astype(p[1]) for p in props}
             pos += dt.itemsize * count
         else:
             out[name], pos = _binary_rows(buf, pos, count, props, order, name)
+    if len(buf) > pos and bytes(buf[pos:]).strip():  # a trailing newline is harmless; more rows are not
+        raise PlyError(_leftover(elements, len(buf) - pos, "bytes"))
     return out, obj_info
+
+
+def _leftover(elements, extra: int, unit: str) -> str:
+    """The message for data left after the last element the header declares."""
+    name, count, props = elements[-1] if elements else ("vertex", 0, [])
+    declared = ", ".join(f"element {n} {c}" for n, c, _ in elements) or "no elements"
+    more = ""
+    if props and all(len(p) == 2 for p in props):
+        size = len(props) if unit == "numbers" else sum(np.dtype(p[1]).itemsize for p in props)
+        if extra % size == 0:
+            more = f", i.e. {count + extra // size} {name} rows where the header says {count}"
+    return f"the header says {declared} but {extra} {unit} follow the last row{more}"
 
 
 def _ascii_rows(values, pos, count, props, name):
@@ -109,12 +140,14 @@ def _ascii_rows(values, pos, count, props, name):
                     pos += 1
                 else:
                     k = int(values[pos])
+                    if k < 0:
+                        raise PlyError(f"element {name!r}: a list of {k} items")
                     cols[p[0]].append(values[pos + 1:pos + 1 + k])
                     pos += 1 + k
     except IndexError:
-        raise PlyError(f"file ends inside element {name!r}") from None
+        raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows") from None
     if pos > len(values):
-        raise PlyError(f"file ends inside element {name!r}")
+        raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows")
     return _pack(cols, props), pos
 
 
@@ -141,11 +174,15 @@ def _binary_rows(buf, pos, count, props, order, name):
                 else:
                     cdt, idt = np.dtype(order + p[2]), np.dtype(order + p[3])
                     k = int(np.frombuffer(buf, dtype=cdt, count=1, offset=pos)[0])
+                    if k < 0:
+                        raise PlyError(f"element {name!r}: a list of {k} items")
                     pos += cdt.itemsize
                     cols[p[0]].append(np.frombuffer(buf, dtype=idt, count=k, offset=pos))
                     pos += idt.itemsize * k
+    except PlyError:
+        raise
     except ValueError:
-        raise PlyError(f"file ends inside element {name!r}") from None
+        raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows") from None
     return _pack(cols, props), pos
 
 

@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .cut import overlap_cut
 from .error import RobustError
 from .errors import InputError
-from .frustum import KINDS, Overlap, segment_overlap, visible_from
+from .frustum import KINDS, Overlap
 from .scan import Scan, flatness
 from .surface import Surface
 from .transforms import apply, check_rigid, delta_between, invert, perturb
@@ -60,6 +61,7 @@ class Problem:
     scale: float
     rotation_uncertainty: float  # radians
     translation_uncertainty: float  # units
+    cut: str = "frustum"  # which overlap cut the error uses (core.cut.CUTS)
     error: RobustError = field(init=False)
 
     def __post_init__(self):
@@ -91,17 +93,13 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
         if flatness(s.points) < 1e-3:
             raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
     surface = surface if surface is not None else Surface.from_scan(target)
-    overlap = segment_overlap(source, target, T_init, config.frustum)
     t_unc = config.translation_uncertainty_for(target.size)
     r_unc = np.radians(config.rotation_uncertainty_deg)
-    used = overlap.source_mask.copy()
-    if config.visibility and used.any():
-        radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
-        moved = apply(T_init, source.points[used])
-        used[np.flatnonzero(used)] = visible_from(surface, target.viewpoint, moved, t_unc + r_unc * radius)
-    if used.sum() < 3:
-        raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess "
-                         f"({used.sum()} of {len(used)} points of {source.name} fall in {target.name}'s view)")
+    cut = overlap_cut(source, target, surface, T_init, config.frustum, config.visibility, r_unc, t_unc)
+    if cut is None:
+        raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess, even with "
+                         f"its frustum opened by the rotation uncertainty ({config.rotation_uncertainty_deg:g} deg)")
+    overlap, used = Overlap(cut.source_mask, cut.target_mask), cut.used
     idx = np.flatnonzero(used)
     rng = np.random.default_rng(seed)
     if len(idx) > config.max_points:
@@ -109,7 +107,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
     points = source.points[idx]
     center = points.mean(0)
     scale = float(np.sqrt(np.mean(np.sum((points - center) ** 2, axis=1)))) or 1.0
-    return Problem(source, target, surface, T_init, overlap, used, points, center, scale, r_unc, t_unc)
+    return Problem(source, target, surface, T_init, overlap, used, points, center, scale, r_unc, t_unc, cut.name)
 
 
 def relative_guess(source: Scan, target: Scan) -> np.ndarray:

@@ -3,6 +3,8 @@
     prepare    section 2.1: triangulate the target, cut the overlap under the guess, sample the source
     threshold  section 2.3: the E expected at perfect registration (core.threshold)
     start      the pose the search begins at: the guess
+    global     method "global" only: candidates -> the best few ICP-refined -> the hybrid from the best
+               -> the lowest on the pair's fixed basis (core.global_search; issue 13)
     search     the method per overlap cut - the hybrid of Fig. 6 or a baseline (core.search.methods) -
                refined on a cut at the pose found, in rounds (core.search.rounds)
     polish     optional: a last unweighted ICP leg (section 4)
@@ -37,6 +39,10 @@ def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, confi
     and guess (it is only read, so it may be shared by several runs).
     """
     config.validate()
+    if config.method == "global":
+        from .global_search import register_global  # it runs this front's hybrid in its last step
+
+        return register_global(source, target, T_init, config, listener)
     t0 = time.perf_counter()
     problem = problem or prepare(source, target, T_init, config.problem, seed=config.seed)
     threshold = threshold_for(problem, config)
@@ -51,7 +57,7 @@ def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, confi
         rounds.append(cancelled(state))
     best = best_round(rounds)
     return Result(best.T, best.error, dict(state.n), state.local_minima, state.evaluations,
-                  time.perf_counter() - t0, config.method, threshold, best.stop)
+                  time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut)
 
 
 def start_pose(problem: Problem, config: Config) -> np.ndarray:

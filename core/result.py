@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -18,6 +18,7 @@ class StopReason(StrEnum):
     RESTARTS_SPENT = "restart budget spent"
     HOPS_SPENT = "hop budget spent"
     CANCELLED = "cancelled"
+    TRUSTED = "a candidate refined below the pair threshold"  # method "global" (core.global_search)
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,9 @@ class Result:
     method: str
     threshold: float
     stop: Stop
+    cut: str = "frustum"  # the overlap cut under the guess (core.cut.CUTS: widened when the frustum's was empty)
+    trusted: bool | None = None  # method "global": the pair threshold's verdict (core.threshold.PairThreshold)
+    details: dict = field(default_factory=dict)  # method "global": threshold derivation, candidate sources, score
 
     @property
     def stop_reason(self) -> StopReason:
@@ -58,8 +62,9 @@ class Result:
 
     @property
     def below_threshold(self) -> bool:
-        """E ended below the threshold: the pose is at the truth as far as E can tell."""
-        return bool(self.error < self.threshold)
+        """Trust this pose: E ended below the threshold (method "global": the pair threshold's test on
+        the candidates' fixed basis held)."""
+        return bool(self.trusted) if self.trusted is not None else bool(self.error < self.threshold)
 
     def __repr__(self) -> str:
         it = self.iterations
@@ -70,4 +75,4 @@ class Result:
         return {"transform": self.transform.tolist(), "error": self.error, "iterations": dict(self.iterations),
                 "local_minima": self.local_minima, "evaluations": self.evaluations, "seconds": self.seconds,
                 "method": self.method, "threshold": self.threshold, "stop_reason": self.stop_text,
-                "below_threshold": self.below_threshold}
+                "below_threshold": self.below_threshold, "cut": self.cut, **self.details}

@@ -95,8 +95,7 @@ def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]
     note = f" ({dropped} NaN/inf points dropped)" if dropped else ""
     if len(pts) < 3:
         raise InputError(f"{what}: only {len(pts)} usable points{note}; a scan needs at least 3")
-    centred = pts - pts.mean(0)
-    s = np.linalg.svd(centred[:: max(1, len(pts) // 20000)], compute_uv=False)
+    s = np.linalg.svd(pts[:: max(1, len(pts) // 20000)] - pts.mean(0), compute_uv=False)
     if s[0] == 0 or s[1] / s[0] < 1e-6:
         raise InputError(f"{what}: all {len(pts)} points lie on a line (or one spot){note}; cannot make a surface")
     return pts, keep
@@ -104,6 +103,5 @@ def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]
 
 def flatness(points: np.ndarray) -> float:
     """Smallest over largest principal spread of (N, 3) points: ~0 for a plane."""
-    centred = points - points.mean(0)
-    s = np.linalg.svd(centred[:: max(1, len(points) // 20000)], compute_uv=False)
+    s = np.linalg.svd(points[:: max(1, len(points) // 20000)] - points.mean(0), compute_uv=False)
     return float(s[2] / s[0])

@@ -186,3 +186,41 @@ def _rotate_about(rotvec, center):
 def true_transform(source: Scan, target: Scan) -> np.ndarray:
     """T_target_source from the scans' ground-truth poses."""
     return invert(target.pose) @ source.pose
+
+
+def terrain_mesh(half: float = 1000.0, n: int = 601, seed: int = 11) -> tuple[np.ndarray, np.ndarray]:
+    """An asymmetric landscape of random bumps and pits (mm) over [-half, half]^2, for large scans."""
+    rng = np.random.default_rng(seed)
+    k = 400
+    cx, cy = rng.uniform(-half, half, (2, k))
+    amp = rng.uniform(-50.0, 60.0, k)
+    sig = rng.uniform(15.0, 90.0, k)
+
+    def z(x, y):
+        h = 0.04 * x - 0.02 * y
+        for px, py, a, s in zip(cx, cy, amp, sig):
+            h = h + a * np.exp(-((x - px) ** 2 + (y - py) ** 2) / (2 * s * s))
+        return h
+
+    return height_field(z, half, n)
+
+
+def make_large_pair(n_points: int = 2_000_000, seed: int = 0, spread_deg: float = 5.0,
+                    spread: float = 60.0) -> tuple[Scan, Scan]:
+    """Two dense scans (target, source) of :func:`terrain_mesh` from above, about ``n_points`` each
+    (a square grid of rays, every one hitting), ~70 % overlap, with true ``pose`` and a rough
+    ``guess`` for the source (perturbed by ``spread_deg`` and ``spread`` mm): the large-input benchmark."""
+    rng = np.random.default_rng(seed)
+    rows = max(2, int(round(np.sqrt(n_points))))
+    cols = max(2, int(np.ceil(n_points / rows)))
+    scanner = Scanner(rows=rows, cols=cols, fov_deg=(30.0, 30.0), noise=0.3, outliers=0.01)
+    verts, faces = terrain_mesh()
+    eyes, targets = ((-150.0, -60.0, 1500.0), (150.0, 60.0, 1480.0)), ((-100.0, 0.0, 0.0), (100.0, 20.0, 0.0))
+    a, b = (scan_mesh(verts, faces, look_at(eye, tgt, up=(0.0, 1.0, 0.0)), scanner, rng, name=f"large-scan{i}")
+            for i, (eye, tgt) in enumerate(zip(eyes, targets), 1))
+    t, r = random_perturbation(rng, spread_deg, spread)
+    center = apply(b.pose, b.points.mean(0)[None])[0]
+    D = from_params(np.r_[t, 0, 0, 0]) @ _rotate_about(r, center)
+    from dataclasses import replace
+
+    return replace(a, guess=a.pose.copy()), replace(b, guess=D @ b.pose)

@@ -25,7 +25,7 @@ SPACING_NEIGHBOURS = 4
 def local_spacing(points: np.ndarray) -> np.ndarray:
     """(N,) mean distance from each point to its ``SPACING_NEIGHBOURS`` nearest neighbours."""
     k = min(SPACING_NEIGHBOURS + 1, len(points))
-    d, _ = cKDTree(points).query(points, k=k)
+    d, _ = cKDTree(points).query(points, k=k, workers=-1)  # the same answer, on every core
     return d[:, 1:].mean(axis=1)
 
 
@@ -41,8 +41,11 @@ def edge_bound(spacing: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def edge_lengths(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(M, 3) lengths of edges (v0v1, v1v2, v2v0)."""
-    p = points[faces]
-    return np.linalg.norm(p - np.roll(p, -1, axis=1), axis=2)
+    # edge by edge: (M, 3) temporaries instead of (M, 3, 3) ones (4M triangles: 0.3 GB each)
+    out = np.empty(faces.shape, dtype=np.float64)
+    for k in range(3):
+        out[:, k] = np.linalg.norm(points[faces[:, k]] - points[faces[:, (k + 1) % 3]], axis=1)
+    return out
 
 
 def view_projection(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -53,6 +56,8 @@ def view_projection(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarr
     """
     rays = points - viewpoint
     axis = rays.mean(0)
+    if not np.linalg.norm(axis) > 0:
+        raise InputError("the viewpoint sits at the centre of the points; give the sensor position")
     axis /= np.linalg.norm(axis)
     helper = np.eye(3)[np.argmin(np.abs(axis))]
     u = np.cross(axis, helper)
@@ -102,9 +107,9 @@ def _grid_faces(idx: np.ndarray) -> np.ndarray:
 
 
 def _face_sensor(points, faces, viewpoint):
-    p = points[faces]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    flip = np.einsum("ij,ij->i", n, viewpoint - p[:, 0]) < 0
+    p0 = points[faces[:, 0]]
+    n = np.cross(points[faces[:, 1]] - p0, points[faces[:, 2]] - p0)
+    flip = np.einsum("ij,ij->i", n, viewpoint - p0) < 0
     faces = faces.copy()
     faces[flip] = faces[flip][:, [0, 2, 1]]
     return faces
@@ -155,7 +160,9 @@ class Surface:
         """(N,) distance along each unit ray to the first triangle hit (inf when none)."""
         import open3d as o3d
 
-        rays = np.hstack([origins - self.offset, directions]).astype(np.float32)
+        rays = np.empty((len(directions), 6), dtype=np.float32)  # the float64 values, rounded once
+        rays[:, :3] = origins - self.offset
+        rays[:, 3:] = directions
         return self._scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
     @property

@@ -84,3 +84,12 @@ def scene_start(scene):
         return a, b, Tt, perturb(Tt, np.r_[t, r], c)
 
     return make
+
+
+def run_cli(*args, timeout: float = 600):
+    """``rangereg ARGS`` as a real subprocess (the exit status and stderr as a user sees them)."""
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True, cwd=ROOT,
+                          timeout=timeout)

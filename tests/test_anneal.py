@@ -50,3 +50,31 @@ def test_anneal_config_refuses_nonsense(bad, message):
     with pytest.raises(InputError, match=message):
         AnnealConfig(**bad).validate()
     AnnealConfig().validate()
+
+
+def test_annealing_works_on_a_one_dimensional_simplex():
+    # a lock leaves k < 6 free coordinates: annealing runs on a k-D simplex (core.lock), k = 1 included
+    res = anneal(_rastrigin, np.array([2.0]), np.array([2.0]), np.random.default_rng(0),
+                 AnnealConfig(t_start=20, t_min_ratio=1e-5, moves_per_temperature=40))
+    assert res.x.shape == (1,) and abs(res.x[0]) < 0.05 and res.value < 0.01
+
+
+def test_a_locked_search_anneals_over_the_free_coordinates_only(monkeypatch, scene_start):
+    import core.search.state as state_module
+    from core import Config, register
+    from core.lock import Lock
+
+    starts = []
+
+    def spy(f, x0, steps, *args, **kwargs):
+        starts.append((np.array(x0), np.array(steps)))
+        return anneal(f, x0, steps, *args, **kwargs)
+
+    monkeypatch.setattr(state_module, "anneal", spy)
+    a, b, Tt, T0 = scene_start("corner", 5.0, 100.0)
+    short = AnnealConfig(max_evaluations=40)
+    for lock, k in ((Lock.parse("rx,ry,tz"), 3), (Lock.parse("turntable:0,0,0,0,0,1"), 1), (Lock(), 6)):
+        starts.clear()
+        register(b, a, T0, Config(method="sa", sa_alone=short, lock=lock))
+        assert starts and {len(x0) for x0, _ in starts} == {k}  # every leg, the refining one too
+        assert all(np.all(steps > 0) for _, steps in starts)  # no flat (zero-step) direction

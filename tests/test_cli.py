@@ -51,7 +51,7 @@ def test_register_json_contract_and_trace_drawn_by_slice(rangereg, tmp_path):
     assert {"transform", "error", "iterations", "local_minima", "evaluations", "seconds", "method", "threshold"} <= set(res)
     T = np.array(res["transform"])
     assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
-    assert set(res["iterations"]) == {"icp", "sa"}
+    assert {"icp", "sa"} <= set(res["iterations"])  # the default (global) adds "candidates"
     events = [json.loads(line) for line in trace.read_text().splitlines()]
     steps = [e for e in events if not e["local_minimum"]]
     assert sum(e["phase"] == "sa" for e in steps) == res["iterations"]["sa"]
@@ -208,3 +208,21 @@ def test_serve_hands_the_workbench_typed_options(rangereg, monkeypatch):
     code, _, err = rangereg("serve", "--scene", "bowl", "--port", "8123", "--upload-cap-mb", "5")
     assert code == 0, err
     assert seen == [app.workbench.ServeOptions(scene="bowl", port=8123, upload_cap_mb=5.0)]
+
+
+def test_register_with_a_lock_keeps_it_in_every_traced_event_and_slice_refuses_a_locked_axis(rangereg, tmp_path):
+    trace = tmp_path / "t.jsonl"
+    code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--json", "--lock", "rotation", "--trace", trace)
+    assert code == 0, err
+    assert json.loads(out)["lock"] == "rx,ry,rz"
+    events = [json.loads(line) for line in trace.read_text().splitlines()]
+    assert events and all(e["coords"][3:] == [0.0, 0.0, 0.0] for e in events)
+    R0 = np.array(events[0]["transform"])[:3, :3]
+    assert all(np.array_equal(np.array(e["transform"])[:3, :3], R0) for e in events)  # never turned
+    code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--lock", "turntable:0,0,0,0,0,1")
+    assert code == 0 and "locked      turntable:" in out and "free: angle" in out, err
+    code, out, err = rangereg("slice", CORNER_SRC, CORNER_TGT, "--lock", "rx", "--params", "tx,rx", "--png",
+                              tmp_path / "s.png")
+    assert code == 2 and err.count("\n") == 1 and "--lock rx leaves tx, ty, tz, ry, rz" in err
+    code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--lock", "rx,qq")
+    assert code == 2 and err.count("\n") == 1 and "--lock: cannot lock qq" in err

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from core.frustum import frustum_of, segment_overlap
 from core.scan import Scan
 from core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
-from core.transforms import delta_between, from_params, invert, perturb, rotation_angle, rotation_matrix
+from core.transforms import apply, delta_between, from_params, invert, perturb, rotation_angle, rotation_matrix
 from tests.conftest import brute_closest
 
 _vec = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
@@ -96,6 +96,67 @@ def test_frustum_containment_matches_its_planes(seed):
     got = f.contains(q)
     margin = np.abs(q @ f.basis[2]) > 1e-6
     assert np.array_equal(got[margin], expect[margin])
+
+
+def _all_facets(f, points, with_margin=False):
+    """The frustum test as first written: every point against every hull facet ((N, K) floats).
+
+    ``with_margin``: also the distance of each point's worst facet value from the 1e-12 tolerance;
+    within a few 1e-16 of it, rounding (the order of a dot product's two terms) decides."""
+    uv, depth = f.project(points)
+    inside = np.zeros(len(points), bool)
+    margin = np.full(len(points), np.inf)
+    front = depth > 0
+    worst = np.max(uv[front] @ f.equations[:, :2].T + f.equations[:, 2], axis=1)
+    inside[front] = worst <= 1e-12
+    margin[front] = np.abs(worst - 1e-12)
+    return (inside, margin) if with_margin else inside
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from(["disc", "square", "sliver", "few"]))
+def test_frustum_wedge_search_equals_the_all_facets_test(seed, shape):
+    rng = np.random.default_rng(seed)
+    n = {"few": 4, "disc": 3000}.get(shape, 400)
+    if shape == "disc":  # many outline corners, as a dense scan has
+        r, th = np.sqrt(rng.random(n)), rng.uniform(0, 2 * np.pi, n)
+        xy = np.c_[r * np.cos(th), r * np.sin(th)]
+    elif shape == "sliver":
+        xy = np.c_[rng.uniform(-1, 1, n), rng.uniform(-0.01, 0.01, n)]
+    else:
+        xy = rng.uniform(-1, 1, (n, 2))
+    pts = np.c_[xy * rng.uniform(0.5, 3), rng.uniform(-6, -4, n)]
+    scan = Scan(points=pts, viewpoint=rng.normal(0, 0.2, 3))
+    f = frustum_of(scan)
+    # random points around it, the scan's own points (its outline corners lie exactly on facets),
+    # and points just either side of the outline edges
+    corners = f.outline_points(5.0)
+    k = rng.integers(0, len(corners), 500)
+    edge = corners[k] + rng.random((500, 1)) * (np.roll(corners, -1, axis=0)[k] - corners[k])
+    probes = [rng.normal(0, 3, (2000, 3)) + pts.mean(0), pts, f.outline_points(2.0),
+              edge + rng.normal(0, 1e-9, edge.shape)]
+    for q in probes:
+        expect, margin = _all_facets(f, q, with_margin=True)
+        decided = margin > 1e-15
+        assert np.array_equal(f.contains(q)[decided], expect[decided])
+
+
+def test_frustum_membership_on_the_bunny_pairs_equals_the_all_facets_test(bunny):
+    names = ("bun000", "bun045", "bun090", "bun315")
+    for a in names:
+        for b in names:
+            target, source = bunny(a), bunny(b)
+            for kind in ("convex", "nonconvex"):
+                f = frustum_of(target, kind)
+                q = apply(invert(target.pose) @ source.pose, source.points)
+                expect = _all_facets(f, q)
+                if kind == "nonconvex":
+                    uv, _ = f.project(q)
+                    ij = np.floor((uv - f.mask_origin) / f.cell).astype(np.int64)
+                    ok = np.all((ij >= 0) & (ij < f.mask.shape), axis=1)
+                    ok[ok] = f.mask[ij[ok, 0], ij[ok, 1]]
+                    expect &= ok
+                assert np.array_equal(f.contains(q), expect), (a, b, kind)
 
 
 def test_bunny_overlap_under_truth_and_90_degrees_off(bunny):

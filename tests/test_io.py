@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from core.errors import InputError
-from core.io import load_conf, load_scan, read_transform, save_scan
+from core.io import load_conf, load_scan, parse_transform, read_transform, save_scan
 from core.ply import write_ply
 from core.transforms import apply, invert
 
@@ -108,7 +108,7 @@ def test_viewpoint_override(tmp_path):
     (b"", "empty"),
     (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend", "not a PLY"),
     (b"ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n",
-     "ends inside"),
+     "ends inside element 'vertex'.*header says 5 vertex rows.*holds only 1"),
 ])
 def test_bad_ply_files(tmp_path, content, expect):
     path = tmp_path / "bad.ply"
@@ -205,3 +205,230 @@ def test_read_transform_forms(tmp_path):
 def test_malformed_conf(tmp_path):
     _refused(load_conf, tmp_path / "x.conf", "bmesh a.ply 0 0 0 0 0\n", "line 1")
     _refused(load_conf, tmp_path / "y.conf", "camera 0 0 0 0 0 0 1\n", "no 'bmesh'")
+
+
+_HEAD = "ply\nformat {fmt} 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+
+
+def _ascii_ply(path, declared: int, rows: int) -> None:
+    pts = _cube_points(rows)
+    path.write_text(_HEAD.format(fmt="ascii", n=declared) + "\n".join(" ".join(f"{v:.5f}" for v in p) for p in pts) + "\n")
+
+
+def _binary_ply(path, declared, body: bytes) -> None:
+    path.write_bytes(_HEAD.format(fmt="binary_little_endian", n=declared).encode() + body)
+
+
+@pytest.mark.parametrize("declared, rows, match", [
+    (50, 3600, "header says element vertex 50 but 10650 numbers follow the last row, i.e. 3600 vertex rows"),
+    (3600, 50, "ends inside element 'vertex': the header says 3600 vertex rows .*holds only 50"),
+    (-5, 3600, "negative count"),
+    ("five", 10, "count 'five' is not a whole number"),
+])
+def test_ascii_ply_header_that_lies_is_refused(tmp_path, declared, rows, match):
+    path = tmp_path / "lie.ply"
+    _ascii_ply(path, declared, rows)
+    with pytest.raises(InputError, match=match) as err:
+        load_scan(path)
+    assert str(path) in str(err.value)
+
+
+def test_binary_ply_body_of_the_wrong_length_is_refused(tmp_path):
+    pts = _cube_points(100).astype("<f4")
+    path = tmp_path / "b.ply"
+    _binary_ply(path, 100, pts.tobytes())
+    assert len(load_scan(path).points) == 100  # the honest file reads
+    _binary_ply(path, 100, pts.tobytes() + b"\n")  # a trailing newline is harmless
+    assert len(load_scan(path).points) == 100
+    _binary_ply(path, 40, pts.tobytes())
+    with pytest.raises(InputError, match="header says element vertex 40 but 720 bytes follow.*100 vertex rows"):
+        load_scan(path)
+    _binary_ply(path, 100, pts.tobytes()[:-6])
+    with pytest.raises(InputError, match=r"ends inside element 'vertex': the header says 100 vertex rows "
+                       r"\(element vertex 100, 12 bytes each\) but the file holds only 99 \(1194 bytes\)"):
+        load_scan(path)
+    _binary_ply(path, -5, pts.tobytes())
+    with pytest.raises(InputError, match="negative count"):
+        load_scan(path)
+
+
+def test_ply_list_with_a_negative_length_is_refused(tmp_path):
+    path = tmp_path / "neg.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list char int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 1\n-3 0 1 2\n")
+    with pytest.raises(InputError, match="a list of -3 items"):
+        load_scan(path)
+
+
+def test_binary_ply_list_with_a_negative_length_is_refused(tmp_path):
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            "property float z\nelement face 2\nproperty list char int vertex_indices\nend_header\n")
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 1]], "<f4").tobytes()
+    faces = np.array([3], "i1").tobytes() + np.array([0, 1, 2], "<i4").tobytes() + np.array([-2], "i1").tobytes()
+    (tmp_path / "neg.ply").write_bytes(head.encode() + verts + faces)
+    with pytest.raises(InputError, match="a list of -2 items"):
+        load_scan(tmp_path / "neg.ply")
+
+
+def test_the_bunny_plys_still_read_whole(bunny):
+    # the honest Stanford range-grid files pass the new checks (leftover data would be refused)
+    for name in ("bun000", "bun045", "bun090", "bun315"):
+        s = bunny(name)
+        assert (s.grid.index >= 0).sum() == len(s.points)
+
+
+# Side files: a sidecar, a .conf or a transform file that is a folder, unreadable, or holds nonsense.
+
+@pytest.fixture
+def unreadable(monkeypatch):
+    """Make a file that cannot be read (as root, chmod 0 does not stop reading: refuse it in read_text)."""
+    from pathlib import Path
+
+    refused = set()
+    real = Path.read_text
+
+    def read_text(self, *args, **kwargs):
+        if self in refused:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "read_text", read_text)
+
+    def make(path):
+        path.write_text("{}")
+        path.chmod(0)
+        refused.add(path)
+        return path
+
+    return make
+
+
+@pytest.mark.parametrize("sidecar, match", [
+    ({"viewpoint": "abc"}, "'viewpoint' should be three numbers x, y, z, found \"abc\""),
+    ({"viewpoint": [0, 0]}, r"'viewpoint' should be three numbers x, y, z, found \[0, 0\]"),
+    ({"viewpoint": [0, "nan", 0]}, "'viewpoint' .*not finite"),
+    ({"viewpoint": [[0, 0, 1]]}, "'viewpoint' should be three numbers"),
+    ({"pose": [[1, 2], [3, 4]]}, "'pose' must be a 4 x 4 matrix, got shape \\(2, 2\\)"),
+    ({"pose": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}, "'pose' is not rigid"),
+    ({"guess": "identity"}, "'guess' should be a 4 x 4 rigid transform"),
+    ({"pose": [[1, 0, 0], [0, 1]]}, "'pose' should be a 4 x 4 rigid transform"),
+    ({"units": 5}, "'units' should be a name"),
+    ([1, 2, 3], "should hold a JSON object, found list"),
+])
+def test_sidecar_contents_are_checked(tmp_path, sidecar, match):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    (tmp_path / "s.json").write_text(json.dumps(sidecar))
+    with pytest.raises(InputError, match=match) as err:
+        load_scan(tmp_path / "s.ply")
+    assert "s.json" in str(err.value)
+
+
+def test_nan_viewpoint_in_sidecar_text_is_refused(tmp_path):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    (tmp_path / "s.json").write_text('{"viewpoint": [NaN, 0, 5]}')  # Python's json reads NaN
+    with pytest.raises(InputError, match="not finite"):
+        load_scan(tmp_path / "s.ply")
+
+
+def test_a_good_sidecar_still_sets_viewpoint_pose_and_units(tmp_path):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    T = np.eye(4)
+    T[:3, 3] = [1, 2, 3]
+    (tmp_path / "s.json").write_text(json.dumps({"viewpoint": [0, 0, 5], "pose": T.tolist(), "units": "mm"}))
+    s = load_scan(tmp_path / "s.ply")
+    np.testing.assert_allclose(s.viewpoint, [0, 0, 5])
+    np.testing.assert_allclose(s.pose, T)
+    assert s.units == "mm" and not s.viewpoint_estimated and s.guess is None
+
+
+def test_sidecar_that_is_a_folder_orunreadable(tmp_path, unreadable):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    (tmp_path / "s.json").mkdir()
+    with pytest.raises(InputError, match="s.json: is a folder, not a JSON sidecar"):
+        load_scan(tmp_path / "s.ply")
+    (tmp_path / "s.json").rmdir()
+    unreadable(tmp_path / "s.json")
+    with pytest.raises(InputError, match="s.json: cannot read a JSON sidecar"):
+        load_scan(tmp_path / "s.ply")
+
+
+def test_conf_that_is_a_folder_orunreadable(tmp_path, unreadable):
+    (tmp_path / "d.conf").mkdir()
+    with pytest.raises(InputError, match="is a folder, not a Stanford .conf file"):
+        load_conf(tmp_path / "d.conf")
+    # a folder named *.conf beside a scan is passed over when looking for its pose
+    write_ply(tmp_path / "s.ply", _cube_points())
+    assert load_scan(tmp_path / "s.ply").pose is None
+    with pytest.raises(InputError, match="cannot read a Stanford .conf file"):
+        load_conf(unreadable(tmp_path / "u.conf"))
+
+
+def test_transform_file_that_is_a_folder_orunreadable(tmp_path, unreadable):
+    (tmp_path / "t").mkdir()
+    with pytest.raises(InputError, match="is a folder, not a transform file"):
+        read_transform(tmp_path / "t")
+    with pytest.raises(InputError, match="cannot read a transform file"):
+        read_transform(unreadable(tmp_path / "u.txt"))
+    with pytest.raises(InputError, match="no such file"):
+        read_transform(tmp_path / "missing.txt")
+
+
+def test_transform_from_the_text_of_16_numbers():
+    T = np.eye(4)
+    T[:3, 3] = [1, 2, 3]
+    for text in (" ".join(map(str, T.ravel())), ",".join(map(str, T.ravel())), json.dumps(T.tolist()),
+                 json.dumps({"transform": T.tolist()})):
+        np.testing.assert_allclose(parse_transform(text), T)
+        np.testing.assert_allclose(read_transform(text), T)  # callers of read_transform get it too
+    with pytest.raises(InputError, match="expected 16 numbers .* found 3"):
+        parse_transform("1 2 3")
+    with pytest.raises(InputError, match="not rigid"):
+        parse_transform(" ".join(["2"] + ["0"] * 4 + ["1"] + ["0"] * 4 + ["1"] + ["0"] * 4 + ["1"]))
+    with pytest.raises(InputError, match="NaN or infinite"):
+        parse_transform(" ".join(["nan"] + ["0"] * 14 + ["1"]))
+
+
+def test_a_face_with_a_negative_vertex_index_is_refused(tmp_path):
+    path = tmp_path / "f.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n1 1 0.1\n0 1 0\n3 0 -2 1\n")
+    with pytest.raises(InputError, match="a face refers to vertex -2; the file has vertices 0 to 3"):
+        load_scan(path)
+
+
+def test_quads_are_split_into_fans(tmp_path):
+    path = tmp_path / "q.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n1 1 0.1\n0 1 0\n2 0 0\n2 1 0\n4 0 1 2 3\n4 1 4 5 2\n")
+    assert load_scan(path).faces.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]]
+
+
+def test_viewpoint_at_the_centre_of_the_points_is_refused(tmp_path):
+    from core.frustum import frustum_of
+    from core.surface import triangulate
+
+    pts = np.r_[_cube_points(200), -_cube_points(200, seed=1)]  # two sheets around the origin
+    write_ply(tmp_path / "s.ply", pts)
+    s = load_scan(tmp_path / "s.ply", viewpoint=pts.mean(0))
+    for build in (triangulate, frustum_of):
+        with pytest.raises(InputError, match="centre of the points|beside or behind"):
+            build(s)
+
+
+@pytest.mark.parametrize("viewpoint, match", [
+    ([0, 0], "should be three numbers"), ([0, np.nan, 1], "not finite"), ("up", "should be three numbers")])
+def test_a_bad_viewpoint_argument_is_refused(tmp_path, viewpoint, match):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    with pytest.raises(InputError, match=match):
+        load_scan(tmp_path / "s.ply", viewpoint=viewpoint)
+
+
+def test_a_pcd_viewpoint_that_is_not_finite_is_refused(tmp_path):
+    pts = _cube_points(50)
+    head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 50\nHEIGHT 1\n"
+            "VIEWPOINT nan 0 5 1 0 0 0\nPOINTS 50\nDATA ascii\n")
+    (tmp_path / "a.pcd").write_text(head + "\n".join(" ".join(map(str, p)) for p in pts))
+    with pytest.raises(InputError, match="VIEWPOINT .* not finite"):
+        load_scan(tmp_path / "a.pcd")

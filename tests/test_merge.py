@@ -13,7 +13,7 @@ from core.merge import merge
 from core.surface import Surface
 from core.transforms import apply, invert, perturb, pose_error, random_perturbation
 from tests.conftest import ASSETS, BUNNY
-from tests.test_cli import rangereg
+from tests.conftest import run_cli as rangereg
 
 
 @pytest.mark.parametrize("name", ["corner", "bowl"])
@@ -91,3 +91,35 @@ def test_bunny_set_comes_back_to_the_conf_poses(bunny):
         assert rot < 1.0 and tr < 0.002, (s.name, rot, tr)
     assert double_layer_fraction(res.model.vertices, res.model.faces, scans[0].spacing) < 0.02
     assert BUNNY.is_dir()
+
+
+def test_merge_of_scans_that_do_not_overlap_prints_one_line(tmp_path):
+    from dataclasses import replace
+
+    from core.io import load_scan, save_scan
+
+    # no stored guesses: a chain from the identity, where the second scan lies 100 m away
+    near = load_scan(ASSETS / "corner" / "scan2.ply")
+    far = load_scan(ASSETS / "corner" / "scan1.ply")
+    save_scan(tmp_path / "near.ply", replace(near, pose=None, guess=None))
+    save_scan(tmp_path / "far.ply", replace(far, points=far.points + 1e5, viewpoint=far.viewpoint + 1e5, pose=None,
+                                            guess=None))
+    out = tmp_path / "model.ply"
+    r = rangereg("merge", tmp_path / "near.ply", tmp_path / "far.ply", "--out", out)
+    assert r.returncode == 2 and not out.exists()
+    assert r.stderr.strip().splitlines() == ["rangereg merge: error: near and far do not overlap from the identity; "
+                                             "give initial poses (--init)"]
+
+
+def test_candidate_pairs_per_mode():
+    from core.merge import MAX_PARTNERS, _choose
+
+    n = 12  # a ring: overlap falls with the distance round the ring
+    ring = lambda i, j: min((j - i) % n, (i - j) % n)  # noqa: E731
+    overlaps = [(i, j, max(0.0, 0.9 - 0.12 * ring(i, j))) for i in range(n) for j in range(i + 1, n)]
+    every = _choose(overlaps, n, "overlap")
+    assert {c[:2] for c in every} == {(i, j) for i, j, f in overlaps if f >= 0.25}
+    best = _choose(overlaps, n, "init")
+    assert {c[:2] for c in best} == {(i, j) for i, j, _ in overlaps if ring(i, j) <= MAX_PARTNERS // 2}
+    chain = [(i, i + 1, 0.8) for i in range(n - 1)] + [(0, n - 1, 0.02)]
+    assert [c[:2] for c in _choose(chain, n, "chain")] == [(i, i + 1) for i in range(n - 1)]

@@ -88,7 +88,7 @@ def test_init_takes_16_numbers_inline_or_a_file(tmp_path):
 
 
 @pytest.mark.parametrize("text, fragment", [
-    ("1 2 3", "16 numbers"), ("left a bit", "neither 16 numbers"), ("nope.txt", "no such file"), ("", "nothing"),
+    ("1 2 3", "16 numbers"), ("left a bit", "not 16 numbers"), ("nope.txt", "no such file"), ("", "nothing"),
     (" ".join(["1"] * 16), "last row"), ("2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1", "not rigid"),
 ])
 def test_a_bad_init_is_one_message(text, fragment):
@@ -109,3 +109,15 @@ def test_parse_numbers():
     for bad in ("1", "a,b", "1,nan", "0,1", "-1,1"):
         with pytest.raises(InputError, match="--span"):
             parse_numbers(bad, "--span", 2)
+
+
+def test_a_lock_reaches_the_config_and_a_bad_one_is_one_message():
+    from core.lock import Lock
+
+    assert to_config(Settings(lock="rx, ry,tz")).lock == Lock(locked=("tz", "rx", "ry"))
+    assert to_config(Settings(lock="turntable:0,0,0,0,1,0")).lock.free == ("angle",)
+    assert not to_config(Settings()).lock.active and not to_config(Settings(lock="none")).lock.active
+    with pytest.raises(InputError, match="^--lock: cannot lock qq"):
+        Settings(lock="rx,qq")
+    with pytest.raises(InputError, match="^--lock: expected text"):
+        Settings(lock=3)

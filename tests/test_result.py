@@ -30,6 +30,6 @@ def test_below_threshold_says_whether_to_trust_the_pose():
 def test_json_keeps_its_keys_with_readable_text_and_adds_below_threshold():
     out = json.loads(json.dumps(_result().to_json()))
     assert set(out) == {"transform", "error", "iterations", "local_minima", "evaluations", "seconds", "method",
-                        "threshold", "stop_reason", "below_threshold"}
+                        "threshold", "stop_reason", "below_threshold", "cut"}
     assert out["stop_reason"] == "error below threshold" and out["below_threshold"] is True
     assert out["iterations"] == {"icp": 12, "sa": 30}

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from app.commands import pair
+from app.figures import PHASE_LABEL
 from app.options import parse_numbers, read_text_file
 from app.outputs import check_distinct, check_output, write_outputs
 from core.errors import InputError
@@ -31,8 +32,8 @@ def read_trace(path: str) -> list:
                 continue  # a trace header, when the writer adds one
             e = Event.from_json(d)
             check_rigid(e.T, "its transform")
-            if e.phase not in ("icp", "sa") or not np.isfinite(float(e.error)):
-                raise ValueError("a phase icp/sa and a finite error expected")
+            if e.phase not in PHASE_LABEL or not np.isfinite(float(e.error)):
+                raise ValueError(f"a phase {'/'.join(PHASE_LABEL)} and a finite error expected")
         except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"--trace {path}: line {lineno} is not a rangereg trace event ({exc})") from None
         events.append(e)
@@ -50,6 +51,9 @@ def run(a: Namespace) -> int:
     if a.center == "end" and a.trace_in is None:
         raise InputError("--center end needs --trace (the run whose end to slice around)")
     cfg = pair.config(a)
+    if cfg.lock.turntable or set(params) & set(cfg.lock.locked):
+        raise InputError(f"--params {','.join(params)}: the slice must vary parameters the search may move "
+                         f"(--lock {cfg.lock} leaves {', '.join(cfg.lock.free)})")
     files, scans = pair.inputs(a), [a.source, a.target]
     png = check_output(a.png, "--png", (".png",), files, scans)
     npz = check_output(a.npz, "--npz", (".npz",), files, scans) if a.npz is not None else None

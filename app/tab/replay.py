@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from app.figures import squared_unit
+from app.figures import PHASE_LABEL, squared_unit
 from app.tab import scene3d
 from core.errors import InputError
 from core.events import Event
@@ -36,8 +36,8 @@ def parse_trace(text: str, name: str = "trace") -> list[Event]:
                 continue
             e = Event.from_json(d)
             check_rigid(e.T, "its transform")
-            if e.phase not in ("icp", "sa") or not np.isfinite(float(e.error)):
-                raise ValueError("a phase icp/sa and a finite error expected")
+            if e.phase not in PHASE_LABEL or not np.isfinite(float(e.error)):
+                raise ValueError(f"a phase ({'/'.join(PHASE_LABEL)}) and a finite error expected")
         except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, InputError) as exc:
             raise InputError(f"{name}: line {lineno} is not a rangereg trace event ({exc})") from None
         events.append(e)

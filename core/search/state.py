@@ -2,6 +2,10 @@
 its event stream and its region; and the legs every method is made of (an ICP leg, an annealing
 leg, a random step), each reporting through :meth:`SearchState.emit`.
 
+Under a lock (``Config.lock``, core.lock) the legs walk the lock's free coordinates, bound once to
+the start pose and the first cut's centroid so that the locked values stay the same all run long
+(re-cuts included); every event then carries the coordinates its pose was made from.
+
 The prepared :class:`~core.problem.Problem` is only read: the run counts its own evaluations of E
 and widens E (coarse-to-fine) by viewing a widened copy, so one problem may serve many runs.
 """
@@ -15,6 +19,7 @@ from ..config import Config
 from ..error import ErrorTerms, RobustError
 from ..events import Event, Listener
 from ..icp import IcpConfig, icp
+from ..lock import LockFrame
 from ..problem import Problem
 from ..transforms import random_perturbation, rotation_angle
 
@@ -36,7 +41,9 @@ class CountedError:
 class SearchState:
     """One optimisation: counts iterations and evaluations, emits events, keeps the best pose."""
 
-    def __init__(self, problem: Problem, config: Config, listener: Listener | None):
+    def __init__(self, problem: Problem, config: Config, listener: Listener | None, frame: LockFrame | None = None):
+        """``frame``: the lock bound elsewhere (a stage that runs several searches from one guess);
+        by default ``config.lock`` bound to ``problem``'s guess and overlap centroid."""
         self.config, self.listener = config, listener
         self.rng = np.random.default_rng(config.seed)
         # per phase ("icp", "sa"; a new stage emits its own phase and gets its own key):
@@ -46,6 +53,10 @@ class SearchState:
         self.local_minima = 0
         self.evaluations = 0
         self.refining = False  # searching again on the overlap re-cut at the pose found (resegment)
+        lock = config.lock
+        if frame is None and lock.active:
+            frame = lock.bind(problem.T_init, problem.center, problem.scale)
+        self.frame = frame
         self.use(problem)
         self.start_at(problem.T_init)
 
@@ -82,8 +93,9 @@ class SearchState:
         if E < self.best_E:
             self.best_T, self.best_E = T, E
         if self.listener is not None:
+            coords = None if self.frame is None else self.frame.coords_of(T)
             self.listener(Event(phase, sum(self.n.values()), self.in_leg.get(phase, 0), self.legs.get(phase, 0), T, E,
-                                temperature, accepted, local_minimum))
+                                temperature, accepted, local_minimum, coords))
 
     def mark_local_minimum(self, T: np.ndarray, E: float) -> None:
         self.local_minima += 1
@@ -103,7 +115,7 @@ class SearchState:
         self.begin_leg("icp")
         start = self.n["icp"]
         res = icp(self.error, T, icp_config or self.config.icp, lambda T_, E: self.emit("icp", T_, E),
-                  self.inside if bounded else None)
+                  self.inside if bounded else None, self.frame)
         if self.n["icp"] == start:  # no step taken: still report where ICP stands
             self.emit("icp", res.T, res.error, count=False)
         return res.T, res.error
@@ -119,9 +131,17 @@ class SearchState:
             T, E = self.icp(self.start)
         return T, E
 
+    def project(self, T: np.ndarray) -> np.ndarray:
+        """T itself, or under a lock the pose of the allowed set nearest to it (core.lock): a stage
+        that makes poses of its own (candidates, pair alignment) hands them to the legs through this."""
+        return T if self.frame is None else self.frame.pose(self.frame.free(T))
+
     def random_step(self, T: np.ndarray, size: float) -> np.ndarray:
         """T moved in a random direction by up to ``size`` x the guess's uncertainty in each of
         translation and rotation (uniform in length)."""
+        if self.frame is not None:  # only the free coordinates move
+            t_unc, r_unc = self._uncertainty()
+            return self.frame.pose(self.frame.free(T) + self.frame.random_step(self.rng, size * t_unc, size * r_unc))
         t, r = random_perturbation(self.rng, 1.0, 1.0)
         steps = self.problem.steps
         x = np.r_[t * self.rng.uniform(0, size) * steps[0], r * self.rng.uniform(0, size) * steps[3]]
@@ -136,18 +156,30 @@ class SearchState:
            config: AnnealConfig) -> tuple[np.ndarray, float, bool]:
         """One annealing leg around T_base; returns (best pose, its E, whether it got below ``stop_below``)."""
         self.begin_leg("sa")
-        p, error = self.problem, self.error
+        error, frame = self.error, self.frame
+        if frame is None:  # the six search coordinates around T_base
+            x0, steps = np.zeros(6), self.problem.steps
+
+            def pose(x):
+                return self.problem.pose(T_base, x)
+        else:  # a k-D simplex over the lock's free coordinates (flat directions in a 6-D one would
+            # break the convergence test and the start temperature)
+            x0, steps, pose = frame.free(T_base), frame.steps(*self._uncertainty()), frame.pose
 
         def f(x):
-            T = p.pose(T_base, x)
+            T = pose(x)
             # Annealing may roam, but only over poses the initial guess allows (paper section 2.1
             # assumes the guess is good enough); farther out E is taken as infinite.
             return error(T) if self.inside(T) else np.inf
 
         def report(x, y, temp, accepted):
             if np.isfinite(y):
-                self.emit("sa", p.pose(T_base, x), y, temp, accepted)
+                self.emit("sa", pose(x), y, temp, accepted)
 
-        res = anneal(f, np.zeros(6), self.config.simplex_scale * p.steps, self.rng, config, stop_below=stop_below,
+        res = anneal(f, x0, self.config.simplex_scale * steps, self.rng, config, stop_below=stop_below,
                      on_eval=report, f0=E_base)
-        return p.pose(T_base, res.x), res.value, res.improved
+        return pose(res.x), res.value, res.improved
+
+    def _uncertainty(self) -> tuple[float, float]:
+        """The current cut's uncertainty in the lock's coordinates: (translation in its search units, radians)."""
+        return self.problem.translation_uncertainty / self.frame.scale, self.problem.rotation_uncertainty

@@ -1,0 +1,251 @@
+"""Candidate poses beyond the guess, scored on one fixed basis (beyond the paper; issue 13).
+
+The paper's search starts from the guess and trusts the guess to lie in the true basin (section 2.1).
+Before it, we gather poses to try: the guess; hypotheses from global feature matching (Open3D's FPFH
++ RANSAC at two voxel sizes and two seeds, and KISS-Matcher when installed); and a deterministic
+sampling of rotations within the guess's stated rotation uncertainty (super-Fibonacci samples of
+SO(3), Alexa 2022), each with the translation that best matches the scans' centroids within the
+stated translation uncertainty. A candidate farther from the guess than its stated uncertainty is
+dropped; the rest are scored on one :class:`Basis`.
+
+The basis: one seeded sample of the source's points and one fixed cap. Every candidate pays, per
+sample point, its squared distance to the target surface capped at ``cap``; a point outside the
+target's frustum pays the cap. So all candidates are scored on the same points with the same
+weights (E normalised on each candidate's own overlap cut would favour a small flat patch), and a
+candidate must overlap the other scan by at least ``min_overlap`` both ways.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .frustum import Frustum, frustum_of
+from .scan import Scan
+from .surface import Surface
+from .transforms import apply, invert, rotation_angle
+
+# The cap is (CAP_SPACINGS x the pair's point spacing)^2 + the pair's noise floor (core.noise). Measured
+# (24 ICP minima from starts 20-120 deg off, per case; the score at the truth over the best wrong
+# minimum's): caps of 25-100 x the floor (0.5-1 spacing on the bunny pairs and the bowl) rank the truth
+# first on all five bunny pairs, the corner and the bowl; 3 spacings (400 x) ranks bowl minima 16-78 deg
+# off below the truth (they cover more of the bowl), 9 x the floor leaves the bunny's truth half capped
+# (a range bias between views). 0.7 spacing is ~50-65 x the floor on the bunny and the bowl.
+CAP_SPACINGS = 0.7
+KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size
+SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
+SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
+ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
+
+
+@dataclass(frozen=True)
+class CandidateConfig:
+    enabled: bool = True
+    sample: int = 160  # source points on the fixed basis (the paper's E: 165-341)
+    min_overlap: float = 0.1  # share of each scan's sample that must fall in the other's frustum
+    rotation_samples: int = ROTATION_SAMPLES  # over all of SO(3); those within the uncertainty are kept
+    # FPFH voxel size in point spacings: Open3D's recipe uses 5 cm on scenes ~3 m across (~1/60 of the
+    # size); 5 spacings is ~1/60 of a bunny scan; 2 spacings is the sweep peer's (it found bun090->bun000
+    # from 180 deg in 3 of 3 starts where 5 spacings alone did not)
+    fpfh_voxels: tuple[float, ...] = (2.0, 5.0)
+    fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
+    kiss_matcher: bool = True  # use KISS-Matcher when it is installed
+    refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)
+
+    def validate(self) -> None:
+        if self.sample < 10:
+            raise InputError(f"the candidate sample needs at least 10 points, got {self.sample}")
+        if not 0 <= self.min_overlap < 1:
+            raise InputError(f"min_overlap must be in [0, 1), got {self.min_overlap}")
+        if self.rotation_samples < 0 or self.fpfh_seeds < 0 or self.refine < 1:
+            raise InputError("rotation samples and FPFH seeds must be >= 0, refine >= 1")
+        if any(not v > 0 for v in self.fpfh_voxels):
+            raise InputError(f"FPFH voxel sizes must be positive, got {self.fpfh_voxels}")
+
+
+@dataclass(frozen=True, eq=False)
+class Scores:
+    """Per pose (P,): score (squared units, mean capped d^2 over the fixed sample), inside (share of
+    the source sample in the target's frustum), reverse (share of the target sample in the source's),
+    inlier_median (median d^2 of the points within the cap; the cap when none), inliers (their share
+    of the sample)."""
+
+    score: np.ndarray
+    inside: np.ndarray
+    reverse: np.ndarray
+    inlier_median: np.ndarray
+    inliers: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Basis:
+    """The fixed scoring basis of a pair: points (M, 3) source sample (source frame), target_points
+    (K, 3) target sample (target frame), cap (squared units), the target surface, both frusta."""
+
+    points: np.ndarray
+    target_points: np.ndarray
+    cap: float
+    surface: Surface
+    source_frustum: Frustum
+    target_frustum: Frustum
+    min_overlap: float
+
+    def evaluate(self, poses: np.ndarray) -> Scores:
+        """Score (P, 4, 4) T_target_source poses; all closest points in one query."""
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+        P, M = len(poses), len(self.points)
+        moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
+        _, d2 = self.surface.closest(moved.reshape(-1, 3))
+        d2 = d2.reshape(P, M)
+        inside = self.target_frustum.contains(moved.reshape(-1, 3)).reshape(P, M)
+        inv = np.array([invert(T) for T in poses])
+        back = np.einsum("pij,mj->pmi", inv[:, :3, :3], self.target_points) + inv[:, None, :3, 3]
+        reverse = self.source_frustum.contains(back.reshape(-1, 3)).reshape(P, -1).mean(1)
+        capped = np.where(inside, np.minimum(d2, self.cap), self.cap)
+        close = inside & (d2 < self.cap)
+        n_close = close.sum(1)
+        with np.errstate(all="ignore"):
+            med = np.array([np.median(d2[k][close[k]]) if n_close[k] else self.cap for k in range(P)])
+        return Scores(capped.mean(1), inside.mean(1), reverse, med, n_close / M)
+
+    def shift_to_fit(self, poses: np.ndarray, steps: int = SHIFT_STEPS) -> np.ndarray:
+        """(P, 4, 4) poses, each translated so that its sample points meet the target surface: ``steps``
+        translation-only ICP steps (the mean offset to the closest points of the better-fitting half),
+        all poses in one query per step. A rotation sample placed by centroids alone lies centimetres
+        off under partial overlap and pays the cap nearly everywhere; shifted, its score says something."""
+        poses = np.array(poses, dtype=np.float64).reshape(-1, 4, 4)
+        pts = self.points[:: max(1, len(self.points) // SHIFT_POINTS)]  # spread over the (sorted) sample
+        P, M = len(poses), len(pts)
+        for _ in range(steps):
+            moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], pts) + poses[:, None, :3, 3]
+            closest, d2 = self.surface.closest(moved.reshape(-1, 3))
+            d2 = d2.reshape(P, M)
+            near = d2 <= np.median(d2, axis=1, keepdims=True)
+            offset = ((closest.reshape(P, M, 3) - moved) * near[..., None]).sum(1) / near.sum(1)[:, None]
+            poses[:, :3, 3] += offset
+        return poses
+
+    def valid(self, s: Scores) -> np.ndarray:
+        """(P,) bool: at least ``min_overlap`` of the source sample matches the target surface (within
+        the cap) and as much of the target sample falls in the source's frustum."""
+        return (s.inliers >= self.min_overlap) & (s.reverse >= self.min_overlap)
+
+
+def pair_spacing(source: Scan, target: Scan) -> float:
+    return max(source.spacing, target.spacing)
+
+
+def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: np.random.Generator,
+               config: CandidateConfig = CandidateConfig(), frustum: str = "convex") -> Basis:
+    """The pair's fixed basis: seeded samples of both scans, cap from spacing and noise floor."""
+    src = source.points[np.sort(rng.choice(len(source.points), min(config.sample, len(source.points)), replace=False))]
+    tgt = target.points[np.sort(rng.choice(len(target.points), min(config.sample, len(target.points)), replace=False))]
+    cap = (CAP_SPACINGS * pair_spacing(source, target)) ** 2 + floor
+    return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
+                 config.min_overlap)
+
+
+# ---- where candidates come from -------------------------------------------------------------------------
+def super_fibonacci(n: int) -> np.ndarray:
+    """(n, 3, 3) rotations spread evenly over SO(3) (Alexa, CVPR 2022), deterministic."""
+    if n == 0:
+        return np.zeros((0, 3, 3))
+    from scipy.spatial.transform import Rotation
+
+    phi, psi = np.sqrt(2.0), 1.533751168755204288118041
+    s = np.arange(n) + 0.5
+    r, R = np.sqrt(s / n), np.sqrt(1.0 - s / n)
+    a, b = 2 * np.pi * s / phi, 2 * np.pi * s / psi
+    q = np.c_[r * np.sin(a), r * np.cos(a), R * np.sin(b), R * np.cos(b)]
+    return Rotation.from_quat(q).as_matrix()
+
+
+def within(T: np.ndarray, T_guess: np.ndarray, center: np.ndarray, rot_unc: float, trans_unc: float) -> bool:
+    """Whether pose T lies within the guess's stated uncertainty: rotation (radians) and the move of
+    the source point ``center`` (source frame, units)."""
+    moved = apply(T, center[None])[0] - apply(T_guess, center[None])[0]
+    return bool(rotation_angle(T[:3, :3] @ T_guess[:3, :3].T) <= rot_unc + 1e-9 and np.linalg.norm(moved) <= trans_unc + 1e-12)
+
+
+def rotation_candidates(source: Scan, target: Scan, T_guess: np.ndarray, rot_unc: float, trans_unc: float,
+                        n: int) -> list[np.ndarray]:
+    """Rotations from :func:`super_fibonacci` within ``rot_unc`` of the guess's, each about the source's
+    centroid, placed so that the centroids match as nearly as the translation uncertainty allows."""
+    c_src = source.centroid
+    c_guess = apply(T_guess, c_src[None])[0]
+    shift = target.centroid - c_guess
+    norm = np.linalg.norm(shift)
+    if norm > trans_unc:
+        shift = shift * trans_unc / norm
+    out = []
+    for D in super_fibonacci(n):
+        if rotation_angle(D) > rot_unc:
+            continue
+        T = np.eye(4)
+        T[:3, :3] = D @ T_guess[:3, :3]
+        T[:3, 3] = c_guess + shift - T[:3, :3] @ c_src
+        out.append(T)
+    return out
+
+
+def _o3d_cloud(scan: Scan, voxel: float):
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points)).voxel_down_sample(voxel)
+    # Open3D's global-registration recipe: normals within 2 voxels, FPFH within 5 (max 100 neighbours)
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+    pcd.orient_normals_towards_camera_location(scan.viewpoint)
+    return pcd
+
+
+def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[float, ...], seeds: int,
+                    seed: int) -> list[np.ndarray]:
+    """RANSAC hypotheses on FPFH matches (Open3D's documented recipe, voxel sizes in point spacings:
+    matches within 1.5 voxels, edge-length check 0.9, 100,000 iterations at 0.999 confidence)."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    out = []
+    for v in voxels:
+        voxel = v * spacing
+        src, tgt = _o3d_cloud(source, voxel), _o3d_cloud(target, voxel)
+        param = o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+        fs, ft = reg.compute_fpfh_feature(src, param), reg.compute_fpfh_feature(tgt, param)
+        dist = 1.5 * voxel
+        for k in range(seeds):
+            o3d.utility.random.seed(seed * 1000 + k)
+            res = reg.registration_ransac_based_on_feature_matching(
+                src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
+                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
+                reg.RANSACConvergenceCriteria(100000, 0.999))
+            out.append(np.asarray(res.transformation).copy())
+    return out
+
+
+def kiss_available() -> bool:
+    try:
+        import kiss_matcher  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) -> list[np.ndarray]:
+    """KISS-Matcher's one hypothesis (voxel size in units), or none when it is not installed."""
+    if not kiss_available():
+        return []
+    import kiss_matcher
+
+    # KISS-Matcher refuses small voxels (it is made for outdoor scans in metres): run it in units
+    # where the voxel is its default 0.3, and scale the translation back.
+    k = KISS_VOXEL / (voxel * spacing)
+    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL))
+    sol = matcher.estimate((source.points * k).astype(np.float32), (target.points * k).astype(np.float32))
+    if not sol.valid:
+        return []
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(sol.rotation)
+    T[:3, 3] = np.asarray(sol.translation).ravel() / k
+    return [T]

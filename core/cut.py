@@ -1,0 +1,75 @@
+"""Which source points the error uses: the overlap cut under the guess, widened when it is too small.
+
+The paper cuts the overlap by frustum segmentation under the initial guess (section 2.1). Under a
+poor guess that cut can be empty (the source lands beside the target's view) although the guess's
+stated uncertainty allows overlap. Then, rather than refuse, the cut widens step by step: the frustum
+opened by half the rotation uncertainty, by all of it, and finally the whole scan. The first cut
+holding enough points is used, and its name is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .frustum import Frustum, frustum_of, visible_from
+from .scan import Scan
+from .surface import Surface
+from .transforms import apply, invert
+
+MIN_SHARE = 0.02  # a cut is enough when it holds this share of the source's points (and >= 3)
+CUTS = ("frustum", "frustum+half-uncertainty", "frustum+uncertainty", "whole scan")
+
+
+@dataclass(frozen=True, eq=False)
+class Cut:
+    """used: (Ns,) bool source points in the cut; name: which of CUTS; source_mask, target_mask: the
+    frustum masks both ways (the paper's overlap, for drawing)."""
+
+    used: np.ndarray
+    name: str
+    source_mask: np.ndarray
+    target_mask: np.ndarray
+
+
+def _widened(f: Frustum, points: np.ndarray, angle: float) -> np.ndarray:
+    """(N,) bool: points inside frustum ``f`` opened by ``angle`` radians on every side."""
+    if angle <= 0:
+        return f.contains(points)
+    if angle >= np.pi / 2:
+        return np.ones(len(points), dtype=bool)
+    uv, depth = f.project(np.asarray(points, dtype=np.float64))
+    front = depth > 0
+    out = np.zeros(len(points), dtype=bool)
+    # distance outside the outline on the image plane one unit in front: tan(angle) about the axis
+    margin = np.tan(angle) * (1.0 + np.einsum("ij,ij->i", uv[front], uv[front]))
+    out[front] = np.all(uv[front] @ f.equations[:, :2].T + f.equations[:, 2] <= margin[:, None], axis=1)
+    return out
+
+
+def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: np.ndarray, kind: str,
+                visibility: bool, rotation_uncertainty: float, translation_uncertainty: float) -> Cut | None:
+    """The first cut of CUTS with enough points, or None when even the frustum opened by the whole
+    rotation uncertainty holds fewer than 3 (the guess's uncertainty allows no overlap)."""
+    f_src, f_tgt = frustum_of(source, kind), frustum_of(target, kind)
+    moved = apply(T_target_source, source.points)
+    back = apply(invert(T_target_source), target.points)
+    enough = max(3, int(MIN_SHARE * len(source.points)))
+    src_mask = f_tgt.contains(moved)
+    tgt_mask = f_src.contains(back)
+    used = src_mask.copy()
+    if visibility and used.any():
+        radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
+        used[np.flatnonzero(used)] = visible_from(surface, target.viewpoint, moved[used],
+                                                  translation_uncertainty + rotation_uncertainty * radius)
+    if used.sum() >= enough:
+        return Cut(used, CUTS[0], src_mask, tgt_mask)
+    widest = used
+    for name, angle in ((CUTS[1], rotation_uncertainty / 2), (CUTS[2], rotation_uncertainty)):
+        widest = _widened(f_tgt, moved, angle)
+        if widest.sum() >= enough:
+            return Cut(widest, name, src_mask, tgt_mask)
+    if widest.sum() < 3:
+        return None
+    return Cut(np.ones(len(source.points), dtype=bool), CUTS[3], src_mask, tgt_mask)

@@ -1,0 +1,247 @@
+"""The ``global`` method (beyond the paper; issue 13): candidates -> the best few ICP-refined -> the
+paper's hybrid from the best -> the lowest score on the pair's fixed basis.
+
+    1. cut the overlap under the guess (widened when empty, core.cut) and triangulate the target;
+    2. the pair's noise floor, its fixed scoring basis and its stop threshold (core.threshold's
+       pair threshold);
+    3. round 1: the guess and the rotation samples within its uncertainty (core.candidates), shifted
+       to fit and scored in one batched query; the guess and the best ``refine`` refined by ICP on the
+       paper's robust E (on the overlap cut at the candidate, then on the cut at the pose found);
+    4. round 2, only when round 1 found no pose to trust: FPFH + RANSAC and KISS-Matcher hypotheses
+       within the uncertainty, scored and refined alike;
+    5. the best refined pose (lowest score among those overlapping both ways): trusted -> done; else
+       the paper's hybrid from there (``--method hybrid``, unchanged) and the lower of the two.
+
+With candidates off (``CandidateConfig.enabled=False``) only the guess is a candidate.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from .candidates import (
+    Basis,
+    CandidateConfig,
+    fpfh_candidates,
+    kiss_available,
+    kiss_candidates,
+    make_basis,
+    pair_spacing,
+    rotation_candidates,
+    within,
+)
+from .config import Config
+from .errors import InputError
+from .events import Cancelled, Event, Listener
+from .icp import icp
+from .noise import noise_floor
+from .problem import ProblemConfig, prepare
+from .result import Result, Stop, StopReason
+from .scan import Scan
+from .surface import Surface
+from .threshold import pair_threshold
+
+REFINE_ROTATION_DEG = 15.0  # the cut at a candidate assumes it is this close (the rotation samples' spacing)
+CONVERGED_ROTATION_DEG = 2.0  # ... and, once ICP has converged, this close (core.register's resegment)
+CONVERGED_TRANSLATION = 0.02  # ... as a share of the target's size
+LOCAL_TRANSLATION = 0.05  # the hybrid's translation uncertainty round the best candidate (share of size)
+DISTINCT_ROTATION_DEG = 2.0  # candidates closer than this (and DISTINCT_TRANSLATION) are refined once
+DISTINCT_TRANSLATION = 0.01  # share of the target's size
+# A candidate is dropped when it lies farther from the guess than the stated uncertainty plus these: a
+# truth on the boundary (the sweep's starts lie exactly at the stated offset) has hypotheses a little
+# beyond it (measured on bun090->bun000: RANSAC and KISS-Matcher 0.04-1.7 deg and 0.3-1.5 mm off the truth)
+SLACK_ROTATION_DEG = 3.0
+SLACK_TRANSLATION = 0.03  # share of the target's size
+REGION = 2.0  # a refined pose may end within this x the guess's uncertainty (core.register's SEARCH_BOUND)
+
+
+class _Counter:
+    """Numbers the events of every stage in one stream (iteration over the run, phase_iteration within
+    the leg, as core.events documents); forwards them to the listener."""
+
+    def __init__(self, listener: Listener | None):
+        self.listener = listener
+        self.n = {"candidates": 0, "icp": 0, "sa": 0}  # steps per phase over the run
+        self.legs = {"candidates": 0, "icp": 0, "sa": 0}
+        self.in_leg = 0
+
+    def leg(self, phase: str) -> None:
+        """A new leg of ``phase`` begins (a round's scoring, one candidate's ICP)."""
+        self.legs[phase] += 1
+        self.in_leg = 0
+
+    def emit(self, phase: str, T: np.ndarray, E: float) -> None:
+        self.n[phase] += 1
+        self.in_leg += 1
+        if self.listener is not None:
+            self.listener(Event(phase, self.total(), self.in_leg, self.legs[phase], T, E))
+
+    def forward(self, e: Event) -> None:
+        """An event of the hybrid's own run, renumbered into this stream (a local-minimum marker is
+        not a step, as in core.register); its legs follow this stream's."""
+        if not e.local_minimum:
+            self.n[e.phase] += 1
+        if self.listener is not None:
+            self.listener(replace_event(e, iteration=self.total(), leg=self.legs[e.phase] + e.leg))
+
+    def total(self) -> int:
+        return self.n["candidates"] + self.n["icp"] + self.n["sa"]
+
+
+def replace_event(e: Event, **kw) -> Event:
+    d = {k: getattr(e, k) for k in ("phase", "iteration", "phase_iteration", "leg", "T", "error", "temperature",
+                                    "accepted", "local_minimum")}
+    d.update(kw)
+    return Event(**d)
+
+
+def _kept(Ts, T_init, center, r_unc, t_unc, size: float) -> list[np.ndarray]:
+    """The poses within the guess's uncertainty, give or take a candidate's own error (SLACK_*)."""
+    return [T for T in Ts if within(T, T_init, center, r_unc + np.radians(SLACK_ROTATION_DEG),
+                                    t_unc + SLACK_TRANSLATION * size)]
+
+
+def sampled(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig) -> list[np.ndarray]:
+    """The rotation samples within the guess's uncertainty (core.candidates.rotation_candidates)."""
+    if not cc.enabled:
+        return []
+    r_unc, t_unc = np.radians(pc.rotation_uncertainty_deg), pc.translation_uncertainty_for(target.size)
+    return _kept(rotation_candidates(source, target, T_init, r_unc, t_unc, cc.rotation_samples), T_init,
+                 source.centroid, r_unc, t_unc, target.size)
+
+
+def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig,
+            seed: int) -> dict[str, list[np.ndarray] | str]:
+    """Feature-matching hypotheses within the guess's uncertainty, per method (a string: why none)."""
+    if not cc.enabled:
+        return {}
+    r_unc, t_unc = np.radians(pc.rotation_uncertainty_deg), pc.translation_uncertainty_for(target.size)
+    spacing = pair_spacing(source, target)
+    out: dict = {"fpfh-ransac": _kept(fpfh_candidates(source, target, spacing, cc.fpfh_voxels, cc.fpfh_seeds, seed),
+                                      T_init, source.centroid, r_unc, t_unc, target.size)}
+    if cc.kiss_matcher:
+        out["kiss-matcher"] = (_kept(kiss_candidates(source, target, spacing, max(cc.fpfh_voxels)), T_init,
+                                     source.centroid, r_unc, t_unc, target.size) if kiss_available() else
+                               "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)")
+    return out
+
+
+def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
+           on_step=None, seed: int = 0) -> np.ndarray:
+    """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found."""
+    # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
+    near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG), visibility=False)
+    conv = replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
+                   translation_uncertainty=CONVERGED_TRANSLATION * target.size)
+    for cfg in (near, conv):
+        p = prepare(source, target, T, cfg, surface=surface, seed=seed)
+        T = icp(p.error, T, icp_config, on_step).T
+    return T
+
+
+def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: Config = Config(method="global"),
+                    listener: Listener | None = None) -> Result:
+    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes);
+    ``config.candidates`` holds its own knobs, the rest is the paper's hybrid's."""
+    from .register import register  # the front runs this pipeline for method "global"
+
+    config.validate()
+    if config.lock.active:
+        # Candidates come from all of SO(3) and feature matches, which a lock's frame does not bound yet.
+        raise InputError(f"--lock {config.lock} is honoured by the paper's methods (hybrid, icp, sa, icp-restarts, "
+                         "basin-hopping), not yet by the global pipeline: add --method hybrid")
+    t0 = time.perf_counter()
+    cc, pc = config.candidates, config.problem
+    T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
+    problem = prepare(source, target, T_init, pc, seed=config.seed)
+    T_init, surface = problem.T_init, problem.surface
+    rng = np.random.default_rng(config.seed)
+    floor = float(np.mean([noise_floor(s, rng, len(problem.points)) for s in (source, target)]))
+    basis = make_basis(source, target, surface, floor, rng, cc, pc.frustum)
+    threshold = pair_threshold(floor, cc.min_overlap)
+    run = _Counter(listener)
+    r_unc, t_unc = problem.rotation_uncertainty, problem.translation_uncertainty
+    hybrid = replace(config, method="hybrid")
+    stop = Stop(StopReason.TRUSTED)
+    try:
+        # Round 1, cheap: the guess and the rotation samples (each shifted to fit). Round 2, only when
+        # round 1 found no pose to trust: feature matching (FPFH + RANSAC, KISS-Matcher), which costs
+        # about what the whole Open3D pipeline does.
+        rot = sampled(source, target, T_init, pc, cc)
+        if rot:
+            rot = list(basis.shift_to_fit(np.stack(rot)))
+        poses, sources = [T_init] + rot, {"guess": 1, "rotation samples": len(rot)}
+        refined = first = _round(run, basis, poses, 0, cc.refine, source, target, surface, pc, hybrid)
+        best, best_s = _best(basis, refined, T_init, source.centroid, r_unc, t_unc)
+        if not threshold.holds(basis, best) and cc.enabled:
+            found = matched(source, target, T_init, pc, cc, config.seed)
+            extra = [T for v in found.values() if not isinstance(v, str) for T in v]
+            sources.update({k: (v if isinstance(v, str) else len(v)) for k, v in found.items()})
+            if extra:
+                refined = first + _round(run, basis, extra, 0, len(extra), source, target, surface, pc, hybrid)
+                poses += extra
+                best, best_s = _best(basis, refined, T_init, source.centroid, r_unc, t_unc)
+        trusted = threshold.holds(basis, best)
+        if not trusted:
+            # the candidates covered the stated region; the paper's hybrid searches round the best of them
+            local = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG),
+                            translation_uncertainty=min(t_unc, LOCAL_TRANSLATION * target.size))
+            res = register(source, target, best, replace(hybrid, problem=local), run.forward)
+            s_h = float(basis.evaluate(res.transform[None]).score[0])
+            text = f"hybrid from the best candidate: {res.stop_text}"
+            if s_h < best_s:
+                best, best_s = res.transform, s_h
+            else:
+                text += "; the refined candidate scores lower on the fixed basis"
+            stop = Stop(res.stop_reason, text)
+            trusted = threshold.holds(basis, best)
+    except Cancelled:
+        best, best_s = T_init, float(basis.evaluate(T_init[None]).score[0])
+        poses, sources, trusted, stop = [T_init], {"guess": 1}, False, Stop(StopReason.CANCELLED)
+    final = prepare(source, target, best, replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
+                                                  translation_uncertainty=CONVERGED_TRANSLATION * target.size),
+                    surface=surface, seed=config.seed)
+    iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
+    details = {"threshold_derivation": threshold.to_json(), "score": best_s, "candidates": len(poses),
+               "candidate_sources": sources}
+    return Result(best, final.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",
+                  threshold.value, stop, cut=problem.cut, trusted=trusted, details=details)
+
+
+def _distinct(poses: list[np.ndarray], order: list[int], center: np.ndarray, trans: float) -> list[int]:
+    """``order`` without the poses that lie within DISTINCT_ROTATION_DEG and ``trans`` of an earlier one."""
+    kept: list[int] = []
+    for k in order:
+        if not any(within(poses[k], poses[j], center, np.radians(DISTINCT_ROTATION_DEG), trans) for j in kept):
+            kept.append(k)
+    return kept
+
+
+def _round(run: _Counter, basis: Basis, poses: list[np.ndarray], first: int, n: int, source: Scan, target: Scan,
+           surface: Surface, pc: ProblemConfig, base: Config) -> list[np.ndarray]:
+    """Score ``poses`` in one query (events of phase 'candidates'), refine pose ``first`` and the best
+    ``n`` by score, once each, with ICP; return the refined poses."""
+    scores = basis.evaluate(np.stack(poses))
+    run.leg("candidates")
+    for T, s in zip(poses, scores.score):
+        run.emit("candidates", T, float(s))
+    order = [first] + [int(k) for k in np.argsort(scores.score, kind="stable")[:n]]
+    order = _distinct(poses, list(dict.fromkeys(order)), source.centroid, DISTINCT_TRANSLATION * target.size)
+    out = []
+    for k in order:
+        run.leg("icp")
+        out.append(refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed))
+    return out
+
+
+def _best(basis: Basis, poses: list[np.ndarray], T_init: np.ndarray, center: np.ndarray, r_unc: float,
+          t_unc: float) -> tuple[np.ndarray, float]:
+    """The lowest score among ``poses`` that overlap both ways and lie within REGION x the uncertainty."""
+    s = basis.evaluate(np.stack(poses))
+    ok = basis.valid(s) & np.array([within(T, T_init, center, REGION * r_unc, REGION * t_unc) for T in poses])
+    score = np.where(ok, s.score, np.inf)
+    k = int(np.argmin(score)) if np.isfinite(score).any() else int(np.argmin(s.score))
+    return poses[k], float(s.score[k])

@@ -1,0 +1,187 @@
+"""The files beside a scan: its JSON sidecar (viewpoint, units, ground truth, rough guess), Stanford
+``.conf`` poses and transform files (16 numbers or JSON), each read with one clear error."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .errors import InputError
+from .scan import Scan
+
+
+def sidecar_path(path: Path) -> Path:
+    return Path(path).with_suffix(".json")
+
+
+def _read_text(path: Path, what: str) -> str:
+    """The text of a side file (sidecar, .conf, transform), or one InputError saying why not."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not {what}")
+    try:
+        return path.read_text(errors="replace")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+
+
+def read_sidecar(path: Path) -> dict:
+    """The scan's JSON sidecar, checked: {} when there is none."""
+    side = sidecar_path(path)
+    if not side.exists() and not side.is_symlink():
+        return {}
+    text = _read_text(side, "a JSON sidecar")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{side}: the sidecar is not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{side}: the sidecar should hold a JSON object, found {type(data).__name__}")
+    return check_sidecar(data, str(side))
+
+
+def check_sidecar(data: dict, what: str) -> dict:
+    """Check a sidecar's known keys; returns them as arrays: viewpoint (3,), pose and guess (4, 4) rigid."""
+    from .transforms import check_rigid
+
+    out = dict(data)
+    if data.get("viewpoint") is not None:
+        out["viewpoint"] = vector3(data["viewpoint"], f"{what}: 'viewpoint'")
+    for key in ("pose", "guess"):
+        if data.get(key) is None:
+            continue
+        try:
+            T = np.asarray(data[key], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"{what}: {key!r} should be a 4 x 4 rigid transform (rows of numbers), "
+                             f"found {_short(data[key])}") from None
+        try:
+            out[key] = check_rigid(T, f"{what}: {key!r}")
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+    units = data.get("units")
+    if units is not None and (not isinstance(units, str) or not units.strip()):
+        raise InputError(f"{what}: 'units' should be a name such as \"mm\" or \"m\", found {_short(units)}")
+    return out
+
+
+def vector3(value, what: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        v = None
+    if v is None or v.shape != (3,):
+        raise InputError(f"{what} should be three numbers x, y, z, found {_short(value)}")
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{what} {v.tolist()} is not finite")
+    return v
+
+
+def _short(value) -> str:
+    text = json.dumps(value) if not isinstance(value, np.ndarray) else str(value.tolist())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def load_conf(path: str | Path) -> dict[str, np.ndarray]:
+    """Stanford ``.conf`` -> {scan name (file stem): T_world_scan (4, 4)}.
+
+    Each ``bmesh NAME tx ty tz qx qy qz qw`` line is read with the convention measured on the bunny
+    data (see its README): ``x_world = R(q*) x_scan + t`` with the CONJUGATE quaternion.
+    """
+    path = Path(path)
+    poses = {}
+    for lineno, line in enumerate(_read_text(path, "a Stanford .conf file").splitlines(), 1):
+        tok = line.split()
+        if not tok or tok[0] != "bmesh":
+            continue
+        if len(tok) != 9:
+            raise InputError(f"{path}: line {lineno} should be 'bmesh NAME tx ty tz qx qy qz qw'")
+        try:
+            tx, ty, tz, qx, qy, qz, qw = map(float, tok[2:])
+        except ValueError:
+            raise InputError(f"{path}: line {lineno} holds a value that is not a number") from None
+        q = np.array([-qx, -qy, -qz, qw])
+        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
+            raise InputError(f"{path}: line {lineno} has a zero or invalid quaternion")
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+        T[:3, 3] = (tx, ty, tz)
+        poses[Path(tok[1]).stem] = T
+    if not poses:
+        raise InputError(f"{path}: no 'bmesh' lines: not a Stanford .conf file")
+    return poses
+
+
+def pose_from_conf_beside(path: Path):
+    for conf in sorted(path.parent.glob("*.conf")):
+        try:
+            poses = load_conf(conf)
+        except InputError:
+            continue
+        if path.stem in poses:
+            return poses[path.stem]
+    return None
+
+
+def write_sidecar(path: Path, scan: Scan, **extra) -> None:
+    data = {"name": scan.name, "units": scan.units, "viewpoint": scan.viewpoint.tolist()}
+    if scan.pose is not None:
+        data["pose"] = scan.pose.tolist()
+    if scan.guess is not None:
+        data["guess"] = scan.guess.tolist()
+    data.update(extra)
+    sidecar_path(path).write_text(json.dumps(data, indent=1) + "\n")
+
+
+def parse_transform(text_or_path: str | Path) -> np.ndarray:
+    """A rigid 4 x 4 transform from a file (16 numbers, row-major, whitespace or commas; or JSON
+    with ``transform``) or, when ``text_or_path`` is a string naming no file, from the text itself
+    (16 numbers, or that JSON)."""
+    if isinstance(text_or_path, str) and not Path(text_or_path).exists() and _looks_like_numbers(text_or_path):
+        text = text_or_path.strip()
+        return _transform_from_text(text, f"the transform {text if len(text) <= 40 else text[:37] + '...'!r}")
+    path = Path(text_or_path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file (and not 16 numbers)")
+    return _transform_from_text(_read_text(path, "a transform file").strip(), str(path))
+
+
+def read_transform(path: str | Path) -> np.ndarray:
+    """A 4 x 4 transform from a file, or from the text of 16 numbers (see :func:`parse_transform`)."""
+    return parse_transform(path)
+
+
+def _looks_like_numbers(text: str) -> bool:
+    t = text.strip()
+    return t.startswith("{") or bool(re.fullmatch(r"[\s,;\[\]0-9eE+\-.naifNAIF]+", t)) and any(c.isdigit() for c in t)
+
+
+def _transform_from_text(text: str, what: str) -> np.ndarray:
+    from .transforms import check_rigid
+
+    if text.startswith("{"):
+        try:
+            data = json.loads(text)
+            values = np.asarray(data["transform"], dtype=np.float64)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{what}: expected JSON with a 'transform' 4 x 4 list ({exc})") from None
+    else:
+        try:
+            values = np.array([float(t) for t in re.split(r"[,;\s\[\]]+", text) if t], dtype=np.float64)
+        except ValueError:
+            raise InputError(f"{what}: expected 16 numbers (a row-major 4 x 4 matrix)") from None
+    if values.size != 16:
+        raise InputError(f"{what}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
+    try:
+        return check_rigid(values.reshape(4, 4), what)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
+def write_transform(path: str | Path, T: np.ndarray, **extra) -> None:
+    Path(path).write_text(json.dumps({"transform": np.asarray(T).tolist(), **extra}, indent=1) + "\n")

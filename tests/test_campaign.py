@@ -1,0 +1,180 @@
+"""Scanning campaigns: a simulated turntable, merged serially, on a local Dask cluster and on a
+scheduler started apart; the same seeds give bitwise-equal poses everywhere."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from core.errors import InputError
+from core.io import load_conf, load_scan
+from core.merge import merge
+from core.simulate import Scanner
+from core.transforms import pose_error
+from core.turntable import TurntableConfig, make_campaign, write_campaign
+from tests.conftest import ROOT
+
+SMALL = TurntableConfig(scans=8, scanner=Scanner(rows=48, cols=48, fov_deg=(24.0, 24.0), noise=0.3, outliers=0.02))
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("campaign")
+    write_campaign(out, seed=3, config=SMALL)
+    return out
+
+
+@pytest.fixture(scope="module")
+def serial(folder):
+    """The small campaign merged by the CLI's code with one worker: (scans, initial, report)."""
+    from app.commands.merge import run as main
+
+    scans = sorted(folder.glob("scan*.ply"))
+    a = argparse.Namespace(scans=[str(p) for p in scans], init=str(folder / "init" / "chain.conf"), truth=None,
+                           out=str(folder / "model.ply"), seed=0, json=True, workers=1, scheduler=None, pairs="chain")
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(a) == 0
+    loaded = [load_scan(p) for p in scans]
+    init = load_conf(folder / "init" / "chain.conf")
+    return loaded, [init[s.name] for s in loaded], json.loads(buf.getvalue())
+
+
+def test_the_campaign_is_a_closed_asymmetric_object_with_its_truth_in_a_conf(folder):
+    camp = make_campaign(3, SMALL)
+    import trimesh
+
+    mesh = trimesh.Trimesh(camp.vertices, camp.faces, process=False)
+    assert mesh.is_watertight
+    # No turn of the table maps the object onto itself: a turntable could not tell its scans apart.
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(camp.vertices)
+    for deg in (45, 90, 180):
+        c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        turned = camp.vertices @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+        assert np.median(tree.query(turned)[0]) > 0.01 * camp.size
+    truth = load_conf(folder / "campaign.conf")
+    assert sorted(truth) == [s.name for s in camp.scans]
+    for s in camp.scans:
+        assert np.allclose(truth[s.name], s.pose, atol=1e-6)
+        back = load_scan(folder / f"{s.name}.ply")  # the truth beside the scans becomes their pose
+        assert np.allclose(back.pose, s.pose, atol=1e-6) and np.allclose(back.points, s.points, atol=1e-3)
+        assert back.units == "mm" and np.allclose(back.viewpoint, 0.0)
+    # the sensor's elevation is jittered: the true poses are not the nominal ones the initial poses start from
+    heights = [s.pose[2, 3] for s in camp.scans]
+    assert np.ptp(heights) > 1.0
+    # initial poses are off by the seeded perturbation; the chain variant's errors add up along the table
+    off = [pose_error(camp.perturbed[k], s.pose, s.points.mean(0))[0] for k, s in enumerate(camp.scans)]
+    assert min(off) > 0.5
+    assert make_campaign(3, SMALL).scans[5].points.tobytes() == camp.scans[5].points.tobytes()
+
+
+def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, folder):
+    scans, _, rep = serial
+    size = make_campaign(3, SMALL).size
+    assert max(rep["rotation_error_deg"]) < 1.0
+    assert max(rep["translation_error"]) < 0.005 * size
+    # the graph: a chain round the table, closed by the last scan onto the first
+    assert rep["graph"]["mode"] == "chain" and rep["graph"]["pairs"] == len(scans)
+    closing = [p for p in rep["pairs"] if {p["source"], p["target"]} == {scans[0].name, scans[-1].name}]
+    assert len(closing) == 1 and closing[0]["status"] in ("used", "rejected")
+    assert rep["graph"]["used"] + rep["graph"]["rejected"] + rep["graph"]["dropped"] == rep["graph"]["pairs"]
+    assert rep["model"]["triangles"] > 0
+
+
+def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
+    from app.distributed import TaskRunner
+
+    scans, initial, rep = serial
+    lines = []
+    with TaskRunner(2, progress=lines.append) as runner:
+        res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
+    assert any("dashboard http://127.0.0.1:" in line for line in lines)
+    assert any(line.startswith(f"pairs {len(scans)}/{len(scans)}") for line in lines)
+    for T, ref in zip(res.poses, rep["poses"]):
+        assert np.array_equal(T, np.array(ref))  # JSON floats round-trip exactly
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_scheduler_started_apart_gives_the_same_poses(serial):
+    from app.distributed import TaskRunner
+
+    scans, initial, rep = serial
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    dask = [sys.executable, "-m", "dask"]
+    procs = []
+    try:
+        procs.append(subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                                       "--dashboard-address", f"127.0.0.1:{_free_port()}", "--no-show"],
+                                      env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        procs.append(subprocess.Popen([*dask, "worker", address, "--nworkers", "2", "--nthreads", "1",
+                                       "--no-dashboard", "--host", "127.0.0.1"],
+                                      env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        from distributed import Client
+
+        deadline = time.monotonic() + 120
+        client = None
+        while client is None:
+            try:
+                client = Client(address, timeout="5s")
+            except OSError:
+                assert time.monotonic() < deadline, "the scheduler did not start in 120 s"
+                time.sleep(0.5)
+        try:
+            client.wait_for_workers(2, timeout=120)
+        finally:
+            client.close()
+        lines = []
+        with TaskRunner(scheduler=address, progress=lines.append) as runner:
+            res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
+        assert any(address in line and "2 workers" in line for line in lines)
+        for T, ref in zip(res.poses, rep["poses"]):
+            assert np.array_equal(T, np.array(ref))
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)
+
+
+def test_bad_runner_settings_are_one_clear_error():
+    from app.distributed import TaskRunner
+
+    for kw, words in (({"workers": 0}, "--workers"), ({"scheduler": "localhost:8786"}, "tcp://HOST:PORT")):
+        with pytest.raises(InputError, match=words):
+            TaskRunner(**kw)
+    port = _free_port()  # nobody listens there
+    with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
+        with TaskRunner(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=1.0) as runner:
+            runner.start()
+
+
+def test_map_tasks_keeps_the_order_serially_and_on_a_cluster():
+    from app.distributed import map_tasks
+
+    items = list(range(7))
+    assert map_tasks(abs, [-i for i in items], workers=1) == items
+    assert map_tasks(abs, [-i for i in items], workers=2) == items

@@ -1,0 +1,118 @@
+"""The global pipeline (issue 13): candidates on one fixed basis, a widened cut, a pair threshold."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.candidates import CandidateConfig, make_basis, super_fibonacci
+from core.problem import ProblemConfig, prepare
+from core.register import Config, register
+from core.surface import Surface
+from core.transforms import apply, invert, perturb, pose_error, rotation_angle
+
+
+def test_candidate_scores_match_a_per_pose_loop(scene):
+    target, source = scene("corner")
+    basis = make_basis(source, target, Surface.from_scan(target), 0.4, np.random.default_rng(3),
+                       CandidateConfig(sample=50))
+    rng = np.random.default_rng(4)
+    poses = [perturb(np.eye(4), np.r_[rng.normal(0, 100, 3), rng.normal(0, 0.3, 3)], source.centroid) for _ in range(7)]
+    scores = basis.evaluate(np.stack(poses))
+    for k, T in enumerate(poses):
+        moved = apply(T, basis.points)
+        d2 = np.array([basis.surface.closest(p[None])[1][0] for p in moved])
+        inside = np.array([basis.target_frustum.contains(p[None])[0] for p in moved])
+        expected = np.mean([min(d, basis.cap) if i else basis.cap for d, i in zip(d2, inside)])
+        assert scores.score[k] == pytest.approx(expected, rel=1e-6)
+        assert scores.inside[k] == pytest.approx(inside.mean())
+        assert scores.inliers[k] == pytest.approx(np.mean(inside & (d2 < basis.cap)))
+
+
+def test_super_fibonacci_rotations_cover_so3_evenly():
+    R = super_fibonacci(720)
+    assert np.allclose(np.einsum("nij,nkj->nik", R, R), np.eye(3), atol=1e-9)
+    rng = np.random.default_rng(0)
+    # any rotation lies within 20 degrees of a sample (720 samples: neighbours ~15 deg apart)
+    from scipy.spatial.transform import Rotation
+
+    for Q in Rotation.random(50, random_state=rng.integers(1 << 31)).as_matrix():
+        assert min(rotation_angle(Q @ S.T) for S in R) < np.radians(20)
+
+
+def test_an_empty_frustum_cut_widens_and_the_pair_still_registers(scene):
+    target, source = scene("corner")
+    from core.frustum import frustum_of
+    from core.simulate import true_transform
+
+    T_true = true_transform(source, target)
+    # the guess moves the source 2 m sideways, out of the target's view: the frustum cut is empty
+    T0 = T_true.copy()
+    T0[:3, 3] += 2000.0 * frustum_of(target).basis[0]
+    pc = ProblemConfig(rotation_uncertainty_deg=30.0, translation_uncertainty=2400.0)
+    p = prepare(source, target, T0, pc)
+    assert p.overlap.source_mask.sum() == 0 and p.cut != "frustum"
+    g = register(source, target, T0, Config(method="global", problem=pc))
+    assert g.cut != "frustum"
+    assert g.to_json()["cut"] == g.cut
+    rot, trans = pose_error(g.transform, T_true, source.centroid)
+    assert rot < 1.0 and trans < 0.01 * target.size
+
+
+def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
+    source, target = bunny("bun045"), bunny("bun000")
+    T_true = invert(target.pose) @ source.pose
+    T0 = perturb(T_true, np.r_[0.05, 0.0, -0.05, 0.0, 0.0, np.radians(90)], apply(T_true, source.centroid[None])[0])
+    pc = ProblemConfig(rotation_uncertainty_deg=180.0, translation_uncertainty=0.075)
+    g = register(source, target, T0, Config(method="global", problem=pc))
+    rot, trans = pose_error(g.transform, T_true, source.centroid)
+    assert rot < 2.0 and trans < 0.002
+    assert g.below_threshold
+    assert g.iterations["candidates"] > 100
+
+
+def test_with_candidates_off_only_the_guess_is_tried(scene):
+    from core.simulate import true_transform
+
+    target, source = scene("corner")
+    T_true = true_transform(source, target)
+    T0 = perturb(T_true, np.r_[50.0, 0, 0, 0, np.radians(3), 0], apply(T_true, source.centroid[None])[0])
+    res = register(source, target, T0, Config(method="global", candidates=CandidateConfig(enabled=False)))
+    assert res.details["candidates"] == 1 and res.iterations["candidates"] == 1
+    assert pose_error(res.transform, T_true, source.centroid)[0] < 1.0
+
+
+def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it_on_every_shared_pair(bunny):
+    from app.sweep import shared_pairs
+    from core.noise import noise_floor
+    from core.threshold import pair_threshold
+    from tests.conftest import BUNNY
+
+    pairs = shared_pairs(BUNNY)
+    assert len(pairs) >= 5 and ("bun090", "bun000") in {(s.stem, t.stem) for s, t, _ in pairs}
+    for s, t, _ in pairs:
+        source, target = bunny(s.stem), bunny(t.stem)
+        T_true = invert(target.pose) @ source.pose
+        rng = np.random.default_rng(0)
+        floor = float(np.mean([noise_floor(x, rng, 300) for x in (source, target)]))
+        basis = make_basis(source, target, Surface.from_scan(target), floor, rng)
+        thr = pair_threshold(floor, basis.min_overlap)
+        assert thr.holds(basis, T_true)
+        off = perturb(T_true, np.r_[0.004, 0, 0, 0, np.radians(5), 0], apply(T_true, source.centroid[None])[0])
+        assert not thr.holds(basis, off)
+
+
+def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
+    from core.simulate import true_transform
+
+    target, source = scene("corner")
+    T_true = true_transform(source, target)
+    T0 = perturb(T_true, np.r_[80.0, 0, 0, 0, np.radians(5), 0], apply(T_true, source.centroid[None])[0])
+    events = []
+    res = register(source, target, T0, Config(method="global"), events.append)
+    phases = [e.phase for e in events]
+    assert phases[0] == "candidates" and "icp" in phases
+    assert phases.count("candidates") == res.iterations["candidates"] == res.details["candidates"]
+    steps = [e.iteration for e in events if not e.local_minimum]
+    assert steps == list(range(1, len(steps) + 1))
+    assert all(e.phase_iteration >= 1 and e.leg >= 1 for e in events)

@@ -181,3 +181,21 @@ def test_scrubbing_the_timeline_moves_the_scan_and_its_marker_on_the_terrain(ben
     wait_for(lambda: f"Event {n} of {n}" in page.locator("body").inner_text(), what="Play")
     assert np.allclose(st.T, st.result.transform)  # the end of the timeline: the run's outcome
     page.close()
+
+
+def test_locked_parameters_stay_in_every_event_of_a_run(bench, browser):
+    from core.transforms import PARAM_NAMES
+    from tests.test_workbench import text_input, wait_finished
+
+    page, tab = open_tab(bench, browser)
+    st = tab.state
+    text_input(page, "Locked parameters").fill("rx,ry,tz")
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    wait_finished(page)
+    locked = [PARAM_NAMES.index(n) for n in ("rx", "ry", "tz")]
+    assert st.events and all(np.all(e.coords[locked] == 0.0) for e in st.events)
+    assert not np.allclose(st.result.transform, st.T_init)  # the free ones moved
+    text_input(page, "Locked parameters").fill("rx,rq")
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    wait_for(lambda: "cannot lock rq" in page.locator("body").inner_text(), what="the notification")
+    page.close()

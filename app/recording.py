@@ -28,6 +28,7 @@ from core.errors import InputError
 MAX_POINTS = 20000  # per scan in the recording: the file stays a few MB
 FRAMES = 150  # poses the recording steps through (evenly over the run's events)
 SECONDS = 10.0  # how long the recording plays
+HOLD = 1.0  # seconds the start pose is held before the scan moves
 CAMERA_AT, CAMERA_LOOK_AT = (0.7, 1.3, 2.6), (0.7, 0.0, 0.0)  # both the scans and the terrain in view
 
 
@@ -102,7 +103,7 @@ def _part(scene, name: str, points: np.ndarray, sa: np.ndarray) -> None:
                             thickness=3.0, thickness_units="screen")
 
 
-def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS) -> bytes:
+def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hold: float = HOLD) -> bytes:
     """The recording (.viser bytes): the pair, then the scan moving along the run with its path growing."""
     import viser
 
@@ -131,6 +132,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS) -> 
         # recorded after the snapshot: the camera messages are then part of the file
         server.initial_camera.look_at = CAMERA_LOOK_AT if terrain is not None else (0.0, 0.0, 0.0)
         server.initial_camera.position = CAMERA_AT if terrain is not None else (0.0, 0.4, 1.8)
+        recorder.insert_sleep(hold)
         steps = np.unique(np.linspace(0, len(pos) - 1, min(frames, len(pos))).astype(int))
         last = 0
         for i, k in enumerate(steps):
@@ -152,6 +154,6 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS) -> 
         server.stop()
 
 
-def recording_html(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS) -> bytes:
+def recording_html(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hold: float = HOLD) -> bytes:
     """One HTML file that plays the run in a browser from disk (see the module's docstring)."""
-    return embed(record(run, frames, seconds))
+    return embed(record(run, frames, seconds, hold))

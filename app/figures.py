@@ -10,6 +10,8 @@ SOURCE_OVERLAP_RGB = (255, 225, 60)
 PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200), "candidates": (245, 150, 20)}
 MINIMUM_RGB = (230, 30, 30)
 MODEL_RGB = (200, 200, 190)
+SOURCE_PICK_RGB = (255, 60, 0)  # picked point pairs: darker than the scans they sit on
+TARGET_PICK_RGB = (0, 40, 160)
 PHASE_LABEL = {"icp": "ICP", "sa": "SA", "candidates": "candidates"}
 
 
@@ -32,3 +34,8 @@ def unit_label(param: str, units: str = "") -> str:
 
 def axis_label(param: str, units: str = "") -> str:
     return f"{param} ({unit_label(param, units)})"
+
+
+def squared_unit(units: str = "") -> str:
+    """The unit of E, a mean squared distance: the scans' length unit squared."""
+    return f"{unit_label('t', units)}²"

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.figures import PHASE_LABEL, PHASE_RGB, axis_label, unit_fraction
+from app.figures import PHASE_LABEL, PHASE_RGB, axis_label, squared_unit, unit_fraction
 from core.landscape import Slice
 
 
@@ -24,7 +24,7 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
     fig, ax = plt.subplots(figsize=(7, 5.5), dpi=110)
     B, A = np.meshgrid(sl.axis_b, sl.axis_a)
     cs = ax.contourf(A, B, sl.values, levels=30, cmap="viridis")
-    fig.colorbar(cs, ax=ax, label="robust error E")
+    fig.colorbar(cs, ax=ax, label=f"robust error E ({squared_unit(units)})")
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
         start = 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.figures import PHASE_LABEL, PHASE_RGB, axis_label
+from app.figures import PHASE_LABEL, PHASE_RGB, axis_label, squared_unit
 from core.events import Event
 from core.landscape import Slice
 from core.scan import Scan
@@ -127,7 +127,7 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
 
     z = np.log10(np.maximum(sl.values, np.nanmin(sl.values[sl.values > 0]) if np.any(sl.values > 0) else 1e-300))
     fig = go.Figure(go.Contour(x=sl.axis_a, y=sl.axis_b, z=z.T, colorscale="Viridis", ncontours=25,
-                               colorbar=dict(title="log10 E", thickness=12)))
+                               colorbar=dict(title=f"log10 E ({squared_unit(units)})", thickness=12)))
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
         for phase, name in PHASE_LABEL.items():

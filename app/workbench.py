@@ -39,6 +39,7 @@ class ServeOptions:
     port: int = 8080
     data_dir: str | None = None
     upload_cap_mb: float = 200.0
+    trace: str | None = None  # a register --trace file of SOURCE -> TARGET, opened on the Replay timeline
 
     def __post_init__(self) -> None:
         if not self.upload_cap_mb > 0:
@@ -96,6 +97,7 @@ class Workbench:
             self.first_pair = (_load(Path(options.source)), _load(Path(options.target)))
         else:
             self.first_pair = self.scene_pair(options.scene)
+        self.trace = self._check_trace(options.trace) if options.trace else None
         check_port(options.host, options.port)
         with guarded_viser(Guard(options.host)):
             self.server = viser.ViserServer(host=options.host, port=options.port, label="rangereg", verbose=False)
@@ -104,6 +106,22 @@ class Workbench:
         self.tabs: dict = {}
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
+
+    def _check_trace(self, path: str) -> tuple[str, bytes]:
+        """(name, bytes) of a trace that parses and fits the first pair; else one InputError, before serving."""
+        from app.tab.replay import check_trace_fits, parse_trace
+        from core.problem import prepare, relative_guess
+        from core.register import estimate_threshold
+
+        try:
+            content = Path(path).read_bytes()
+        except OSError as exc:
+            raise InputError(f"--trace {path}: {exc.strerror}") from None
+        source, target = self.first_pair
+        problem = prepare(source, target, relative_guess(source, target), seed=0)
+        check_trace_fits(problem, parse_trace(content.decode("utf-8", errors="replace"), f"--trace {path}"),
+                         estimate_threshold(problem, 0), f"--trace {path}")
+        return Path(path).name, content
 
     @property
     def urls(self) -> list[str]:
@@ -172,6 +190,8 @@ class Workbench:
         self.tabs[client.client_id] = tab
         try:
             tab.load_pair(*self.first_pair)
+            if self.trace is not None:
+                tab.replay.load_trace(*self.trace)
         except InputError as exc:
             tab.notify("Could not open the scans", str(exc))
 

@@ -88,7 +88,7 @@ def settings_handles(**typed):
     from app.tab.run import SettingsHandles
 
     values = dict(threshold="auto", t_start="auto", t_min="auto", cooling="0.9", seed="0", icp_max="100",
-                  sa_max="20000", frustum="convex", max_points="300", coarse_to_fine=False, polish=False) | typed
+                  sa_max="20000", frustum="convex", max_points="300", coarse_to_fine=False, polish=False, lock="") | typed
     return SettingsHandles(**{k: SimpleNamespace(value=v) for k, v in values.items()})
 
 

@@ -81,7 +81,7 @@ def text_input(page, label: str):
 
 
 def pose_fields(page) -> np.ndarray:
-    names = ("tx", "ty", "tz", "rx (deg)", "ry (deg)", "rz (deg)")
+    names = ("tx (mm)", "ty (mm)", "tz (mm)", "rx (deg)", "ry (deg)", "rz (deg)")  # the corner is in mm
     return np.array([float(text_input(page, n).input_value()) for n in names])
 
 
@@ -202,7 +202,7 @@ def test_two_tabs_are_independent(server, browser):
     E_a, E_b = initial_E(a), initial_E(b)
     assert E_a == pytest.approx(E_b)
     show_tab(a, "Pose")
-    tx = text_input(a, "tx")
+    tx = text_input(a, "tx (mm)")
     tx.fill(str(float(tx.input_value()) + 40.0))
     a.get_by_role("button", name="Apply pose", exact=True).click()
     deadline = time.monotonic() + 10
@@ -300,7 +300,7 @@ def test_every_interface_is_said_aloud_with_the_real_addresses():
 def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, browser):
     page = open_page(browser, server[0])
     show_tab(page, "Pose")
-    E0, tx = initial_E(page), text_input(page, "tx")
+    E0, tx = initial_E(page), text_input(page, "tx (mm)")
     before = float(tx.input_value())
     tx.fill("12,5")
     page.get_by_role("button", name="Apply pose", exact=True).click()
@@ -311,7 +311,7 @@ def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, br
     deadline = time.monotonic() + 10
     while time.monotonic() < deadline and initial_E(page) == E0:
         time.sleep(0.2)
-    assert float(text_input(page, "tx").input_value()) == pytest.approx(before + 2.5e-3, abs=1e-9)
+    assert float(text_input(page, "tx (mm)").input_value()) == pytest.approx(before + 2.5e-3, abs=1e-9)
     # out of range is a notification, not a silent clamp
     show_tab(page, "Landscape")
     text_input(page, "Steps").fill("1000000")

@@ -22,6 +22,7 @@ class ExportHandles:
     scans: viser.GuiButtonHandle
     slice: viser.GuiButtonHandle
     model: viser.GuiButtonHandle
+    recording: viser.GuiButtonHandle
 
 
 class ExportPanel:
@@ -30,9 +31,11 @@ class ExportPanel:
         gui = tab.gui
         self.h = ExportHandles(gui.add_button("Transform (JSON)"), gui.add_button("Trace (JSON lines)"),
                                gui.add_button("Registered scans (PLY)"), gui.add_button("Slice (PNG)"),
-                               gui.add_button("Model (PLY)"))
+                               gui.add_button("Model (PLY)"),
+                               gui.add_button("Recording (HTML)", hint="the run as one HTML file that plays in a "
+                                              "browser with no server: scans, moving scan, path, 3-D landscape"))
         for button, fn in ((self.h.transform, self.transform), (self.h.trace, self.trace), (self.h.scans, self.scans),
-                           (self.h.slice, self.slice), (self.h.model, self.model)):
+                           (self.h.slice, self.slice), (self.h.model, self.model), (self.h.recording, self.recording)):
             button.on_click(lambda e, fn=fn: tab.guarded(fn))
 
     def _download(self, name: str, data: bytes) -> None:
@@ -78,3 +81,30 @@ class ExportPanel:
         if model is None:
             raise InputError("press Merge first")
         self._download("model.ply", ply_bytes(model.vertices, model.faces))
+
+    def recording(self) -> None:
+        """The last run as a self-contained HTML recording (app/recording.py); made on a worker thread."""
+        import threading
+
+        from app.recording import RunToRecord, recording_html
+
+        st = self.state
+        st.require_scans()
+        st.require_idle()
+        kind = self.tab.run_panel.settings().frustum
+        with st.lock:
+            if not st.events:
+                raise InputError("no run yet: nothing to record")
+            run = RunToRecord(st.source, st.target, st.display, st.frusta[kind], st.T_init, list(st.events),
+                              st.slice, st.target.units)
+        self.h.recording.disabled = True
+
+        def work() -> None:
+            try:
+                self._download(f"{run.source.name}_to_{run.target.name}_run.html", recording_html(run))
+            except Exception as exc:  # said on the page; the tab lives on
+                self.tab.notify("Recording failed", str(exc))
+            finally:
+                self.h.recording.disabled = False
+
+        threading.Thread(target=work, daemon=True, name="rangereg-recording").start()

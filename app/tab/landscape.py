@@ -11,6 +11,7 @@ import viser
 
 from app.tab.fields import Range, parse_number
 from app.tab.state import SliceView, TabState
+from app.tab.terrain import PathOnSlice, Terrain
 from app.views import slice_figure
 from core.errors import InputError
 from core.events import Cancelled
@@ -49,6 +50,7 @@ class LandscapeHandles:
     compute: viser.GuiButtonHandle
     cancel: viser.GuiButtonHandle
     progress: viser.GuiProgressBarHandle
+    terrain: viser.GuiCheckboxHandle
     folder: viser.GuiFolderHandle
     plot: viser.GuiPlotlyHandle | None = None  # made with the first slice
 
@@ -64,6 +66,8 @@ def build(gui: viser.GuiApi) -> LandscapeHandles:
             compute=gui.add_button("Compute slice"),
             cancel=gui.add_button("Cancel slice", disabled=True),
             progress=gui.add_progress_bar(0.0, visible=False),
+            terrain=gui.add_checkbox("Show as 3-D terrain", False,
+                                     hint="the slice as a height field beside the scans, with the run's path on it"),
             folder=folder)
 
 
@@ -85,7 +89,11 @@ class LandscapePanel:
         self.h = build(tab.gui)
         self.h.compute.on_click(lambda e: tab.guarded(self.start))
         self.h.cancel.on_click(lambda e: self.cancel())
+        self.h.terrain.on_update(lambda e: tab.guarded(self.update_terrain))
         self.drawn_at = 0.0
+        self.terrain: Terrain | None = None
+        self.terrain_lock = threading.Lock()  # one builder at a time (a checkbox and the refresher may race); taken
+        # outside client.atomic() and the state's lock, never inside them
 
     def start(self) -> None:
         st, h = self.state, self.h
@@ -153,9 +161,39 @@ class LandscapePanel:
             args = picture(st)
             units = st.target.units
         self.drawn_at = time.monotonic()
+        self.update_terrain()
         fig = slice_figure(*args, units=units)
         if self.h.plot is None:
             with self.h.folder:
                 self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2)
         else:
             self.h.plot.figure = fig
+
+    def update_terrain(self) -> None:
+        """The 3-D terrain of the current slice with the path so far, when shown; gone otherwise."""
+        with self.terrain_lock:
+            self._update_terrain()
+
+    def mark_terrain(self, T) -> None:
+        """Move the terrain's marker of the shown pose (replay)."""
+        with self.terrain_lock:
+            if self.terrain is not None:
+                self.terrain.mark(T)
+
+    def _update_terrain(self) -> None:
+        st, tab = self.state, self.tab
+        with st.lock:
+            view, events, T_init, T, units = st.slice, st.events, st.T_init, st.T, st.target.units if st.target else ""
+        if not self.h.terrain.value or view is None or tab.nodes is None:
+            if self.terrain is not None:
+                self.terrain.remove()
+                self.terrain = None
+            return
+        with tab.client.atomic():
+            if self.terrain is None or self.terrain.view is not view:
+                if self.terrain is not None:
+                    self.terrain.remove()
+                self.terrain = Terrain(tab.client.scene, view, units, T_init, events)
+            elif self.terrain.path.events is not events:
+                self.terrain.path = PathOnSlice(view.problem, view.slice, T_init, events)
+            self.terrain.update(T)

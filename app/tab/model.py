@@ -9,6 +9,7 @@ import numpy as np
 import viser
 
 from app.tab import scene3d
+from app.tab.residuals import ResidualsPanel
 from app.tab.state import TabState
 
 
@@ -24,6 +25,7 @@ class ModelPanel:
         gui = tab.gui
         self.h = ModelHandles(gui.add_button("Merge", hint="fuse the two scans at the current pose into one mesh"),
                               gui.add_checkbox("Show model", False, disabled=True))
+        self.residuals = ResidualsPanel(tab)
         self.h.merge.on_click(lambda e: tab.guarded(self.start))
         self.h.show.on_update(lambda e: tab.guarded(tab.apply_visibility))
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
+from app.figures import axis_label
 from app.tab import scene3d
 from app.tab.fields import parse_number, show_number
 from core.errors import InputError
@@ -21,8 +22,11 @@ class PoseHandles:
     reset_truth: viser.GuiButtonHandle
 
 
-def label(param: str) -> str:
-    return param + (" (deg)" if param.startswith("r") else "")
+def label(param: str, units: str = "") -> str:
+    """The field's label: rotations in degrees, translations in the scans' own units once known."""
+    if param.startswith("r"):
+        return f"{param} (deg)"
+    return axis_label(param, units) if units else param
 
 
 def build(gui: viser.GuiApi) -> PoseHandles:
@@ -37,13 +41,14 @@ class PosePanel:
     def __init__(self, tab):
         self.tab, self.state = tab, tab.state
         self.h = h = build(tab.gui)
+        self.units = ""
         h.apply.on_click(lambda e: tab.guarded(self.apply_typed))
         h.reset_file.on_click(lambda e: tab.guarded(lambda: tab.set_initial(self.state.T_file)))
         h.reset_truth.on_click(lambda e: tab.guarded(self.reset_truth))
 
     def typed(self) -> np.ndarray:
         """T_target_source from the six fields."""
-        p = np.array([float(parse_number(f.value, label(n))) for f, n in zip(self.h.params, PARAM_NAMES)])
+        p = np.array([float(parse_number(f.value, label(n, self.units))) for f, n in zip(self.h.params, PARAM_NAMES)])
         return from_params(np.r_[p[:3], np.radians(p[3:])])
 
     def apply_typed(self) -> None:
@@ -68,6 +73,12 @@ class PosePanel:
         self.tab.clear_run_views()
         self.show(T)
         self.tab.update_status()
+
+    def name_units(self, units: str) -> None:
+        """A new pair: the translation fields say its units."""
+        self.units = units
+        for f, n in zip(self.h.params, PARAM_NAMES):
+            f.label = label(n, units)
 
     def show(self, T: np.ndarray) -> None:
         p = to_params(T)

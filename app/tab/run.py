@@ -38,6 +38,7 @@ class SettingsHandles:
     max_points: viser.GuiTextHandle
     coarse_to_fine: viser.GuiCheckboxHandle
     polish: viser.GuiCheckboxHandle
+    lock: viser.GuiTextHandle
 
 
 @dataclass(eq=False)
@@ -66,6 +67,9 @@ def build(gui: viser.GuiApi) -> RunHandles:
     resume = gui.add_button("Resume", disabled=True)
     cancel = gui.add_button("Cancel", disabled=True)
     reset = gui.add_button("Reset", hint="back to the initial pose; clear the path")
+    lock = gui.add_text("Locked parameters", "", hint="what the search may not move, e.g. rx,ry,tz (a turntable about "
+                        "y: rx,rz,tx,ty,tz), rotation, translation, or turntable:px,py,pz,dx,dy,dz (an axis in the "
+                        "target's frame, its units); empty: all six free")
     plot = gui.add_uplot(
         data=(np.zeros(1), np.ones(1), np.ones(1)),
         # points, not lines: each phase leaves gaps where the other ran
@@ -89,7 +93,8 @@ def build(gui: viser.GuiApi) -> RunHandles:
             frustum=gui.add_dropdown("Frustum", KINDS, initial_value="convex"),
             max_points=gui.add_text("Overlap sample size", "300", hint="source points in E, >= 3"),
             coarse_to_fine=gui.add_checkbox("Coarse to fine", False),
-            polish=gui.add_checkbox("Unweighted polish", False))
+            polish=gui.add_checkbox("Unweighted polish", False),
+            lock=lock)
     return RunHandles(run, step, next_phase, pause, resume, cancel, reset, plot, settings)
 
 
@@ -105,7 +110,15 @@ def read_settings(h: SettingsHandles) -> PageSettings:
         sa_max=parse_number(h.sa_max.value, "SA evaluation cap", Range(7, 10**8, integer=True)),
         frustum=h.frustum.value,
         max_points=parse_number(h.max_points.value, "overlap sample size", Range(3, 10**7, integer=True)),
-        coarse_to_fine=bool(h.coarse_to_fine.value), polish=bool(h.polish.value))
+        coarse_to_fine=bool(h.coarse_to_fine.value), polish=bool(h.polish.value), lock=checked_lock(h.lock.value))
+
+
+def checked_lock(text: str) -> str:
+    """The lock as typed, once core takes it (a bad one raises InputError naming what is wrong)."""
+    from app.options import parse_lock
+
+    parse_lock(text.strip() or None)
+    return text.strip()
 
 
 class RunPanel:
@@ -155,6 +168,7 @@ class RunPanel:
         self.tab.nodes.gizmo.visible = False
         self.set_controls(running=True)
         run.start()
+        self.tab.model.residuals.refresh()  # a moving scan drops its residual colours
 
     def _done(self, run: Run) -> None:
         """On the run's thread: hand the outcome to the refresher (the state's owner)."""
@@ -208,7 +222,7 @@ class RunPanel:
     def set_controls(self, running: bool) -> None:
         """Lock what a run holds; the tab's other panels follow."""
         h = self.h
-        for b in [*h.run.values(), h.settings.frustum, h.settings.max_points]:
+        for b in [*h.run.values(), h.settings.frustum, h.settings.max_points, h.settings.lock]:
             b.disabled = running
         h.pause.disabled = h.resume.disabled = h.cancel.disabled = not running
         self.tab.run_drawing = running

@@ -70,6 +70,8 @@ class Visibility:
 def colours(state: TabState, which: str, overlap: bool) -> np.ndarray:
     """(N, 3) uint8 per-point colours of the source or target: the overlap points highlighted when shown."""
     src = which == "source"
+    if src and state.residual_rgb is not None:
+        return state.residual_rgb
     scan = state.source if src else state.target
     rgb = np.empty((len(scan.points), 3), np.uint8)
     rgb[:] = SOURCE_RGB if src else TARGET_RGB

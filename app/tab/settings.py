@@ -26,6 +26,7 @@ class PageSettings:
     max_points: int = 300
     coarse_to_fine: bool = False
     polish: bool = False
+    lock: str = ""  # locked degrees of freedom as --lock takes them ("rx,ry,tz", "rotation", "turntable:..."); "": none
 
 
 def problem_config(s: PageSettings) -> ProblemConfig:
@@ -41,4 +42,4 @@ def page_config(s: PageSettings, method: str) -> Config:
     return to_config(Settings(method=method, seed=s.seed, threshold=s.threshold, max_points=s.max_points,
                               frustum=s.frustum, t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling,
                               icp_max_iterations=s.icp_max, sa_max_evaluations=s.sa_max, polish=s.polish,
-                              coarse_to_fine=s.coarse_to_fine))
+                              coarse_to_fine=s.coarse_to_fine, lock=s.lock.strip() or None))

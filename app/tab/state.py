@@ -75,6 +75,7 @@ class TabState:
     slice_cancel: threading.Event | None = None
     model: object | None = None  # core.fuse's model (vertices, faces)
     model_version: int = 0
+    residual_rgb: np.ndarray | None = None  # (N, 3) uint8 source colours by distance to the target (Model tab)
     _handed: deque = field(default_factory=deque)
 
     @property
@@ -96,6 +97,7 @@ class TabState:
     def reset_run(self, T: np.ndarray | None = None) -> None:
         """Forget the last run (its events, result and finished line); the shown pose goes to ``T``. Under the lock."""
         self.events, self.result, self.finished_text = [], None, ""
+        self.residual_rgb = None
         if T is not None:
             self.T = T
 

@@ -13,12 +13,15 @@ import logging
 import numpy as np
 import viser
 
+from app.figures import squared_unit
 from app.tab import scene3d
 from app.tab.export import ExportPanel
 from app.tab.landscape import LandscapePanel
 from app.tab.model import ModelPanel
+from app.tab.pairs import PairsPanel
 from app.tab.pose import PosePanel
 from app.tab.refresher import Refresher
+from app.tab.replay import ReplayPanel
 from app.tab.run import RunPanel
 from app.tab.scans import ScansPanel
 from app.tab.settings import problem_config
@@ -49,10 +52,12 @@ class Tab:
             self.run_panel = RunPanel(self)
         with tabs.add_tab("Pose"):
             self.pose = PosePanel(self)
+            self.pairs = PairsPanel(self)
         with tabs.add_tab("Scans"):
             self.scans = ScansPanel(self)
         with tabs.add_tab("Landscape"):
             self.landscape = LandscapePanel(self)
+            self.replay = ReplayPanel(self)
         with tabs.add_tab("Model"):
             self.model = ModelPanel(self)
         with tabs.add_tab("Export"):
@@ -107,7 +112,12 @@ class Tab:
         self.nodes.gizmo.on_update(lambda e: self.guarded(self.pose.dragged))
         self.scans.show_viewpoints(source, target)
         self.pose.lock(False)
+        self.pose.name_units(target.units)
         self.model.forget()
+        self.pairs.forget()
+        self.replay.forget()
+        self.landscape.update_terrain()
+        self.model.residuals.refresh()
         self.apply_visibility()
         self.clear_run_views()
         self.pose.show(T_init)
@@ -139,6 +149,8 @@ class Tab:
         scene3d.move_source(self.nodes, st, T)
         self.clear_run_views()
         self.pose.show(T)
+        self.replay.forget()
+        self.model.residuals.refresh()
 
     # ---- the page ----------------------------------------------------------------------------------
     def trail(self) -> Trail:
@@ -166,11 +178,14 @@ class Tab:
         self.pose.lock(running)
         self.scans.lock(running)
         self.model.lock(running)
+        self.replay.lock(running)
 
     def clear_run_views(self) -> None:
         with self.client.atomic():
             scene3d.clear_path(self.nodes)
             self.run_panel.h.plot.data = Trail(self.state.display, []).plot(self.state.E0)
+        if self.landscape.terrain is not None:
+            self.landscape.update_terrain()
 
     def update_status(self) -> None:
         st = self.state
@@ -183,18 +198,19 @@ class Tab:
             n_icp, n_sa, n_min = trail.counts
             thr = f"{st.threshold:.4g}" if st.threshold is not None else "auto"
             units = st.target.units if st.target is not None else ""
+            e_unit = squared_unit(units)
             lines = [f"**{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}** "
                      f"({units}) · overlap {st.problem.used.sum() if st.problem else 0} points",
                      f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**",
                      f"Iterations: ICP {n_icp}, SA {n_sa} · local minima {n_min}",
-                     f"E = {last.error:.6g}" if last else f"E = {E0:.6g} (initial)",
+                     f"E = {last.error:.6g} {e_unit}" if last else f"E = {E0:.6g} {e_unit} (initial)",
                      f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
                      else "Temperature -",
-                     f"Threshold {thr}"]
+                     f"Threshold {thr} {e_unit}"]
             if st.finished_text and not running:
                 lines.append(st.finished_text)
         self.status.content = "  \n".join(lines)
-        self.e_init.content = f"Initial E = {E0:.6g}"
+        self.e_init.content = f"Initial E = {E0:.6g} {e_unit}"
 
     def close(self) -> None:
         """The browser tab went away: its run and its slice stop."""

@@ -1,0 +1,199 @@
+"""Point-pair coarse alignment (Pose tab): click a source point, then its partner on the target.
+
+A click in the scene gives a ray (viser's scene click event, page coordinates); the scan point
+taken is the nearest to the camera among those within reach of the ray. Three or more pairs give a
+pose by Horn's closed form (core.horn.weighted_horn), which becomes the initial guess.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import viser
+
+from app.figures import SOURCE_PICK_RGB, TARGET_PICK_RGB
+from core.errors import InputError
+from core.horn import weighted_horn
+from core.transforms import apply
+
+MIN_PAIRS = 3
+
+
+def nearest_to_ray(points: np.ndarray, origin, direction, reach: float, band: float) -> int | None:
+    """Index of the point (N, 3) a click ray picks, or None when none lies within ``reach`` of it.
+
+    Of the points in front of the ray's origin within ``band`` of the ray (beyond the closest one's
+    distance), the one nearest the camera: a click lands on the visible surface, not one behind it.
+    """
+    o = np.asarray(origin, np.float64)
+    d = np.asarray(direction, np.float64)
+    d = d / max(np.linalg.norm(d), 1e-12)
+    rel = np.asarray(points, np.float64) - o
+    along = rel @ d
+    perp = np.linalg.norm(rel - along[:, None] * d, axis=1)
+    perp[along <= 0] = np.inf
+    best = float(np.min(perp)) if len(perp) else np.inf
+    if not np.isfinite(best) or best > reach:
+        return None
+    near = np.flatnonzero(perp <= best + band)
+    return int(near[np.argmin(along[near])])
+
+
+@dataclass
+class PointPairs:
+    """Picked pairs as indices into the source and target scans; ``pending``: a source pick awaiting its partner."""
+
+    source_index: list[int] = field(default_factory=list)
+    target_index: list[int] = field(default_factory=list)
+    pending: int | None = None
+
+    def __len__(self) -> int:
+        return len(self.source_index)
+
+    def add(self, which: str, index: int) -> None:
+        if which == "source":
+            self.pending = index
+        elif self.pending is None:
+            raise InputError("click a point on the source (orange) first, then its partner on the target")
+        else:
+            self.source_index.append(self.pending)
+            self.target_index.append(index)
+            self.pending = None
+
+    def remove(self, k: int) -> None:
+        if not 0 <= k < len(self):
+            raise InputError(f"there is no pair {k + 1}; pairs are numbered 1 to {len(self)}")
+        del self.source_index[k], self.target_index[k]
+
+    def align(self, source: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """T_target_source (4, 4) fitting the pairs (source points (N, 3), target points (M, 3))."""
+        if len(self) < MIN_PAIRS:
+            raise InputError(f"pick at least {MIN_PAIRS} pairs (now {len(self)})")
+        x, y = source[self.source_index], target[self.target_index]
+        if np.linalg.matrix_rank(x - x.mean(0), tol=1e-9 * max(np.ptp(x), 1e-12)) < 2:
+            raise InputError("the source points of the pairs lie on one line: pick points spread apart")
+        return weighted_horn(x, y)
+
+    def residuals(self, source: np.ndarray, target: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """(N,) distance of each pair under T_target_source, in the scans' units."""
+        if not len(self):
+            return np.zeros(0)
+        return np.linalg.norm(apply(T, source[self.source_index]) - target[self.target_index], axis=1)
+
+
+@dataclass(eq=False)
+class PairHandles:
+    picking: viser.GuiCheckboxHandle
+    listing: viser.GuiMarkdownHandle
+    remove_which: viser.GuiTextHandle
+    remove: viser.GuiButtonHandle
+    clear: viser.GuiButtonHandle
+    align: viser.GuiButtonHandle
+
+
+class PairsPanel:
+    def __init__(self, tab):
+        self.tab, self.state = tab, tab.state
+        gui = tab.gui
+        with gui.add_folder("Point pairs"):
+            self.h = PairHandles(
+                picking=gui.add_checkbox("Pick point pairs", False,
+                                         hint="click a point on the source (orange), then its partner on the target"),
+                listing=gui.add_markdown("No pairs."),
+                remove_which=gui.add_text("Pair number", "1"),
+                remove=gui.add_button("Remove pair"),
+                clear=gui.add_button("Clear pairs"),
+                align=gui.add_button("Align from pairs", disabled=True,
+                                     hint=f"Horn's closed form on >= {MIN_PAIRS} pairs; sets the initial pose"))
+        self.pairs = PointPairs()
+        self.markers: list = []
+        self.h.picking.on_update(lambda e: tab.guarded(self._picking))
+        self.h.remove.on_click(lambda e: tab.guarded(self._remove))
+        self.h.clear.on_click(lambda e: tab.guarded(self.forget))
+        self.h.align.on_click(lambda e: tab.guarded(self.align))
+        self._callback = None
+
+    def _picking(self) -> None:
+        scene = self.tab.client.scene
+        if self.h.picking.value and self._callback is None:
+            self._callback = scene.on_click()(lambda e: self.tab.guarded(self.clicked, e.ray_origin, e.ray_direction))
+        elif not self.h.picking.value and self._callback is not None:
+            scene.remove_click_callback(self._callback)
+            self._callback = None
+
+    def page_points(self, which: str) -> np.ndarray:
+        """(N, 3) the source (at the shown pose) or the target, in page coordinates."""
+        st = self.state
+        if which == "target":
+            return st.display.points(st.target.points)
+        return st.display.points(apply(st.T, st.source.points))
+
+    def clicked(self, origin, direction) -> int | None:
+        """A scene click while picking: the source point first, then its partner on the target. Returns the index."""
+        st = self.state
+        st.require_scans()
+        which = "source" if self.pairs.pending is None else "target"
+        spacing = (st.source if which == "source" else st.target).spacing
+        with st.lock:
+            pts = self.page_points(which)
+        index = nearest_to_ray(pts, origin, direction, reach=3.0 * spacing / st.display.size,
+                               band=0.75 * spacing / st.display.size)
+        if index is None:
+            self.tab.notify("No point there", f"the click missed the {which}; click on its points", error=False)
+            return None
+        self.pairs.add(which, index)
+        self.show()
+        return index
+
+    def _remove(self) -> None:
+        from app.tab.fields import Range, parse_number
+
+        k = parse_number(self.h.remove_which.value, "pair number", Range(1, 10**6, integer=True))
+        self.pairs.remove(int(k) - 1)
+        self.show()
+
+    def align(self) -> None:
+        st = self.state
+        st.require_scans()
+        T = self.pairs.align(st.source.points, st.target.points)
+        self.tab.set_initial(T)
+        self.show()
+
+    def forget(self) -> None:
+        """No pairs (a new pair of scans, or Clear)."""
+        self.pairs = PointPairs()
+        self.show()
+
+    def show(self) -> None:
+        """The list with residuals (under the pairs' own fit from 3 pairs on, else the shown pose) and the markers."""
+        st, p = self.state, self.pairs
+        self.h.align.disabled = len(p) < MIN_PAIRS
+        if st.source is None:
+            return
+        units = st.target.units if st.target.units != "unknown" else "units"
+        T, under = st.T, "the shown pose"
+        if len(p) >= MIN_PAIRS:
+            try:
+                T, under = p.align(st.source.points, st.target.points), "their own fit"
+            except InputError:
+                pass
+        res = p.residuals(st.source.points, st.target.points, T)
+        lines = [f"pair {k + 1}: source {i} → target {j}: {r:.4g} {units}"
+                 for k, (i, j, r) in enumerate(zip(p.source_index, p.target_index, res))]
+        if p.pending is not None:
+            lines.append(f"source {p.pending} picked: now click its partner on the target")
+        head = f"Residuals under {under} ({units}):" if len(p) else "No pairs."
+        self.h.listing.content = "  \n".join([head, *lines])
+        self._markers()
+
+    def _markers(self) -> None:
+        st, p, scene = self.state, self.pairs, self.tab.client.scene
+        d = st.display
+        src = p.source_index + ([p.pending] if p.pending is not None else [])
+        size = 6.0 * min(st.source.spacing, st.target.spacing) / d.size
+        with self.tab.client.atomic():
+            scene.add_point_cloud("/source/picks", d.source_local(st.source.points[src]).reshape(-1, 3),
+                                  SOURCE_PICK_RGB, point_size=size, precision="float32")
+            scene.add_point_cloud("/target_picks", d.points(st.target.points[p.target_index]).reshape(-1, 3),
+                                  TARGET_PICK_RGB, point_size=size, precision="float32")

@@ -1,0 +1,207 @@
+"""Replay (Landscape tab): a timeline over the events of the last run or of a loaded ``--trace`` file.
+
+Scrubbing sets the shown pose (not the initial guess), the E, phase and temperature line, and the
+marker on the slice; Play walks the timeline at a chosen speed; the minimum buttons jump between the
+local minima ICP stopped in. Play's thread only hands each step to the refresher (app/tab/state.py).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+
+from app.figures import PHASE_LABEL, squared_unit
+from app.tab import scene3d
+from core.errors import InputError
+from core.events import Event
+from core.transforms import check_rigid
+
+SPEEDS = ("10", "30", "100", "300", "1000")  # events per second
+TICK = 0.1  # seconds between steps of Play
+TRACE_SLACK = 10.0  # a trace fits the scans when E re-evaluated here is within this factor of its own record
+
+
+def parse_trace(text: str, name: str = "trace") -> list[Event]:
+    """The events of a ``register --trace`` file (JSON lines); anything else is one InputError naming the line."""
+    events = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+            if isinstance(d, dict) and "header" in d and "phase" not in d:
+                continue
+            e = Event.from_json(d)
+            check_rigid(e.T, "its transform")
+            if e.phase not in PHASE_LABEL or not np.isfinite(float(e.error)):
+                raise ValueError(f"a phase ({'/'.join(PHASE_LABEL)}) and a finite error expected")
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, InputError) as exc:
+            raise InputError(f"{name}: line {lineno} is not a rangereg trace event ({exc})") from None
+        events.append(e)
+    if not events:
+        raise InputError(f"{name}: holds no events")
+    return events
+
+
+def check_trace_fits(problem, events: list[Event], threshold: float, name: str = "trace") -> None:
+    """Refuse a trace recorded on other scans: E at its best pose, evaluated on these scans, must be
+    within TRACE_SLACK of what the trace recorded there (the overlap sample may differ, the pair may not)."""
+    best = min(events, key=lambda e: e.error)
+    here = float(problem.error(best.T))
+    slack = max(float(threshold), 0.0)
+    if not (best.error / TRACE_SLACK - slack <= here <= TRACE_SLACK * best.error + slack):
+        raise InputError(f"{name} does not fit these scans: at its best pose it recorded E = {best.error:.4g}, "
+                         f"these scans give E = {here:.4g}")
+
+
+class ReplayPanel:
+    def __init__(self, tab):
+        self.tab, self.state = tab, tab.state
+        gui = tab.gui
+        with gui.add_folder("Replay"):
+            self.slider = gui.add_slider("Event", 0, 1, 1, 0, disabled=True,
+                                         hint="0: the initial pose; k: the pose after the run's k-th event")
+            self.info = gui.add_markdown("No run to replay yet.")
+            self.speed = gui.add_dropdown("Speed (events/s)", SPEEDS, initial_value="100")
+            self.play = gui.add_button("Play", disabled=True)
+            self.pause = gui.add_button("Pause replay", disabled=True)
+            self.previous_min = gui.add_button("Previous minimum", disabled=True)
+            self.next_min = gui.add_button("Next minimum", disabled=True)
+            self.upload = gui.add_upload_button("Load a trace", hint="a register --trace file (.jsonl) of these scans")
+        self.events: list[Event] = []
+        self.minima = np.zeros(0, int)
+        self._playing: threading.Event | None = None
+        self._drawn_at = 0.0
+        self.slider.on_update(lambda e: tab.guarded(self.show, int(self.slider.value)))
+        self.play.on_click(lambda e: tab.guarded(self.start_play))
+        self.pause.on_click(lambda e: self.stop_play())
+        self.previous_min.on_click(lambda e: tab.guarded(self.jump, -1))
+        self.next_min.on_click(lambda e: tab.guarded(self.jump, +1))
+        self.upload.on_upload(lambda e: tab.guarded(self.load_trace, e.target.value.name, e.target.value.content))
+
+    def reset(self) -> None:
+        """Take the events of the run that just ended (or were loaded); the timeline ends at the last one."""
+        self.stop_play()
+        with self.state.lock:
+            self.events = list(self.state.events)
+        n = len(self.events)
+        self.minima = np.array([k + 1 for k, e in enumerate(self.events) if e.local_minimum], int)
+        self.slider.max = max(n, 1)
+        self.slider.value = n
+        self.lock(False)
+        self.describe(n)
+
+    def load_trace(self, name: str, content: bytes) -> None:
+        st = self.state
+        st.require_scans()
+        st.require_idle()
+        events = parse_trace(content.decode("utf-8", errors="replace"), name)
+        with st.lock:
+            problem, threshold = st.problem, st.threshold or 0.0
+        check_trace_fits(problem, events, threshold, name)
+        with st.lock:
+            st.reset_run(events[0].T)
+            st.events = events
+            st.run_method = f"trace {name}"
+        self.reset()
+        self.show(len(events))
+        self.tab.notify("Trace loaded", f"{name}: {len(events)} events", error=False)
+
+    def describe(self, k: int) -> None:
+        n = len(self.events)
+        if not n:
+            self.info.content = "No run to replay yet."
+            return
+        if k == 0:
+            self.info.content = f"Event 0 of {n}: the initial pose"
+            return
+        e = self.events[k - 1]
+        temp = f"{e.temperature:.4g}" if e.temperature is not None else "-"
+        mark = " · **local minimum**" if e.local_minimum else ""
+        self.info.content = (f"Event {k} of {n} · phase **{e.phase.upper()}** (leg {e.leg}) · "
+                             f"E = {e.error:.6g} {squared_unit(self.state.target.units)} · temperature {temp}{mark}")
+
+    def show(self, k: int) -> None:
+        """Scrub to event ``k`` (0: the initial pose): the shown pose, the line above, the marker on the slice."""
+        st, tab = self.state, self.tab
+        if st.running or not self.events or tab.nodes is None:
+            return
+        k = int(np.clip(k, 0, len(self.events)))
+        with st.lock:
+            if st.events is not self.events and list(st.events) != self.events:
+                return  # a new pair or a reset: nothing to replay
+            T = st.T_init if k == 0 else self.events[k - 1].T
+            if k == len(self.events) and st.result is not None and st.result.transform is not None:
+                T = st.result.transform  # the end of the timeline is the run's outcome (its best pose)
+            st.T = T
+        with tab.client.atomic():
+            scene3d.move_source(tab.nodes, st, T, gizmo=False)
+            self.describe(k)
+        tab.landscape.mark_terrain(T)
+        if self.slider.value != k:
+            self.slider.value = k
+        if st.slice is not None and time.monotonic() - self._drawn_at > 0.3:
+            self._drawn_at = time.monotonic()
+            tab.landscape.draw()
+
+    def jump(self, direction: int) -> None:
+        if not len(self.minima):
+            raise InputError("this run stopped in no local minimum (ICP marks one when it ends above the threshold)")
+        k = int(self.slider.value)
+        later = self.minima[self.minima > k] if direction > 0 else self.minima[self.minima < k][::-1]
+        if not len(later):
+            raise InputError("no later local minimum" if direction > 0 else "no earlier local minimum")
+        self.show(int(later[0]))
+
+    def start_play(self) -> None:
+        self.stop_play()
+        if not self.events:
+            raise InputError("no run to replay yet")
+        stop = self._playing = threading.Event()
+        speed = float(self.speed.value)
+        start = 0 if int(self.slider.value) >= len(self.events) else int(self.slider.value)
+        self.play.disabled, self.pause.disabled = True, False
+        threading.Thread(target=self._play, args=(stop, start, speed), daemon=True, name="rangereg-replay").start()
+
+    def _play(self, stop: threading.Event, k: float, speed: float) -> None:
+        n = len(self.events)
+        while not stop.is_set() and not self.state.closed:
+            k = min(k + speed * TICK, n)
+            self.state.hand(lambda st: None, lambda k=int(k), stop=stop: None if stop.is_set() else self.show(k))
+            if k >= n:
+                break
+            time.sleep(TICK)
+        self.state.hand(lambda st: None, lambda: self._ended(stop))
+
+    def _ended(self, stop: threading.Event) -> None:
+        if self._playing is stop:
+            self._playing = None
+            self.play.disabled, self.pause.disabled = not self.events, True
+            if self.state.slice is not None:
+                self.tab.landscape.draw()
+
+    def stop_play(self) -> None:
+        if self._playing is not None:
+            self._playing.set()
+            self._playing = None
+        self.play.disabled, self.pause.disabled = not self.events, True
+
+    def forget(self) -> None:
+        """A new pair or a new initial pose: the last run's timeline is gone."""
+        self.stop_play()
+        self.events, self.minima = [], np.zeros(0, int)
+        self.describe(0)
+        self.lock(False)
+
+    def lock(self, running: bool) -> None:
+        """A run holds the timeline; a new run or pair empties it."""
+        if running:
+            self.stop_play()
+            self.events = []
+            self.describe(0)
+        off = running or not self.events
+        self.slider.disabled = self.play.disabled = self.previous_min.disabled = self.next_min.disabled = off
+        self.upload.disabled = running

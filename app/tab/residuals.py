@@ -1,0 +1,120 @@
+"""Residuals (Model tab): the source coloured by its distance to the target surface, and the histogram
+of those distances with the robust cap marked, the operator's evidence that a registration is right.
+
+The cap is the error's own: a point is an inlier when d^2 < t = 2 median(d^2) over the overlap
+sample at the shown pose (paper eq. 2, core.error.robust_weights); the colours run from 0 to 2 sqrt(t).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import viser
+
+from app.figures import unit_label
+from core.transforms import apply
+
+BINS = 40
+COLOUR_SPAN = 2.0  # the colour scale ends at this many caps (sqrt t): every outlier is the last colour
+HISTOGRAM_SPAN = 4.0  # the histogram shows distances up to this many caps; its last bar holds all beyond
+
+
+@dataclass(frozen=True, eq=False)
+class Residuals:
+    """distances: (N,) every source point to the target surface at pose T (scan units); cap: sqrt(t), same units."""
+
+    distances: np.ndarray
+    cap: float
+    T: np.ndarray
+
+    @property
+    def inliers(self) -> np.ndarray:
+        return self.distances < self.cap
+
+    def __repr__(self) -> str:
+        return (f"Residuals({len(self.distances)} points, median {np.median(self.distances):.4g}, cap {self.cap:.4g}, "
+                f"{self.inliers.mean():.0%} inliers)")
+
+
+def residuals(problem, source_points: np.ndarray, T: np.ndarray) -> Residuals:
+    """Distances of all source points (N, 3) under T_target_source to the problem's target surface."""
+    _, d2 = problem.surface.closest(apply(T, source_points))
+    t = problem.error.terms(T).t
+    return Residuals(np.sqrt(d2), float(np.sqrt(t)), T)
+
+
+def colour_map(values: np.ndarray, top: float) -> np.ndarray:
+    """(N, 3) uint8 viridis colours for values in [0, top] (clipped)."""
+    import matplotlib
+
+    rgba = matplotlib.colormaps["viridis"](np.clip(values / max(top, 1e-300), 0.0, 1.0))
+    return (rgba[:, :3] * 255).astype(np.uint8)
+
+
+def histogram_figure(r: Residuals, units: str):
+    """Plotly histogram of distances coloured like the points (its colour bar in units), the cap marked."""
+    import plotly.graph_objects as go
+
+    unit = unit_label("t", units)
+    top = COLOUR_SPAN * r.cap
+    # points outside the overlap lie far off: they go in the last bar, so the cap's neighbourhood stays readable
+    edges = np.linspace(0.0, HISTOGRAM_SPAN * r.cap, BINS + 1)
+    counts, _ = np.histogram(np.minimum(r.distances, edges[-1]), edges)
+    centre, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
+    fig = go.Figure()
+    for name, mask, opacity in ((f"inliers (d < √t): {r.inliers.sum()}", centre < r.cap, 1.0),
+                                (f"outliers (d ≥ √t): {(~r.inliers).sum()}", centre >= r.cap, 0.45)):
+        fig.add_trace(go.Bar(x=centre[mask], y=counts[mask], width=width[mask], name=name, opacity=opacity,
+                             marker=dict(color=centre[mask], colorscale="Viridis", cmin=0.0, cmax=top,
+                                         showscale=opacity == 1.0, colorbar=dict(title=f"d ({unit})", thickness=12))))
+    fig.add_vline(x=r.cap, line=dict(color="red", dash="dash"), annotation_text=f"cap √t = {r.cap:.3g} {unit}")
+    title = f"Distance to the target surface ({unit}); last bar: ≥ {edges[-1]:.3g}"
+    fig.update_layout(title=dict(text=title, font=dict(size=12), y=0.98),
+                      xaxis_title=f"distance ({unit})", yaxis_title="source points", bargap=0.0, height=320,
+                      margin=dict(l=45, r=10, t=60, b=35), showlegend=True, legend=dict(orientation="h", x=0.0, y=1.12))
+    return fig
+
+
+class ResidualsPanel:
+    def __init__(self, tab):
+        self.tab, self.state = tab, tab.state
+        gui = tab.gui
+        with gui.add_folder("Residuals") as self.folder:
+            self.show = gui.add_checkbox("Colour by residual", False,
+                                         hint="colour the source by its distance to the target surface at the shown pose")
+            self.summary = gui.add_markdown("")
+        self.plot: viser.GuiPlotlyHandle | None = None
+        self.current: Residuals | None = None
+        self.show.on_update(lambda e: tab.guarded(self.refresh))
+
+    def refresh(self) -> None:
+        """Recompute at the shown pose when asked for (and no run moves the scan), else drop the colours."""
+        st = self.state
+        if st.source is None or st.problem is None:
+            return
+        if not self.show.value or st.running:
+            if st.residual_rgb is not None:
+                with st.lock:
+                    st.residual_rgb = None
+                self.tab.recolour()
+            if self.plot is not None:
+                self.plot.visible = bool(self.show.value) and self.current is not None
+            return
+        with st.lock:
+            problem, points, T, units = st.problem, st.source.points, st.T.copy(), st.target.units
+        r = residuals(problem, points, T)
+        with st.lock:
+            st.residual_rgb = colour_map(r.distances, COLOUR_SPAN * r.cap)
+        self.current = r
+        self.tab.recolour()
+        fig = histogram_figure(r, units)
+        unit = unit_label("t", units)
+        self.summary.content = (f"Median distance {np.median(r.distances):.4g} {unit}; cap √t {r.cap:.4g} {unit}; "
+                                f"inliers (d < √t) {r.inliers.mean():.0%}, outliers {1 - r.inliers.mean():.0%}")
+        if self.plot is None:
+            with self.folder:
+                self.plot = self.tab.gui.add_plotly(fig, aspect=1.3)
+        else:
+            self.plot.figure = fig
+            self.plot.visible = True

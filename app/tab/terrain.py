@@ -1,0 +1,147 @@
+"""The slice as a height field in the 3-D scene (Landscape tab), beside the scans, with the run's path on it.
+
+The terrain's box is the slice's two parameter axes (horizontal) by log10 E (up), scaled to
+TERRAIN_SIZE page units and placed at TERRAIN_AT: an abstract space beside the scans, labelled with
+the parameters and their units. The path is drawn on the surface (ICP green, SA magenta), the local
+minima as red points, the shown pose as a white point. The projection of the events onto the slice's
+axes is kept incrementally (each event is projected once), so the path follows a run live.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import RegularGridInterpolator
+
+from app.figures import MINIMUM_RGB, PHASE_RGB, axis_label
+from core.landscape import Slice, project
+
+TERRAIN_AT = (1.4, -0.4, 0.0)  # page units: right of the scans (the page scales the target to size 1)
+TERRAIN_SIZE = 1.0  # width and depth of the box; its height is HEIGHT
+HEIGHT = 0.5
+LIFT = 0.01  # the path floats this far above the surface, so the surface never hides it
+MAX_TERRAIN_PATH = 1500  # segments drawn at most (the projection keeps every event)
+
+
+def heights(sl: Slice) -> np.ndarray:
+    """(A, B) heights in page units: log10 E mapped to [0, HEIGHT]."""
+    v = np.asarray(sl.values, np.float64)
+    floor = np.nanmin(v[v > 0]) if np.any(v > 0) else 1e-300
+    z = np.log10(np.maximum(v, floor))
+    span = max(float(np.nanmax(z) - np.nanmin(z)), 1e-12)
+    return (z - np.nanmin(z)) / span * HEIGHT
+
+
+def to_box(sl: Slice, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal page coordinates (K,), (K,) of slice coordinates (K, 2), clipped to the slice's box."""
+    a = np.clip(xy[:, 0], sl.axis_a[0], sl.axis_a[-1])
+    b = np.clip(xy[:, 1], sl.axis_b[0], sl.axis_b[-1])
+    u = (a - sl.axis_a[0]) / (sl.axis_a[-1] - sl.axis_a[0]) - 0.5
+    v = (b - sl.axis_b[0]) / (sl.axis_b[-1] - sl.axis_b[0]) - 0.5
+    return u * TERRAIN_SIZE, v * TERRAIN_SIZE
+
+
+def surface(sl: Slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(V, 3) float32 vertices, (F, 3) faces and (V, 4) uint8 viridis colours of the height field."""
+    import matplotlib
+
+    h = heights(sl)
+    A, B = np.meshgrid(sl.axis_a, sl.axis_b, indexing="ij")
+    x, z = to_box(sl, np.c_[A.ravel(), B.ravel()])
+    vertices = np.c_[x, h.ravel(), z].astype(np.float32)
+    na, nb = h.shape
+    i, j = np.meshgrid(np.arange(na - 1), np.arange(nb - 1), indexing="ij")
+    k = (i * nb + j).ravel()
+    faces = np.r_[np.c_[k, k + 1, k + nb], np.c_[k + 1, k + nb + 1, k + nb]].astype(np.int32)
+    rgba = (matplotlib.colormaps["viridis"](h.ravel() / HEIGHT) * 255).astype(np.uint8)
+    return vertices, faces, rgba
+
+
+def height_lookup(sl: Slice) -> RegularGridInterpolator:
+    return RegularGridInterpolator((sl.axis_a, sl.axis_b), heights(sl), bounds_error=False, fill_value=None)
+
+
+def on_surface(sl: Slice, xy: np.ndarray, lookup: RegularGridInterpolator | None = None) -> np.ndarray:
+    """(K, 3) float32 page points on the terrain (lifted by LIFT) for slice coordinates (K, 2)."""
+    if not len(xy):
+        return np.zeros((0, 3), np.float32)
+    lookup = lookup or height_lookup(sl)
+    a = np.clip(xy[:, 0], sl.axis_a[0], sl.axis_a[-1])
+    b = np.clip(xy[:, 1], sl.axis_b[0], sl.axis_b[-1])
+    x, z = to_box(sl, xy)
+    return np.c_[x, lookup(np.c_[a, b]) + LIFT, z].astype(np.float32)
+
+
+class PathOnSlice:
+    """A run's events projected onto one slice's axes, extended as events arrive. xy: (K + 1, 2), the start first."""
+
+    def __init__(self, problem, sl: Slice, T_start: np.ndarray, events: list):
+        self.problem, self.slice, self.events = problem, sl, events
+        self.xy = project(problem, sl.T_center, sl.params, [T_start])
+        self.sa = np.zeros(1, bool)
+        self.minimum = np.zeros(1, bool)
+        self.n = 0
+        self.lookup = height_lookup(sl)  # built once per slice, used on every redraw
+
+    def update(self) -> int:
+        n = len(self.events)
+        new = self.events[self.n:n]
+        if new:
+            self.xy = np.r_[self.xy, project(self.problem, self.slice.T_center, self.slice.params, [e.T for e in new])]
+            self.sa = np.r_[self.sa, [e.phase == "sa" for e in new]].astype(bool)
+            self.minimum = np.r_[self.minimum, [e.local_minimum for e in new]].astype(bool)
+            self.n = n
+        return n
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray]:
+        """(S, 2, 3) float32 segments on the terrain and (S, 2, 3) uint8 colours, thinned to MAX_TERRAIN_PATH."""
+        if len(self.xy) < 2:
+            return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
+        keep = np.unique(np.r_[np.linspace(0, len(self.xy) - 1, min(len(self.xy), MAX_TERRAIN_PATH)).astype(int),
+                               len(self.xy) - 1])
+        p = on_surface(self.slice, self.xy[keep], self.lookup)
+        rgb = np.where(self.sa[keep][1:, None], np.array(PHASE_RGB["sa"]), np.array(PHASE_RGB["icp"])).astype(np.uint8)
+        return np.stack([p[:-1], p[1:]], axis=1), np.repeat(rgb[:, None, :], 2, axis=1)
+
+    def minima(self) -> np.ndarray:
+        return on_surface(self.slice, self.xy[self.minimum], self.lookup)
+
+
+class Terrain:
+    """The terrain's scene nodes for one slice; ``update`` redraws the path, ``mark`` the shown pose."""
+
+    def __init__(self, scene, view, units: str, T_start: np.ndarray, events: list):
+        import trimesh
+
+        sl = view.slice
+        self.view, self.scene = view, scene
+        self.path = PathOnSlice(view.problem, sl, T_start, events)
+        vertices, faces, rgba = surface(sl)
+        self.frame = scene.add_frame("/terrain", show_axes=False, position=TERRAIN_AT)
+        mesh = trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False)
+        self.surface = scene.add_mesh_trimesh("/terrain/surface", mesh)
+        half = 0.5 * TERRAIN_SIZE
+        scene.add_label("/terrain/label_a", axis_label(sl.params[0], units), position=(0.0, 0.0, half + 0.08))
+        scene.add_label("/terrain/label_b", axis_label(sl.params[1], units), position=(half + 0.08, 0.0, 0.0))
+        scene.add_label("/terrain/label_e", "log10 E (up)", position=(-half, HEIGHT + 0.05, -half))
+        self.segments = scene.add_line_segments("/terrain/path", np.zeros((0, 2, 3), np.float32), (0, 0, 0),
+                                                thickness=3.0, thickness_units="screen")
+        self.minima_node = scene.add_point_cloud("/terrain/minima", np.zeros((0, 3), np.float32), MINIMUM_RGB,
+                                                 point_size=0.015, precision="float32")
+        self.current = scene.add_icosphere("/terrain/current", radius=0.02, color=(255, 255, 255))
+
+    def update(self, T_shown: np.ndarray) -> None:
+        """Draw the events that arrived since the last call, and the shown pose."""
+        before = self.path.n
+        if self.path.update() != before or before == 0:
+            seg, rgb = self.path.segments()
+            self.segments.points, self.segments.colors = seg, rgb
+            self.minima_node.points = self.path.minima()
+        self.mark(T_shown)
+
+    def mark(self, T_shown: np.ndarray) -> None:
+        sl = self.view.slice
+        xy = project(self.view.problem, sl.T_center, sl.params, [T_shown])
+        self.current.position = tuple(on_surface(sl, xy, self.path.lookup)[0])
+
+    def remove(self) -> None:
+        self.frame.remove()

@@ -1,0 +1,72 @@
+"""A run's recording plays from disk in a browser, with no server and no network, and the scan moves."""
+
+from __future__ import annotations
+
+import io
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import ASSETS
+from tests.test_workbench import CHROMIUM, FLAGS
+
+pytestmark = pytest.mark.browser
+
+
+def corner_run():
+    from app.recording import RunToRecord
+    from app.views import Display
+    from core.frustum import frustum_of
+    from core.io import load_scan
+    from core.problem import relative_guess
+    from core.register import Config, register
+    from core.scenes import scene_paths
+
+    source, target = (load_scan(p) for p in scene_paths(ASSETS, "corner"))
+    T0, events = relative_guess(source, target), []
+    register(source, target, T0, Config(method="hybrid"), listener=events.append)
+    frusta = (frustum_of(source, "convex"), frustum_of(target, "convex"))
+    return RunToRecord(source, target, Display(target, source), frusta, T0, events, units=target.units)
+
+
+def orange_centre(png: bytes) -> np.ndarray | None:
+    """Mean pixel of the moving scan's orange (its points and frustum); None while it is not drawn."""
+    from PIL import Image
+
+    px = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    mask = (px[..., 0] > 200) & (px[..., 1] > 100) & (px[..., 1] < 180) & (px[..., 2] < 90)
+    mask[:200, :350] = False  # the page's note about software WebGL
+    ys, xs = np.nonzero(mask)
+    return None if len(xs) < 200 else np.array([xs.mean(), ys.mean()])
+
+
+def test_the_recording_plays_from_disk_and_the_scan_moves(tmp_path):
+    if not CHROMIUM.exists():
+        pytest.skip("Debian's chromium is not installed")
+    from playwright.sync_api import sync_playwright
+
+    from app.recording import recording_html
+
+    path = tmp_path / "run.html"
+    path.write_bytes(recording_html(corner_run(), frames=60, seconds=4.0, hold=4.0))
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+        page = browser.new_page(viewport={"width": 1000, "height": 700})
+        schemes = set()
+        page.on("request", lambda r: schemes.add(r.url.split(":")[0]))
+        page.goto(Path(path).as_uri())
+        page.locator("canvas").first.wait_for(timeout=60_000)
+        deadline, early = time.monotonic() + 60, None
+        while early is None and time.monotonic() < deadline:
+            early = orange_centre(page.screenshot())
+        assert early is not None, "the moving scan never appeared"
+        moved = []
+        for _ in range(12):  # over the run (the start is held 4 s; the run plays in 4 s)
+            time.sleep(0.8)
+            late = orange_centre(page.screenshot())
+            moved.append(0.0 if late is None else float(np.linalg.norm(late - early)))
+        browser.close()
+    assert schemes <= {"file", "data", "blob"}  # nothing from a server or the network
+    assert max(moved) > 5.0, moved  # pixels: the scan moved along the run

@@ -149,6 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=_knob("port"), default=8080)
     s.add_argument("--data-dir", help="folder whose scan files the page may open")
+    s.add_argument("--trace", help="a --trace file from 'register' (of SOURCE and TARGET) to replay on the page")
     s.add_argument("--upload-cap-mb", type=_knob("upload_cap_mb"), default=200.0,
                    help="largest upload accepted (default 200 MB)")
 

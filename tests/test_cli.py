@@ -208,6 +208,8 @@ def test_serve_hands_the_workbench_typed_options(rangereg, monkeypatch):
     code, _, err = rangereg("serve", "--scene", "bowl", "--port", "8123", "--upload-cap-mb", "5")
     assert code == 0, err
     assert seen == [app.workbench.ServeOptions(scene="bowl", port=8123, upload_cap_mb=5.0)]
+    code, _, err = rangereg("serve", "--trace", "no-such-trace.jsonl")
+    assert code == 2 and "no such file" in err
 
 
 def test_register_with_a_lock_keeps_it_in_every_traced_event_and_slice_refuses_a_locked_axis(rangereg, tmp_path):

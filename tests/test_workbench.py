@@ -108,7 +108,7 @@ def test_scene_renders_and_hybrid_finishes_below_threshold(server, browser):
     time.sleep(2.0)  # let the points arrive and draw
     px = canvas_pixels(page)
     assert len(np.unique(px.reshape(-1, 3), axis=0)) > 50, "blank canvas"
-    for button, method in (("Run hybrid", "hybrid"), ("Basin hopping", "basin-hopping")):
+    for button, method in (("Run hybrid", "hybrid"), ("Basin hopping", "basin-hopping"), ("Run global", "global")):
         page.get_by_role("button", name="Reset", exact=True).click()
         page.get_by_role("button", name=button, exact=True).click()
         page.wait_for_function(f"() => document.body.innerText.includes('Method {method}')", timeout=60_000)

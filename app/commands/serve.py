@@ -5,6 +5,7 @@ from __future__ import annotations
 from argparse import Namespace
 from pathlib import Path
 
+from app.options import read_text_file
 from core.errors import InputError
 
 
@@ -16,9 +17,11 @@ def run(a: Namespace) -> int:
     for p in (a.source, a.target):
         if p is not None and not Path(p).is_file():
             raise InputError(f"{p}: {'is a folder, not a scan file' if Path(p).is_dir() else 'no such file'}")
+    if a.trace is not None:
+        read_text_file(a.trace, "--trace")  # missing, a folder, unreadable, binary: one line now
     if a.data_dir is not None and not Path(a.data_dir).is_dir():
         raise InputError(f"--data-dir {a.data_dir}: no such folder")
     if not a.host.strip():
         raise InputError("--host: expected a host name or address, got nothing")
     return serve(ServeOptions(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port,
-                              data_dir=a.data_dir, upload_cap_mb=a.upload_cap_mb))
+                              data_dir=a.data_dir, upload_cap_mb=a.upload_cap_mb, trace=a.trace))

@@ -22,7 +22,7 @@ ANNEALS = "applies to Run hybrid and Run SA (the methods that anneal)"
 SEED = Range(0, 2**63 - 1, integer=True)
 RATIO = Range(0, 1, lo_open=True, hi_open=True)
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
-               "Basin hopping": "basin-hopping"}
+               "Basin hopping": "basin-hopping", "Run global": "global"}
 
 
 @dataclass(eq=False)
@@ -184,7 +184,7 @@ class RunPanel:
                 return
             r = run.result
             st.T, st.threshold = r.transform, r.threshold
-            below = "below" if r.error < r.threshold else "above"
+            below = "below" if r.below_threshold else "above"  # global: the pair threshold, core.threshold
             st.finished_text = (f"**Finished**: E = {r.error:.6g} ({below} the threshold {r.threshold:.4g}); "
                                 f"stopped: {r.stop_text}; {r.seconds:.2f} s")
 

@@ -159,7 +159,9 @@ def test_scrubbing_the_timeline_moves_the_scan_and_its_marker_on_the_terrain(ben
     page.get_by_role("button", name="Compute slice", exact=True).click()
     wait_for(lambda: st.slice is not None, timeout=120, what="the slice")
     page.get_by_label("Show as 3-D terrain", exact=True).check()
-    wait_for(lambda: tab.landscape.terrain is not None, what="the terrain")
+    # the terrain appears first, its path right after (built off the callback thread): wait for both
+    wait_for(lambda: tab.landscape.terrain is not None and tab.landscape.terrain.segments is not None
+             and len(tab.landscape.terrain.segments.points) == len(st.events), what="the terrain with the run's path")
     terrain = tab.landscape.terrain
     assert len(terrain.segments.points) == len(st.events)  # the whole run drawn on the surface
     assert {tuple(c) for c in terrain.segments.colors[:, 0]} == {(30, 170, 70)}  # ICP green only: no annealing

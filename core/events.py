@@ -4,12 +4,16 @@ run then returns its best pose so far), or block to pause or single-step it."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from .transforms import to_params
+from .errors import InputError
+from .transforms import check_rigid, to_params
+
+PHASES = ("icp", "sa", "candidates")  # ICP steps, annealing moves (and hops), the global pipeline's candidates
 
 
 class Cancelled(Exception):
@@ -53,3 +57,26 @@ class Event:
 
 
 Listener = Callable[[Event], None]
+
+
+def parse_trace(text: str, name: str = "trace") -> list[Event]:
+    """The events of a ``register --trace`` file (JSON lines; a header line is skipped); anything else
+    is one InputError naming the line."""
+    events = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+            if isinstance(d, dict) and "header" in d and "phase" not in d:
+                continue
+            e = Event.from_json(d)
+            check_rigid(e.T, "its transform")
+            if e.phase not in PHASES or not np.isfinite(float(e.error)):
+                raise ValueError(f"a phase ({'/'.join(PHASES)}) and a finite error expected")
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, InputError) as exc:
+            raise InputError(f"{name}: line {lineno} is not a rangereg trace event ({exc})") from None
+        events.append(e)
+    if not events:
+        raise InputError(f"{name}: holds no events")
+    return events

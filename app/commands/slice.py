@@ -3,14 +3,12 @@ PNG (and the numbers as .npz), with a ``register --trace`` run drawn on it."""
 
 from __future__ import annotations
 
-import json
 from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
 
 from app.commands import pair
-from app.figures import PHASE_LABEL
 from app.options import parse_numbers, read_text_file
 from app.outputs import check_distinct, check_output, write_outputs
 from core.errors import InputError
@@ -18,28 +16,9 @@ from core.errors import InputError
 
 def read_trace(path: str) -> list:
     """The events of a ``register --trace`` file; anything else is one InputError naming the line."""
-    from core.events import Event
-    from core.transforms import check_rigid
+    from core.events import parse_trace
 
-    text = read_text_file(path, "--trace")
-    events = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            d = json.loads(line)
-            if isinstance(d, dict) and "header" in d and "phase" not in d:
-                continue  # a trace header, when the writer adds one
-            e = Event.from_json(d)
-            check_rigid(e.T, "its transform")
-            if e.phase not in PHASE_LABEL or not np.isfinite(float(e.error)):
-                raise ValueError(f"a phase {'/'.join(PHASE_LABEL)} and a finite error expected")
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise InputError(f"--trace {path}: line {lineno} is not a rangereg trace event ({exc})") from None
-        events.append(e)
-    if not events:
-        raise InputError(f"--trace {path}: holds no events")
-    return events
+    return parse_trace(read_text_file(path, "--trace"), f"--trace {path}")
 
 
 def run(a: Namespace) -> int:

@@ -7,43 +7,19 @@ local minima ICP stopped in. Play's thread only hands each step to the refresher
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 
 import numpy as np
 
-from app.figures import PHASE_LABEL, squared_unit
+from app.figures import squared_unit
 from app.tab import scene3d
 from core.errors import InputError
-from core.events import Event
-from core.transforms import check_rigid
+from core.events import Event, parse_trace  # noqa: F401  (parse_trace: the page's name for it)
 
 SPEEDS = ("10", "30", "100", "300", "1000")  # events per second
 TICK = 0.1  # seconds between steps of Play
 TRACE_SLACK = 10.0  # a trace fits the scans when E re-evaluated here is within this factor of its own record
-
-
-def parse_trace(text: str, name: str = "trace") -> list[Event]:
-    """The events of a ``register --trace`` file (JSON lines); anything else is one InputError naming the line."""
-    events = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            d = json.loads(line)
-            if isinstance(d, dict) and "header" in d and "phase" not in d:
-                continue
-            e = Event.from_json(d)
-            check_rigid(e.T, "its transform")
-            if e.phase not in PHASE_LABEL or not np.isfinite(float(e.error)):
-                raise ValueError(f"a phase ({'/'.join(PHASE_LABEL)}) and a finite error expected")
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, InputError) as exc:
-            raise InputError(f"{name}: line {lineno} is not a rangereg trace event ({exc})") from None
-        events.append(e)
-    if not events:
-        raise InputError(f"{name}: holds no events")
-    return events
 
 
 def check_trace_fits(problem, events: list[Event], threshold: float, name: str = "trace") -> None:

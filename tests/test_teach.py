@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests.test_workbench import CHROMIUM, FLAGS, free_port, open_page, show_tab
+from tests.test_workbench import free_port, open_page, show_tab
 
 pytestmark = pytest.mark.browser
 
@@ -25,18 +25,6 @@ def bench():
     wb = Workbench(ServeOptions(port=port))
     yield wb, f"http://127.0.0.1:{port}"
     wb.server.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if not CHROMIUM.exists():
-        pytest.skip("Debian's chromium is not installed (scripts/install --browser)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
-        yield b
-        b.close()
 
 
 def open_tab(bench, browser):

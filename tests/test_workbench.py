@@ -45,18 +45,6 @@ def server():
     proc.wait(10)
 
 
-@pytest.fixture(scope="module")
-def browser():
-    if not CHROMIUM.exists():
-        pytest.skip("Debian's chromium is not installed (scripts/install --browser)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
-        yield b
-        b.close()
-
-
 def open_page(browser, url):
     page = browser.new_page(viewport={"width": 1400, "height": 900})
     page.goto(url)

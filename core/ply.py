@@ -131,6 +131,8 @@ def _leftover(elements, extra: int, unit: str) -> str:
 
 
 def _ascii_rows(values, pos, count, props, name):
+    if len(props) == 1 and count > 0:
+        return _ascii_list(values, pos, count, props[0], name)
     cols: dict = {p[0]: [] for p in props}
     try:
         for _ in range(count):
@@ -149,6 +151,42 @@ def _ascii_rows(values, pos, count, props, name):
     if pos > len(values):
         raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows")
     return _pack(cols, props), pos
+
+
+def _ascii_list(values: np.ndarray, pos: int, count: int, prop, name: str):
+    """An element of one list property (faces, Stanford's ``range_grid``) without a Python loop over rows.
+
+    Row i starts at token p_i, p_(i+1) = p_i + 1 + values[p_i]. Reading that chain row by row costs
+    ~0.35 s on a 512 x 400 range grid; instead every token gets its would-be successor and the chain is
+    unrolled by doubling (log2(count) gathers), so only the true row starts are ever read as counts.
+    """
+    n = len(values)
+    k = values[pos:]
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(k) | (k < 0) | (k != np.floor(k))  # a problem only where it is a row's count
+    step = np.where(bad, 0, k).astype(np.int64) + 1
+    # successor of every token (in tokens from ``pos``), n - pos as the sentinel past the end
+    nxt = np.minimum(np.arange(len(k), dtype=np.int64) + step, len(k))
+    nxt = np.append(nxt, len(k))
+    jumps = [nxt]
+    while (1 << len(jumps)) < count:
+        jumps.append(jumps[-1][jumps[-1]])
+    starts = np.zeros(1, dtype=np.int64)
+    for j in reversed(jumps):  # rows 0..2^m - 1 in order: each level interleaves a row with its 2^l-th successor
+        starts = np.stack([starts, j[starts]], axis=1).reshape(-1)
+    starts = starts[:count]
+    if starts[-1] >= len(k):
+        raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows")
+    if bad[starts].any():
+        raise PlyError(f"element {name!r}: a list of {k[starts][bad[starts]][0]:g} items")
+    counts = k[starts].astype(np.int64)
+    end = int(starts[-1] + 1 + counts[-1])
+    if pos + end > n:
+        raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows")
+    total = int(counts.sum())
+    first = np.repeat(starts + 1 - np.r_[0, np.cumsum(counts)[:-1]], counts)
+    flat = k[first + np.arange(total)] if total else np.zeros(0)
+    return {prop[0]: (counts, flat.astype(np.int64))}, pos + end
 
 
 def _binary_rows(buf, pos, count, props, order, name):

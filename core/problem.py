@@ -17,7 +17,7 @@ from .cut import overlap_cut
 from .error import RobustError
 from .errors import InputError
 from .frustum import KINDS, Overlap
-from .scan import Scan, flatness
+from .scan import Scan
 from .surface import Surface
 from .transforms import apply, check_rigid, delta_between, invert, perturb
 
@@ -90,7 +90,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
     config.validate()
     T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
     for s in (source, target):
-        if flatness(s.points) < 1e-3:
+        if s.flatness < 1e-3:
             raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
     surface = surface if surface is not None else Surface.from_scan(target)
     t_unc = config.translation_uncertainty_for(target.size)

@@ -65,14 +65,22 @@ class Scan:
         d, _ = self.tree.query(self.points[idx], k=2)
         return float(np.median(d[:, 1]))
 
-    @property
+    # cached: a registration asks for these dozens of times (the points are never changed in place)
+    @cached_property
     def size(self) -> float:
         """Diagonal of the bounding box, in ``units``."""
         return float(np.linalg.norm(self.points.max(0) - self.points.min(0)))
 
-    @property
+    @cached_property
     def centroid(self) -> np.ndarray:
-        return self.points.mean(0)
+        c = self.points.mean(0)
+        c.flags.writeable = False
+        return c
+
+    @cached_property
+    def flatness(self) -> float:
+        """:func:`flatness` of the points."""
+        return flatness(self.points)
 
     def with_viewpoint(self, viewpoint: np.ndarray, estimated: bool = False) -> Scan:
         v = np.asarray(viewpoint, dtype=np.float64).reshape(3)

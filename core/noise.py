@@ -12,11 +12,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .error import RobustError
 from .errors import InputError
 from .scan import Scan
-from .surface import Surface, triangulate
+from .surface import Surface, triangulate, view_projection
 
 # Above this many points the floor is measured on one patch of this many neighbouring points: the
 # floor is a local property (noise and spacing), and triangulating half of a 2,000,000-point scan
@@ -24,6 +25,14 @@ from .surface import Surface, triangulate
 # measured whole, as before; on a 200k-point terrain scan, three seeds gave 0.056-0.068 whole and
 # 0.054-0.061 on the patch.
 PATCH_POINTS = 100_000
+# Above this many points in the half, only the half's points within WINDOW_SPACINGS x the scan's point
+# spacing of a query are triangulated, and only the faces well inside that window kept (a 40k-point bunny
+# scan: ~4 x less work). Measured on the four bunny scans, 12 seeds each: the median ratio to the whole
+# half's floor is 0.96-1.01 (4 spacings: 0.99-1.09, 6: 0.96-0.99), while the whole half's floor itself
+# spreads +-20 % from seed to seed. Scans whose half holds fewer points (the simulated scenes) are whole.
+WINDOW_MIN_POINTS = 5_000
+WINDOW_SPACINGS = 5.0
+WINDOW_MARGIN = 0.8  # a face is kept when its circumcircle lies within this share of the window's radius
 
 
 def noise_floor(scan: Scan, rng: np.random.Generator, n_points: int = 500) -> float:
@@ -35,12 +44,56 @@ def noise_floor(scan: Scan, rng: np.random.Generator, n_points: int = 500) -> fl
     a, b = points[half], points[~half]
     if len(a) < 3 or len(b) < 3:
         return 0.0
+    q = a[rng.choice(len(a), min(n_points, len(a)), replace=False)]
+    axis = b.mean(0) - scan.viewpoint  # the whole half's viewing direction, windowed or not
+    radius = WINDOW_SPACINGS * scan.spacing
+    windowed = len(b) > WINDOW_MIN_POINTS
+    if windowed:
+        b = _window(b, q, radius, None if points is not scan.points else (scan.tree, ~half))
     try:
-        faces = triangulate(replace(scan, points=b, grid=None, faces=None))
+        faces = triangulate(replace(scan, points=b, grid=None, faces=None), axis)
+        if windowed:
+            faces = _inside_window(b, faces, q, radius, scan.viewpoint, axis)
     except InputError:
         return 0.0
-    idx = rng.choice(len(a), min(n_points, len(a)), replace=False)
-    return RobustError(a[idx], Surface(b, faces))(np.eye(4))
+    if not len(faces):
+        return 0.0
+    return RobustError(q, Surface(b, faces))(np.eye(4))
+
+
+def _inside_window(b: np.ndarray, faces: np.ndarray, q: np.ndarray, radius: float, viewpoint: np.ndarray,
+                   axis: np.ndarray) -> np.ndarray:
+    """The faces whose circumcircle (in the view projection) lies well inside the window round its
+    nearest query: no point of the whole half can lie in such a circle, so the face is one of the
+    whole half's Delaunay triangles too (a face at the window's rim may not be: the half's points
+    beyond the rim would have cut it)."""
+    uv, _ = view_projection(b, viewpoint, axis)
+    uq, basis = view_projection(q, viewpoint, axis)
+    depth = (q - viewpoint) @ basis[2]
+    A, B, C = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
+    ab, ac = B - A, C - A
+    d = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (ac[:, 1] * (ab ** 2).sum(1) - ab[:, 1] * (ac ** 2).sum(1)) / d
+        uy = (ab[:, 0] * (ac ** 2).sum(1) - ac[:, 0] * (ab ** 2).sum(1)) / d
+    centre = A + np.c_[ux, uy]
+    rho = np.hypot(ux, uy)
+    dist, j = cKDTree(uq).query(np.where(np.isfinite(centre), centre, 0.0))
+    return faces[np.isfinite(rho) & (dist + rho <= WINDOW_MARGIN * radius / depth[j])]
+
+
+def _window(b: np.ndarray, q: np.ndarray, radius: float, whole: tuple | None = None) -> np.ndarray:
+    """The points of ``b`` within ``radius`` of any query point of ``q``, in their order.
+
+    Only the surface near the queries enters E. A Delaunay triangle whose circumcircle lies inside
+    the window is a triangle of the whole half too, and so are the 4 nearest neighbours that set an
+    edge's bound (core.surface) of a point well inside it. ``whole``: the scan's k-d tree and the
+    half's mask in it, to query instead of building a tree for ``b``."""
+    tree, in_b = whole if whole is not None else (cKDTree(b), None)  # (the scan's tree, b's mask in it)
+    near = tree.query_ball_point(q, radius, workers=-1)
+    keep = np.zeros(tree.n, dtype=bool)
+    keep[np.concatenate([np.asarray(n, dtype=np.int64) for n in near])] = True
+    return b[keep[in_b]] if in_b is not None else b[keep]
 
 
 def _patch(points: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:

@@ -48,14 +48,16 @@ def edge_lengths(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out
 
 
-def view_projection(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def view_projection(points: np.ndarray, viewpoint: np.ndarray,
+                    axis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Gnomonic projection of (N, 3) points as seen from ``viewpoint``.
 
     Returns (N, 2) coordinates on the plane one unit in front of the sensor, perpendicular to the
-    mean viewing direction, and that (3, 3) basis (rows: u, v, axis). Points must lie in front.
+    mean viewing direction (or ``axis``), and that (3, 3) basis (rows: u, v, axis). Points must lie
+    in front.
     """
     rays = points - viewpoint
-    axis = rays.mean(0)
+    axis = rays.mean(0) if axis is None else np.array(axis, dtype=np.float64)
     if not np.linalg.norm(axis) > 0:
         raise InputError("the viewpoint sits at the centre of the points; give the sensor position")
     axis /= np.linalg.norm(axis)
@@ -71,14 +73,15 @@ def view_projection(points: np.ndarray, viewpoint: np.ndarray) -> tuple[np.ndarr
     return local[:, :2] / depth[:, None], basis
 
 
-def triangulate(scan: Scan) -> np.ndarray:
-    """(M, 3) int64 faces over ``scan.points``; see the module notes."""
+def triangulate(scan: Scan, axis: np.ndarray | None = None) -> np.ndarray:
+    """(M, 3) int64 faces over ``scan.points``; see the module notes. ``axis``: the viewing direction
+    to project along (default the mean ray), so that a part of a scan triangulates as within the whole."""
     pts = scan.points
     if scan.grid is not None:
         faces = _grid_faces(scan.grid.index)
     else:
         try:
-            uv, _ = view_projection(pts, scan.viewpoint)
+            uv, _ = view_projection(pts, scan.viewpoint, axis)
         except InputError as exc:
             raise InputError(f"{scan.name}: {exc}") from None
         try:

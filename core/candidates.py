@@ -25,7 +25,7 @@ from .errors import InputError
 from .frustum import Frustum, frustum_of
 from .scan import Scan
 from .surface import Surface
-from .transforms import apply, invert, rotation_angle
+from .transforms import apply, invert
 
 # The cap is (CAP_SPACINGS x the pair's point spacing)^2 + the pair's noise floor (core.noise). Measured
 # (24 ICP minima from starts 20-120 deg off, per case; the score at the truth over the best wrong
@@ -165,8 +165,16 @@ def super_fibonacci(n: int) -> np.ndarray:
 def within(T: np.ndarray, T_guess: np.ndarray, center: np.ndarray, rot_unc: float, trans_unc: float) -> bool:
     """Whether pose T lies within the guess's stated uncertainty: rotation (radians) and the move of
     the source point ``center`` (source frame, units)."""
-    moved = apply(T, center[None])[0] - apply(T_guess, center[None])[0]
-    return bool(rotation_angle(T[:3, :3] @ T_guess[:3, :3].T) <= rot_unc + 1e-9 and np.linalg.norm(moved) <= trans_unc + 1e-12)
+    return bool(within_many(np.asarray(T)[None], T_guess, center, rot_unc, trans_unc)[0])
+
+
+def within_many(Ts: np.ndarray, T_guess: np.ndarray, center: np.ndarray, rot_unc: float, trans_unc: float) -> np.ndarray:
+    """(P,) bool: :func:`within` for each of the (P, 4, 4) poses ``Ts``."""
+    Ts = np.asarray(Ts, dtype=np.float64).reshape(-1, 4, 4)
+    moved = Ts[:, :3, :3] @ center + Ts[:, :3, 3] - (T_guess[:3, :3] @ center + T_guess[:3, 3])
+    cos = (np.einsum("pij,ij->p", Ts[:, :3, :3], T_guess[:3, :3]) - 1.0) / 2.0  # trace(R G^T)
+    angle = np.arccos(np.clip(cos, -1.0, 1.0))
+    return (angle <= rot_unc + 1e-9) & (np.linalg.norm(moved, axis=1) <= trans_unc + 1e-12)
 
 
 def rotation_candidates(source: Scan, target: Scan, T_guess: np.ndarray, rot_unc: float, trans_unc: float,
@@ -179,15 +187,13 @@ def rotation_candidates(source: Scan, target: Scan, T_guess: np.ndarray, rot_unc
     norm = np.linalg.norm(shift)
     if norm > trans_unc:
         shift = shift * trans_unc / norm
-    out = []
-    for D in super_fibonacci(n):
-        if rotation_angle(D) > rot_unc:
-            continue
-        T = np.eye(4)
-        T[:3, :3] = D @ T_guess[:3, :3]
-        T[:3, 3] = c_guess + shift - T[:3, :3] @ c_src
-        out.append(T)
-    return out
+    D = super_fibonacci(n)
+    D = D[np.arccos(np.clip((np.trace(D, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)) <= rot_unc]
+    T = np.zeros((len(D), 4, 4))
+    T[:, 3, 3] = 1.0
+    T[:, :3, :3] = D @ T_guess[:3, :3]
+    T[:, :3, 3] = c_guess + shift - T[:, :3, :3] @ c_src
+    return list(T)
 
 
 def _o3d_cloud(scan: Scan, voxel: float):

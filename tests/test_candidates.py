@@ -68,7 +68,8 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     rot, trans = pose_error(g.transform, T_true, source.centroid)
     assert rot < 2.0 and trans < 0.002
     assert g.below_threshold
-    assert g.iterations["candidates"] > 100
+    # the guess, 90 degrees off, is not what was refined into the answer: a stage beyond it was scored
+    assert g.iterations["candidates"] >= 2 and set(g.details["candidate_sources"]) - {"guess"}
 
 
 def test_with_candidates_off_only_the_guess_is_tried(scene):

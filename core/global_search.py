@@ -38,9 +38,9 @@ from .candidates import (
     within_many,
 )
 from .config import Config
-from .errors import InputError
 from .events import Cancelled, Event, Listener
 from .icp import icp
+from .lock import LockFrame
 from .noise import noise_floor
 from .problem import ProblemConfig, prepare
 from .result import Result, Stop, StopReason
@@ -70,8 +70,8 @@ class _Counter:
     """Numbers the events of every stage in one stream (iteration over the run, phase_iteration within
     the leg, as core.events documents); forwards them to the listener."""
 
-    def __init__(self, listener: Listener | None):
-        self.listener = listener
+    def __init__(self, listener: Listener | None, frame: LockFrame | None = None):
+        self.listener, self.frame = listener, frame
         self.n = {"candidates": 0, "icp": 0, "sa": 0}  # steps per phase over the run
         self.legs = {"candidates": 0, "icp": 0, "sa": 0}
         self.in_leg = 0
@@ -85,7 +85,8 @@ class _Counter:
         self.n[phase] += 1
         self.in_leg += 1
         if self.listener is not None:
-            self.listener(Event(phase, self.total(), self.in_leg, self.legs[phase], T, E))
+            coords = None if self.frame is None else self.frame.coords_of(T)  # as core.search.state's events
+            self.listener(Event(phase, self.total(), self.in_leg, self.legs[phase], T, E, coords=coords))
 
     def forward(self, e: Event) -> None:
         """An event of the hybrid's own run, renumbered into this stream (a local-minimum marker is
@@ -101,7 +102,7 @@ class _Counter:
 
 def replace_event(e: Event, **kw) -> Event:
     d = {k: getattr(e, k) for k in ("phase", "iteration", "phase_iteration", "leg", "T", "error", "temperature",
-                                    "accepted", "local_minimum")}
+                                    "accepted", "local_minimum", "coords")}
     d.update(kw)
     return Event(**d)
 
@@ -140,15 +141,16 @@ def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
-           on_step=None, seed: int = 0) -> np.ndarray:
-    """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found."""
+           on_step=None, seed: int = 0, frame: LockFrame | None = None) -> np.ndarray:
+    """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found
+    (under ``frame``'s lock, when given: core.lock)."""
     # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
     near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG), visibility=False)
     conv = replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
                    translation_uncertainty=CONVERGED_TRANSLATION * target.size)
     for cfg in (near, conv):
         p = prepare(source, target, T, cfg, surface=surface, seed=seed)
-        T = icp(p.error, T, icp_config, on_step).T
+        T = icp(p.error, T, icp_config, on_step, frame=frame).T
     return T
 
 
@@ -159,20 +161,19 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     from .register import register  # the front runs this pipeline for method "global"
 
     config.validate()
-    if config.lock.active:
-        # Candidates come from all of SO(3) and feature matches, which a lock's frame does not bound yet.
-        raise InputError(f"--lock {config.lock} is honoured by the paper's methods (hybrid, icp, sa, icp-restarts, "
-                         "basin-hopping), not yet by the global pipeline: add --method hybrid")
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
     problem = prepare(source, target, T_init, pc, seed=config.seed)
     T_init, surface = problem.T_init, problem.surface
+    # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
+    # before it is scored, and every refinement and the hybrid walk the same free coordinates.
+    frame = config.lock.bind(T_init, problem.center, problem.scale) if config.lock.active else None
     rng = np.random.default_rng(config.seed)
     floor = float(np.mean([noise_floor(s, rng, len(problem.points)) for s in (source, target)]))
     basis = make_basis(source, target, surface, floor, rng, cc, pc.frustum)
     threshold = pair_threshold(floor, cc.min_overlap)
-    run = _Counter(listener)
+    run = _Counter(listener, frame)
     r_unc, t_unc = problem.rotation_uncertainty, problem.translation_uncertainty
     hybrid = replace(config, method="hybrid")
     stop = Stop(StopReason.TRUSTED)
@@ -191,11 +192,13 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         # scored in one query; the best few are refined by ICP one by one.
         for name, make, n_refine in _stages(source, target, T_init, pc, cc, basis, config.seed):
             found = make()
+            if frame is not None and not isinstance(found, str):
+                found = [frame.pose(frame.free(T)) for T in found]
             sources[name] = found if isinstance(found, str) else len(found)
             if isinstance(found, str) or not found:
                 continue
             poses += found
-            done, trusted = _round(run, basis, accept, found, n_refine, source, target, surface, pc, hybrid)
+            done, trusted = _round(run, basis, accept, found, n_refine, source, target, surface, pc, hybrid, frame)
             refined += done
             if trusted:
                 best, best_s = done[-1], float(basis.evaluate(done[-1][None]).score[0])
@@ -205,7 +208,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
             # the candidates covered the stated region; the paper's hybrid searches round the best of them
             local = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG),
                             translation_uncertainty=min(t_unc, LOCAL_TRANSLATION * target.size))
-            res = register(source, target, best, replace(hybrid, problem=local), run.forward)
+            res = register(source, target, best, replace(hybrid, problem=local), run.forward, frame=frame)
             s_h = float(basis.evaluate(res.transform[None]).score[0])
             text = f"hybrid from the best candidate: {res.stop_text}"
             if s_h < best_s:
@@ -268,7 +271,8 @@ def _shifted(basis: Basis, poses: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _round(run: _Counter, basis: Basis, accept, poses: list[np.ndarray], n: int, source: Scan, target: Scan,
-           surface: Surface, pc: ProblemConfig, base: Config) -> tuple[list[np.ndarray], bool]:
+           surface: Surface, pc: ProblemConfig, base: Config, frame: LockFrame | None = None
+           ) -> tuple[list[np.ndarray], bool]:
     """Score ``poses`` in one query (events of phase 'candidates'); refine the best ``n`` by score (once
     each: near-duplicates are skipped) with ICP, in order, until ``accept`` takes one. Returns the
     refined poses and whether the last one was taken."""
@@ -281,7 +285,8 @@ def _round(run: _Counter, basis: Basis, accept, poses: list[np.ndarray], n: int,
     out = []
     for k in order:
         run.leg("icp")
-        out.append(refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed))
+        out.append(refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed,
+                          frame))
         if accept(out[-1]):
             return out, True
     return out, False

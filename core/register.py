@@ -21,6 +21,7 @@ import numpy as np
 
 from .config import METHODS, Config
 from .events import Cancelled, Listener
+from .lock import LockFrame
 from .problem import Problem, prepare
 from .result import Result, Stop, StopReason
 from .scan import Scan
@@ -31,12 +32,14 @@ __all__ = ["METHODS", "Config", "Result", "Stop", "StopReason", "estimate_thresh
 
 
 def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: Config = Config(),
-             listener: Listener | None = None, problem: Problem | None = None) -> Result:
+             listener: Listener | None = None, problem: Problem | None = None,
+             frame: LockFrame | None = None) -> Result:
     """Register ``source`` onto ``target`` from the guess ``T_init`` (T_target_source, default identity).
 
     ``listener`` receives every :class:`~core.events.Event`; it may raise :class:`Cancelled` to stop
     early (the result is then the best pose so far). ``problem``: one prepared already for this pair
-    and guess (it is only read, so it may be shared by several runs).
+    and guess (it is only read, so it may be shared by several runs). ``frame``: ``config.lock`` bound
+    elsewhere (the global pipeline binds it once, at the guess, for every stage).
     """
     config.validate()
     if config.method == "global":
@@ -46,7 +49,7 @@ def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, confi
     t0 = time.perf_counter()
     problem = problem or prepare(source, target, T_init, config.problem, seed=config.seed)
     threshold = threshold_for(problem, config)
-    state = SearchState(problem, config, listener)
+    state = SearchState(problem, config, listener, frame)
     state.start_at(start_pose(problem, config))
     rounds: list[Round] = []
     try:

@@ -12,6 +12,7 @@ from core import Config, register
 from core.anneal import AnnealConfig
 from core.errors import InputError
 from core.lock import Lock
+from core.problem import ProblemConfig
 from core.transforms import PARAM_NAMES, apply, from_params, invert, perturb, pose_error
 
 SHORT_SA = AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25, settle_below=1e-2,
@@ -153,6 +154,7 @@ def test_a_translation_only_lock_recovers_a_pure_shift_and_never_turns():
     ("icp-restarts", dict(restarts=3)),
     ("basin-hopping", dict(hops=3)),
     ("hybrid", dict(recut_rounds=2, coarse_to_fine=True, polish=True, anneal=AnnealConfig(max_evaluations=60))),
+    ("global", dict(problem=ProblemConfig(rotation_uncertainty_deg=60.0))),  # candidates moved onto the allowed set
 ])
 def test_every_method_keeps_the_locked_parameters_in_every_event(method, options):
     from core.problem import prepare
@@ -174,6 +176,22 @@ def test_every_method_keeps_the_locked_parameters_in_every_event(method, options
     assert any(np.array_equal(e.T, res.transform) for e in events)
     if method != "sa":  # annealing alone with a short budget need not get closer
         assert problem.error(res.transform) < problem.error(T0)
+
+
+def test_the_global_pipeline_registers_a_turntable_pair_from_far_round_the_table():
+    # 100 deg round the table, no guess worth the name: candidates (rotation samples, feature matches)
+    # are moved onto the turntable before they are scored, and every refinement turns about the axis only
+    source, target, Tt, T0, point = _turntable_case(100.0)
+    events = []
+    res = register(source, target, T0, Config(method="global", lock=_table(point),
+                                              problem=ProblemConfig(rotation_uncertainty_deg=180.0)), events.append)
+    rot, tr = pose_error(res.transform, Tt, source.points.mean(0))
+    assert rot < 1.0 and tr < 1.0, (rot, tr)
+    assert res.method == "global" and res.iterations["candidates"] >= 1
+    on_axis = point + np.outer([-300.0, 0.0, 300.0], AXIS)
+    for e in events:
+        assert np.all(e.coords[:3] == 0.0) and np.all(e.coords[3:5] == 0.0)
+        np.testing.assert_allclose(apply(e.T @ invert(T0), on_axis), on_axis, atol=1e-9)
 
 
 def test_a_locked_trace_reads_back_with_its_coordinates():

@@ -37,8 +37,8 @@ class Progress:
 def run(a: Namespace) -> int:
     from core.register import register
 
-    if a.method is None:  # the global pipeline, unless a lock asks for the paper's hybrid (which honours it)
-        a.method = "hybrid" if a.lock and a.lock.strip().lower() not in ("", "none") else "global"
+    if a.method is None:
+        a.method = "global"
     cfg = pair.config(a)
     files = pair.inputs(a)
     scans = [a.source, a.target]

@@ -77,10 +77,7 @@ def read_ply(path: Path) -> tuple[dict, dict]:
     out: dict = {}
     if fmt == "ascii":
         tokens = raw[start:].split()
-        try:
-            values = np.array(tokens, dtype=np.float64)
-        except ValueError:
-            raise PlyError("the data section holds something that is not a number") from None
+        values = _ascii_values(tokens, elements)
         pos = 0
         for name, count, props in elements:
             if all(len(p) == 2 for p in props):
@@ -116,6 +113,47 @@ def read_ply(path: Path) -> tuple[dict, dict]:
     if len(buf) > pos and bytes(buf[pos:]).strip():  # a trailing newline is harmless; more rows are not
         raise PlyError(_leftover(elements, len(buf) - pos, "bytes"))
     return out, obj_info
+
+
+def _ascii_values(tokens: list[bytes], elements) -> np.ndarray:
+    """The tokens as float64. The rows of the leading scalar-only elements (vertices) are parsed as
+    numbers; from the first element with a list property on (faces, a range grid: whole numbers), the
+    tokens go through :func:`_whole_numbers`, ~3 x faster, and only fall back when one is not plain."""
+    n_scalar = 0
+    for _, count, props in elements:
+        if not all(len(p) == 2 for p in props):
+            break
+        n_scalar += count * len(props)
+    n_scalar = min(n_scalar, len(tokens))
+    try:
+        head = np.array(tokens[:n_scalar], dtype=np.float64)
+        tail = _whole_numbers(tokens[n_scalar:])
+        if tail is None:
+            tail = np.array(tokens[n_scalar:], dtype=np.float64)
+    except ValueError:
+        raise PlyError("the data section holds something that is not a number") from None
+    return np.concatenate([head, tail]) if len(tail) else head
+
+
+def _whole_numbers(tokens: list[bytes]) -> np.ndarray | None:
+    """(N,) float64 of tokens that are all plain non-negative whole numbers (digits only, at most 15),
+    read digit column by digit column; None when any is not."""
+    if not tokens:
+        return np.zeros(0)
+    S = np.array(tokens, dtype="S")
+    width = S.dtype.itemsize
+    if width > 15:
+        return None
+    u = S.view(np.uint8).reshape(len(tokens), width)
+    length = np.count_nonzero(u, axis=1)
+    v = np.zeros(len(tokens), dtype=np.int64)
+    for j in range(width):  # Horner's rule, one digit column at a time (the shorter tokens are zero-padded)
+        live = j < length
+        d = u[:, j].astype(np.int64) - 48
+        if np.any(live & ((d < 0) | (d > 9))):
+            return None
+        v = np.where(live, v * 10 + d, v)
+    return v.astype(np.float64)
 
 
 def _leftover(elements, extra: int, unit: str) -> str:

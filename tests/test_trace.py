@@ -241,3 +241,31 @@ def test_serve_refuses_a_trace_of_other_scans_before_it_listens(corner_trace):
 
     with pytest.raises(InputError, match="recorded on other scans"):
         Workbench(ServeOptions(source=str(WING[0]), target=str(WING[1]), trace=str(corner_trace), port=1))
+
+
+def test_the_page_exports_a_trace_with_its_header_that_replays_on_these_scans(panel, corner_trace):
+    from app.tab.export import ExportPanel
+
+    st, tab = panel.state, panel.tab
+    got = {}
+    tab.client = SimpleNamespace(send_file_download=lambda name, data, save_immediately: got.update({name: data}))
+    export = ExportPanel(tab)
+    tab.guarded(panel.load_trace, "run.jsonl", corner_trace.read_bytes())
+    export.trace()  # a loaded trace goes out with the header it came with
+    back = read_trace(got["trace.jsonl"].decode(), "exported.jsonl")
+    assert back.header.seed == 2 and len(back.events) == len(lines(corner_trace)) - 2
+    back.check_scans(st.source, st.target)
+    # a run of the page: its header is made when it starts (app/tab/run.py), its result closes the file
+    end = back.events[-1].T
+    with st.lock:
+        st.reset_run()
+        st.events = back.events[:3]
+        st.run_header = TraceHeader.of(st.source, st.target, st.T_init, Config(method="icp", seed=4))
+        st.result = SimpleNamespace(transform=end, to_json=lambda: {"transform": end.tolist(), "error": 1.0})
+    export.trace()
+    again = read_trace(got["trace.jsonl"].decode(), "exported.jsonl")
+    assert (again.header.method, again.header.seed, len(again.events)) == ("icp", 4, 3)
+    assert np.array_equal(again.end, end) and again.check_scans(st.source, st.target)
+    with st.lock:
+        st.reset_run()
+    assert st.run_header is None

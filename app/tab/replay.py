@@ -113,6 +113,7 @@ class ReplayPanel:
             st.reset_run(events[0].T)
             st.events = events
             st.run_method = f"trace {name}"
+            st.run_header = trace.header  # exported again as it came
         self.loaded = trace
         self.reset()
         self.show(len(events))

@@ -14,6 +14,7 @@ from app.tab.fields import Range, parse_number, parse_optional
 from app.tab.settings import PageSettings, page_config
 from app.tab.state import TabState
 from core.errors import InputError
+from core.events import TraceHeader
 from core.frustum import KINDS
 from core.problem import prepare
 from core.register import register
@@ -164,6 +165,7 @@ class RunPanel:
 
             st.reset_run(T_init)
             st.run_method = method
+            st.run_header = TraceHeader.of(source, target, T_init, cfg)  # the exported trace's first line
             st.run = run = Run(work, mode=mode, on_done=self._done)
             st.events = run.events
         self.tab.nodes.gizmo.visible = False

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 TARGET_RGB = (60, 120, 220)
 SOURCE_RGB = (240, 140, 30)
 TARGET_OVERLAP_RGB = (120, 230, 255)
@@ -13,6 +15,15 @@ MODEL_RGB = (200, 200, 190)
 SOURCE_PICK_RGB = (255, 60, 0)  # picked point pairs: darker than the scans they sit on
 TARGET_PICK_RGB = (0, 40, 160)
 PHASE_LABEL = {"icp": "ICP", "sa": "SA", "candidates": "candidates"}
+# the drawn paths keep each event's phase as a row of PHASE_TABLE (phase_code), so a colour is one lookup;
+# a phase without a colour (a stage added to core.events.PHASES alone) is drawn black, and a test says so
+PHASE_NAMES = tuple(PHASE_RGB)
+PHASE_TABLE = np.array([*PHASE_RGB.values(), (0, 0, 0)], np.uint8)  # (len(PHASE_NAMES) + 1, 3)
+
+
+def phase_code(phase: str) -> int:
+    """The row of PHASE_TABLE for ``phase`` (the last row, black, for a phase with no colour)."""
+    return PHASE_NAMES.index(phase) if phase in PHASE_RGB else len(PHASE_NAMES)
 
 
 def hex_colour(rgb: tuple[int, int, int]) -> str:

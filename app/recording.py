@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.figures import MINIMUM_RGB, PHASE_RGB, SOURCE_RGB, TARGET_RGB
+from app.figures import MINIMUM_RGB, PHASE_TABLE, SOURCE_RGB, TARGET_RGB
 from app.views import Display, Trail
 from core.errors import InputError
 
@@ -94,11 +94,12 @@ def _draw_pair(scene, run: RunToRecord):
     return frame, size
 
 
-def _part(scene, name: str, points: np.ndarray, sa: np.ndarray) -> None:
-    """Line segments through ``points`` (K, 3), each coloured by the phase of its end (``sa`` (K,))."""
+def _part(scene, name: str, points: np.ndarray, phase: np.ndarray) -> None:
+    """Line segments through ``points`` (K, 3), each coloured by the phase of its end (``phase`` (K,): rows of
+    PHASE_TABLE)."""
     if len(points) < 2:
         return
-    rgb = np.where(sa[1:, None], np.array(PHASE_RGB["sa"]), np.array(PHASE_RGB["icp"])).astype(np.uint8)
+    rgb = PHASE_TABLE[phase[1:]]
     scene.add_line_segments(name, np.stack([points[:-1], points[1:]], axis=1), np.repeat(rgb[:, None], 2, axis=1),
                             thickness=3.0, thickness_units="screen")
 
@@ -115,7 +116,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
     trail = Trail(run.display, run.events)
     trail.update()
     start = run.display.points((run.T_start[:3, :3] @ run.display.source_centre + run.T_start[:3, 3])[None])
-    pos, sa = np.r_[start, trail.pos], np.r_[False, trail.sa]
+    pos, phase = np.r_[start, trail.pos], np.r_[0, trail.phase].astype(np.int8)
     minimum = np.r_[False, trail.minimum]
     with guarded_viser(Guard("127.0.0.1")), contextlib.redirect_stdout(io.StringIO()):  # no banner on the console
         server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
@@ -139,13 +140,13 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
             T = run.T_start if k == 0 else run.events[k - 1].T
             frame.wxyz, frame.position = run.display.node_pose(T)
             keep = np.unique(np.r_[np.linspace(last, k, min(k - last + 1, 40)).astype(int), k])
-            _part(scene, f"/path/part{i}", pos[keep], sa[keep])
+            _part(scene, f"/path/part{i}", pos[keep], phase[keep])
             mins = np.flatnonzero(minimum[last + 1:k + 1]) + last + 1
             if len(mins):
                 scene.add_point_cloud(f"/minima/part{i}", pos[mins], MINIMUM_RGB, point_size=4 * size,
                                       precision="float32")
             if terrain is not None:
-                _part(scene, f"/terrain/path/part{i}", on_terrain[keep], sa[keep])
+                _part(scene, f"/terrain/path/part{i}", on_terrain[keep], phase[keep])
                 terrain.current.position = tuple(on_terrain[k])
             last = k
             recorder.insert_sleep(seconds / len(steps))

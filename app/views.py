@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.figures import PHASE_LABEL, PHASE_RGB, axis_label, squared_unit
+from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, PHASE_TABLE, axis_label, phase_code, squared_unit
 from core.events import Event
 from core.landscape import Slice
 from core.scan import Scan
@@ -53,13 +53,15 @@ class Display:
 class Trail:
     """A run's events as arrays for drawing, extended incrementally (each event is converted once).
 
-    pos: (K, 3) float32 node positions on the page; sa, minimum: (K,) bool; iteration, error: (K,).
+    pos: (K, 3) float32 node positions on the page; sa, minimum: (K,) bool; phase: (K,) rows of
+    app.figures.PHASE_TABLE (the path's colours); iteration, error: (K,).
     """
 
     def __init__(self, display: Display, events: list[Event]):
         self.display, self.events, self.n = display, events, 0
         self.pos = np.zeros((0, 3), np.float32)
         self.sa = np.zeros(0, bool)
+        self.phase = np.zeros(0, np.int8)
         self.minimum = np.zeros(0, bool)
         self.iteration = np.zeros(0)
         self.error = np.zeros(0)
@@ -73,6 +75,7 @@ class Trail:
             ref = np.einsum("kij,j->ki", Ts[:, :3, :3], self.display.source_centre) + Ts[:, :3, 3]
             self.pos = np.concatenate([self.pos, self.display.points(ref)])
             self.sa = np.r_[self.sa, [e.phase == "sa" for e in new]].astype(bool)
+            self.phase = np.r_[self.phase, [phase_code(e.phase) for e in new]].astype(np.int8)
             self.minimum = np.r_[self.minimum, [e.local_minimum for e in new]].astype(bool)
             self.iteration = np.r_[self.iteration, [e.iteration for e in new]]
             self.error = np.r_[self.error, [e.error for e in new]]
@@ -96,13 +99,14 @@ class Trail:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
         keep = np.unique(np.r_[np.linspace(0, len(pos) - 1, min(len(pos), MAX_PATH_POINTS)).astype(int), len(pos) - 1])
         seg = np.stack([pos[keep][:-1], pos[keep][1:]], axis=1)
-        rgb = np.where(self.sa[keep][1:, None], np.array(PHASE_RGB["sa"]), np.array(PHASE_RGB["icp"])).astype(np.uint8)
+        rgb = PHASE_TABLE[self.phase[keep][1:]]  # each segment in the phase of its end
         return seg, np.repeat(rgb[:, None, :], 2, axis=1)
 
-    def plot(self, E0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(iteration, E during ICP, E during SA) for the uPlot chart; the other phase is NaN (a gap).
+    def plot(self, E0: float) -> tuple[np.ndarray, ...]:
+        """(iteration, then E during each phase of PHASE_NAMES: ICP, SA, candidates) for the uPlot chart; the
+        other phases are NaN (a gap).
 
-        Both series start at iteration 0 with E at the initial pose (``E0``), the start both share; a
+        Every series starts at iteration 0 with E at the initial pose (``E0``), the start all share; a
         series of NaN only would leave the chart blank.
         """
         keep = np.unique(np.linspace(0, self.n - 1, min(self.n, MAX_PLOT_POINTS)).astype(int)) if self.n else []
@@ -110,10 +114,8 @@ class Trail:
         # an ICP "local minimum" mark repeats the last iteration: nudge it so x stays increasing
         it = np.maximum.accumulate(it + np.arange(len(it)) * 1e-6)
         err = np.r_[E0, self.error[keep]]
-        sa = np.r_[False, self.sa[keep]]
-        icp = np.r_[True, ~self.sa[keep]]
-        sa[0] = True
-        return it, np.where(icp, err, np.nan), np.where(sa, err, np.nan)
+        phase = np.r_[-1, self.phase[keep]]  # -1: the shared start
+        return it, *(np.where((phase == c) | (phase == -1), err, np.nan) for c in range(len(PHASE_NAMES)))
 
 
 def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None, current: np.ndarray | None,

@@ -108,8 +108,8 @@ class Workbench:
         self.server.on_client_disconnect(self._disconnect)
 
     def _check_trace(self, path: str) -> tuple[str, bytes]:
-        """(name, bytes) of a trace that parses and fits the first pair; else one InputError, before serving."""
-        from app.tab.replay import check_trace_fits, parse_trace
+        """(name, bytes) of a trace that parses and is of the first pair; else one InputError, before serving."""
+        from app.tab.replay import read_checked
         from core.problem import prepare, relative_guess
         from core.register import estimate_threshold
 
@@ -119,8 +119,8 @@ class Workbench:
             raise InputError(f"--trace {path}: {exc.strerror}") from None
         source, target = self.first_pair
         problem = prepare(source, target, relative_guess(source, target), seed=0)
-        check_trace_fits(problem, parse_trace(content.decode("utf-8", errors="replace"), f"--trace {path}"),
-                         estimate_threshold(problem, 0), f"--trace {path}")
+        read_checked(content.decode("utf-8", errors="replace"), f"--trace {path}", source, target, problem,
+                     estimate_threshold(problem, 0))
         return Path(path).name, content
 
     @property

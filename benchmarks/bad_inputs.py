@@ -28,6 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 CORNER = ROOT / "assets" / "corner"
+WING = ROOT / "assets" / "wing"
 
 
 @dataclass(frozen=True)
@@ -202,6 +203,13 @@ CASES: list[Case] = [
     C("slice trace json not events", f"{S} --png s.png --trace notransform.json", "not a rangereg trace"),
     C("slice trace empty", f"{S} --png s.png --trace empty.xyz", "no events"),
     C("slice trace bad transform", f"{S} --png s.png --trace badevent.jsonl", "line 2"),
+    C("slice trace of another pair", f"{S} --png s.png --trace trace_other.jsonl", "recorded on other scans"),
+    C("slice trace of the pair swapped", f"{S} --png s.png --trace trace_swapped.jsonl", "other way round"),
+    C("slice trace of an edited scan", f"{S} --png s.png --trace trace_edited.jsonl", "its target is tgt"),
+    C("slice trace newer format", f"{S} --png s.png --trace trace_newer.jsonl", "newer rangereg"),
+    C("slice trace not json lines", f"{S} --png s.png --trace trace_text.jsonl", "line 1 is not JSON"),
+    C("slice trace two headers", f"{S} --png s.png --trace trace_twoheaders.jsonl", "first line only"),
+    C("slice trace event after its result", f"{S} --png s.png --trace trace_after_result.jsonl", "nothing may follow"),
     # --- merge
     C("merge one scan", "merge src.ply", "at least two"),
     C("merge seed negative", "merge src.ply tgt.ply --seed -1", "--seed"),
@@ -230,6 +238,8 @@ CASES: list[Case] = [
     C("serve scans missing", "serve nope.ply tgt.ply", "no such file"),
     C("serve data dir missing", "serve --data-dir nowhere", "no such folder"),
     C("serve host empty", ["serve", "--host", ""], "--host"),
+    C("serve trace of another pair", "serve src.ply tgt.ply --trace trace_other.jsonl", "recorded on other scans"),
+    C("serve trace not json lines", "serve src.ply tgt.ply --trace trace_text.jsonl", "not a rangereg trace"),
     # --- bench and scenes
     C("bench runs 0", "bench --runs 0", ">= 1"),
     C("bench runs words", "bench --runs some", "whole number"),
@@ -313,6 +323,7 @@ def write_fixtures(folder: Path) -> None:
     (f / "shear.txt").write_text(" ".join(map(str, shear.ravel())))
     event = {"phase": "icp", "iteration": 1, "phase_iteration": 1, "leg": 1, "transform": np.eye(4).tolist(), "error": 1.0}
     (f / "badevent.jsonl").write_text(json.dumps(event) + "\n" + json.dumps({**event, "transform": shear.tolist()}) + "\n")
+    write_trace_fixtures(f, json.dumps(event) + "\n")
     (f / "badline.conf").write_text("bmesh src.ply 1 2 3\n")
     (f / "other.conf").write_text("bmesh elsewhere.ply 0 0 0 0 0 0 1\nbmesh another.ply 0 0 0 0 0 0 1\n")
     (f / "keep.jsonl").write_text('{"kept": true}\n')
@@ -326,6 +337,35 @@ def write_fixtures(folder: Path) -> None:
         (f / f"{name}.json").write_text(content if isinstance(content, str) else json.dumps(content))
     shutil.copy(CORNER / "scan2.ply", f / "side_dir.ply")
     (f / "side_dir.json").mkdir()
+
+
+def write_trace_fixtures(f: Path, event: str) -> None:
+    """Traces (a header line, then ``event``) that do not match the pair src.ply -> tgt.ply, or are not traces."""
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    from core.config import Config
+    from core.events import TraceHeader
+    from core.io import load_scan
+
+    src, tgt = load_scan(f / "src.ply"), load_scan(f / "tgt.ply")
+    wing = [load_scan(WING / f"{n}.ply") for n in ("scan2", "scan1")]
+    header = TraceHeader.of(src, tgt, np.eye(4), Config()).to_json()
+
+    def trace(head: dict) -> str:
+        return json.dumps(head) + "\n" + event
+
+    (f / "trace_other.jsonl").write_text(trace(TraceHeader.of(*wing, np.eye(4), Config()).to_json()))
+    (f / "trace_swapped.jsonl").write_text(trace(TraceHeader.of(tgt, src, np.eye(4), Config()).to_json()))
+    edited = json.loads(json.dumps(header))
+    edited["header"]["target"]["sha256"] = "0" * 64  # same point count, other points
+    (f / "trace_edited.jsonl").write_text(trace(edited))
+    newer = json.loads(json.dumps(header))
+    newer["header"]["format_version"] = 99
+    (f / "trace_newer.jsonl").write_text(trace(newer))
+    (f / "trace_text.jsonl").write_text("this is a note, not JSON lines\n")
+    (f / "trace_twoheaders.jsonl").write_text(trace(header) + json.dumps(header) + "\n")
+    result = json.dumps({"result": {"transform": np.eye(4).tolist(), "error": 1.0}}) + "\n"
+    (f / "trace_after_result.jsonl").write_text(trace(header) + result + event)
 
 
 def snapshot(folder: Path) -> dict[str, tuple[int, int]]:

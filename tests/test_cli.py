@@ -52,7 +52,9 @@ def test_register_json_contract_and_trace_drawn_by_slice(rangereg, tmp_path):
     T = np.array(res["transform"])
     assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
     assert {"icp", "sa"} <= set(res["iterations"])  # the default (global) adds "candidates"
-    events = [json.loads(line) for line in trace.read_text().splitlines()]
+    header, *events, result = [json.loads(line) for line in trace.read_text().splitlines()]
+    assert header["header"]["method"] == res["method"] and header["header"]["seed"] == 1  # the run it traced
+    assert result["result"]["transform"] == res["transform"]  # and closes with what it returned
     steps = [e for e in events if not e["local_minimum"]]
     assert sum(e["phase"] == "sa" for e in steps) == res["iterations"]["sa"]
     assert {"phase", "iteration", "params", "transform", "error", "temperature", "accepted", "local_minimum"} <= set(events[0])
@@ -63,7 +65,7 @@ def test_register_json_contract_and_trace_drawn_by_slice(rangereg, tmp_path):
     assert png.stat().st_size > 10_000
     data = np.load(npz)
     assert data["values"].shape == (9, 9) and len(data["path"]) == len(events) + 1
-    assert np.allclose(data["center"], events[-1]["transform"])  # --center end: the trace's last pose
+    assert np.allclose(data["center"], res["transform"])  # --center end: the run's outcome
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.npz", "s.png", "t.jsonl"]  # no temporary left
 
 
@@ -217,7 +219,8 @@ def test_register_with_a_lock_keeps_it_in_every_traced_event_and_slice_refuses_a
     code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--json", "--lock", "rotation", "--trace", trace)
     assert code == 0, err
     assert json.loads(out)["lock"] == "rx,ry,rz"
-    events = [json.loads(line) for line in trace.read_text().splitlines()]
+    header, *events, _ = [json.loads(line) for line in trace.read_text().splitlines()]
+    assert header["header"]["config"]["lock"]["locked"] == ["rx", "ry", "rz"]  # the header keeps every knob
     assert events and all(e["coords"][3:] == [0.0, 0.0, 0.0] for e in events)
     R0 = np.array(events[0]["transform"])[:3, :3]
     assert all(np.array_equal(np.array(e["transform"])[:3, :3], R0) for e in events)  # never turned

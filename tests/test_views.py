@@ -63,9 +63,9 @@ def test_a_long_path_is_thinned_but_keeps_its_last_point(display):
 def test_the_chart_starts_both_series_at_the_initial_error(display):
     trail = Trail(display, events(["icp"] * 2 + ["sa"] * 2))
     trail.update()
-    it, icp, sa = trail.plot(E0=7.0)
-    assert icp[0] == sa[0] == 7.0 and np.all(np.diff(it) > 0)
-    assert np.isnan(icp[3:]).all() and np.isnan(sa[1:3]).all()
+    it, icp, sa, candidates = trail.plot(E0=7.0)
+    assert icp[0] == sa[0] == candidates[0] == 7.0 and np.all(np.diff(it) > 0)
+    assert np.isnan(icp[3:]).all() and np.isnan(sa[1:3]).all() and np.isnan(candidates[1:]).all()
 
 
 def a_slice() -> Slice:
@@ -108,3 +108,43 @@ def test_the_png_draws_each_leg_in_the_page_colour():
     assert drawn == {"#{:02x}{:02x}{:02x}".format(*PHASE_RGB[p]) for p in ("icp", "sa")}
     assert ax.get_xlabel() == "tx (m)" and ax.get_ylabel() == "ry (deg)"
     plt.close(fig)
+
+
+def test_every_phase_core_emits_has_its_own_colour_in_every_path_the_page_draws(display):
+    # one palette (app.figures.PHASE_RGB) for the 3-D path, the terrain's path, the recording and the chart
+    from app.figures import PHASE_LABEL
+    from app.recording import _part
+    from app.tab.terrain import PathOnSlice
+    from core.events import PHASES
+    from core.problem import prepare, relative_guess
+
+    assert set(PHASES) <= set(PHASE_RGB) and set(PHASES) <= set(PHASE_LABEL)
+    assert len({PHASE_RGB[p] for p in PHASES}) == len(PHASES)  # no two phases look alike
+    phases = [p for p in PHASES for _ in range(2)]
+    want = np.array([PHASE_RGB[p] for p in phases[1:]], np.uint8)
+    trail = Trail(display, events(phases))
+    trail.update()
+    _, rgb = trail.segments()
+    assert np.array_equal(rgb[:, 0], want) and np.array_equal(rgb[:, 1], want)
+
+    source, target = load_scan(ASSETS / "corner" / "scan2.ply"), load_scan(ASSETS / "corner" / "scan1.ply")
+    T0 = relative_guess(source, target)
+    problem = prepare(source, target, T0, seed=0)
+    sl = Slice(("tx", "ry"), np.linspace(-50, 50, 5), np.linspace(-10, 10, 5), np.ones((5, 5)), T0)
+    path = PathOnSlice(problem, sl, T0, events(phases))
+    path.update()
+    _, rgb = path.segments()  # the start (the guess) leads into the first event
+    assert np.array_equal(rgb[:, 0], np.array([PHASE_RGB[p] for p in phases], np.uint8))
+
+    class Scene:
+        def add_line_segments(self, name, segments, colors, **kw):
+            self.colors = colors
+
+    scene = Scene()
+    _part(scene, "/path", trail.pos, trail.phase)
+    assert np.array_equal(scene.colors[:, 0], want)
+
+    it, *series = trail.plot(E0=1.0)  # one chart series per phase, in PHASE_RGB's order, each drawn where it ran
+    for k, p in enumerate(PHASE_RGB):
+        ran = np.r_[True, [q == p for q in phases]]
+        assert np.array_equal(~np.isnan(series[k]), ran)

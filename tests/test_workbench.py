@@ -378,8 +378,11 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
 
     T = np.array(json.loads(download("Transform (JSON)"))["transform"])
     assert T.shape == (4, 4) and np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
-    lines = download("Trace (JSON lines)").decode().splitlines()
-    assert lines and all(json.loads(line)["phase"] in ("icp", "sa") for line in lines)
+    from core.events import read_trace
+
+    trace = read_trace(download("Trace (JSON lines)").decode(), "trace.jsonl")  # header, events, result
+    assert trace.header.source.name == "right" and trace.result is not None
+    assert trace.events and all(e.phase in ("icp", "sa") for e in trace.events)
     assert download("Registered scans (PLY)").startswith(b"ply")
     assert download("Model (PLY)").startswith(b"ply")
     assert download("Slice (PNG)").startswith(b"\x89PNG")

@@ -1,5 +1,9 @@
 """``rangereg register``: register SOURCE onto TARGET and print T_target_source.
 
+The trace (JSON lines) opens with a header line (core.events.TraceHeader: both scans by content, the
+guess used, the config, the seed, the version) that ``slice --trace`` and the page check against
+their scans, and closes with the result (the pose returned).
+
 Outputs (``--out``, ``--trace``) are checked before the scans are read; the trace is collected in a
 temporary file and put in place only when the run ends, and the result is printed before any file
 is written, so a write that fails late (a full disk) loses nothing but that file.
@@ -54,6 +58,10 @@ def run(a: Namespace) -> int:
     # progress is for someone watching a terminal: a log or a pipe gets the result and at most one error line
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
+    if trace is not None:  # the header first: which scans (by content), the guess, every knob, the seed
+        from core.events import TraceHeader
+
+        trace.write(json.dumps(TraceHeader.of(source, target, T_init, cfg, a.source, a.target).to_json()))
 
     def listener(e):
         if trace is not None:
@@ -66,6 +74,8 @@ def run(a: Namespace) -> int:
         if trace is not None:
             trace.discard()
         raise
+    if trace is not None:  # the closing line: the pose the run returned (not always its last event)
+        trace.write(json.dumps({"result": res.to_json()}))
     seconds = {"seconds": time.perf_counter() - t0, "import_seconds": t0 - t_imports}
     try:
         report(res, source, target, cfg, a.json, seconds)  # first: a file that cannot be written loses only itself

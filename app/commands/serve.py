@@ -1,4 +1,6 @@
-"""``rangereg serve``: start the viser workbench with typed options (app.workbench)."""
+"""``rangereg serve``: start the viser workbench with typed options (app.workbench). A ``--trace`` is read
+here and checked against the first pair (its header's scans, app.tab.replay.read_checked) before the
+server listens."""
 
 from __future__ import annotations
 
@@ -7,6 +9,7 @@ from pathlib import Path
 
 from app.options import read_text_file
 from core.errors import InputError
+from core.events import read_trace
 
 
 def run(a: Namespace) -> int:
@@ -17,8 +20,8 @@ def run(a: Namespace) -> int:
     for p in (a.source, a.target):
         if p is not None and not Path(p).is_file():
             raise InputError(f"{p}: {'is a folder, not a scan file' if Path(p).is_dir() else 'no such file'}")
-    if a.trace is not None:
-        read_text_file(a.trace, "--trace")  # missing, a folder, unreadable, binary: one line now
+    if a.trace is not None:  # missing, a folder, unreadable, binary, not a trace: one line now (its scans: below)
+        read_trace(read_text_file(a.trace, "--trace"), f"--trace {a.trace}")
     if a.data_dir is not None and not Path(a.data_dir).is_dir():
         raise InputError(f"--data-dir {a.data_dir}: no such folder")
     if not a.host.strip():

@@ -1,5 +1,7 @@
 """``rangereg slice``: E over two of the six pose parameters around a pose (paper Fig. 3 and 7) as a
-PNG (and the numbers as .npz), with a ``register --trace`` run drawn on it."""
+PNG (and the numbers as .npz), with a ``register --trace`` run drawn on it. A trace whose header names
+other scans (by content) is refused; one without a header (older) is drawn with a note that it could
+not be checked; another guess, method or settings are drawn and said."""
 
 from __future__ import annotations
 
@@ -14,11 +16,29 @@ from app.outputs import check_distinct, check_output, write_outputs
 from core.errors import InputError
 
 
-def read_trace(path: str) -> list:
-    """The events of a ``register --trace`` file; anything else is one InputError naming the line."""
-    from core.events import parse_trace
+def read_trace(path: str):
+    """A ``register --trace`` file as a core.events.Trace; anything else is one InputError naming the line."""
+    from core.events import read_trace as read
 
-    return parse_trace(read_text_file(path, "--trace"), f"--trace {path}")
+    return read(read_text_file(path, "--trace"), f"--trace {path}")
+
+
+SLICE_KNOBS = ("problem.", "seed", "lock.")  # what the slice itself depends on: the overlap cut, its sample, a lock
+
+
+def trace_notes(trace, T_init, cfg, units: str = "units") -> list[str]:
+    """What to say about a trace of these scans (checked before): how its run differs from this slice's
+    settings (drawn all the same), or that an old trace without a header could not be checked."""
+    from core.events import NO_HEADER
+
+    if trace.header is None:
+        return [f"note: {trace.name}: {NO_HEADER}"]
+    h = trace.header
+    said = [f"trace: {h.source.name} -> {h.target.name}, method {h.method}, seed {h.seed}, rangereg {h.version}"]
+    diff = h.differences(T_init, cfg, SLICE_KNOBS, units)
+    if diff:
+        said.append("note: the traced run differs from this slice's settings in " + "; ".join(diff))
+    return said
 
 
 def run(a: Namespace) -> int:
@@ -37,13 +57,17 @@ def run(a: Namespace) -> int:
     png = check_output(a.png, "--png", (".png",), files, scans)
     npz = check_output(a.npz, "--npz", (".npz",), files, scans) if a.npz is not None else None
     check_distinct({"--png": png, "--npz": npz})
-    events = read_trace(a.trace_in) if a.trace_in is not None else []
+    trace = read_trace(a.trace_in) if a.trace_in is not None else None
+    events = trace.events if trace is not None else []
     source, target, T_init = pair.load(a)
+    if trace is not None:
+        trace.check_scans(source, target)  # a trace of other scans is refused (by content, not file name)
     problem = prepare(source, target, T_init, cfg.problem, seed=cfg.seed)
-    center = events[-1].T if (a.center == "end" and events) else problem.T_init
+    center = trace.end if (a.center == "end" and trace is not None) else problem.T_init
     spans = spans or tuple(default_span(problem, n) for n in params)
     sl = compute_slice(problem, center, params, spans, a.steps)
-    path_xy = project(problem, center, params, [problem.T_init] + [e.T for e in events]) if events else None
+    start = trace.start if trace is not None and trace.start is not None else problem.T_init  # where the run began
+    path_xy = project(problem, center, params, [start] + [e.T for e in events]) if events else None
     phases = ["icp"] + [e.phase for e in events] if events else None
 
     def write_png(p: Path) -> None:
@@ -58,6 +82,8 @@ def run(a: Namespace) -> int:
                      path=path_xy if path_xy is not None else np.zeros((0, 2)))
 
     try:
+        for line in trace_notes(trace, T_init, cfg, target.units) if trace is not None else []:
+            print(line)
         print(f"{sl!r} -> {png}" + (f", {npz}" if npz else ""))
     finally:  # the files are written even when stdout is gone (`| head`)
         write_outputs([(png, "--png", write_png, ".png"), (npz, "--npz", write_npz, ".npz")])

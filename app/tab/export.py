@@ -54,10 +54,16 @@ class ExportPanel:
         self._download(name, (json.dumps({"transform": T.tolist(), **extra}, indent=1) + "\n").encode())
 
     def trace(self) -> None:
-        events = list(self.state.events)
+        """As ``register --trace`` writes it: the header (when the run's is known), the events, the result."""
+        st = self.state
+        with st.lock:
+            events, header, result = list(st.events), st.run_header, st.result
         if not events:
             raise InputError("no run yet: nothing to export")
-        self._download("trace.jsonl", "".join(json.dumps(e.to_json()) + "\n" for e in events).encode())
+        rows = ([header.to_json()] if header is not None else []) + [e.to_json() for e in events]
+        if result is not None and result.transform is not None:
+            rows.append({"result": result.to_json()})
+        self._download("trace.jsonl", "".join(json.dumps(r) + "\n" for r in rows).encode())
 
     def scans(self) -> None:
         st = self.state

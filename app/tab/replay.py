@@ -3,6 +3,12 @@
 Scrubbing sets the shown pose (not the initial guess), the E, phase and temperature line, and the
 marker on the slice; Play walks the timeline at a chosen speed; the minimum buttons jump between the
 local minima ICP stopped in. Play's thread only hands each step to the refresher (app/tab/state.py).
+
+A loaded trace must be of the scans on the page: its header names both by content (point count and
+SHA-256 of the points), so another pair, the same pair swapped, or an edited file is refused with a
+notification and the page stays as it was. A trace without a header (written before headers) is
+checked the old way, by E at its best pose, and the panel says it could not be checked by content.
+The trace's method, seed and guess are shown; another guess or other settings are not a mismatch.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ import numpy as np
 from app.figures import squared_unit
 from app.tab import scene3d
 from core.errors import InputError
-from core.events import Event, parse_trace  # noqa: F401  (parse_trace: the page's name for it)
+from core.events import NO_HEADER, Event, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
 
 SPEEDS = ("10", "30", "100", "300", "1000")  # events per second
 TICK = 0.1  # seconds between steps of Play
@@ -33,6 +39,27 @@ def check_trace_fits(problem, events: list[Event], threshold: float, name: str =
                          f"these scans give E = {here:.4g}")
 
 
+def read_checked(text: str, name: str, source, target, problem, threshold: float) -> Trace:
+    """A trace file's text read and checked against the scans ``source``, ``target`` (core Scans): refused
+    (InputError) when its header names other scans; without a header, when E at its best pose does not fit
+    ``problem`` (the only check an old trace allows)."""
+    trace = read_trace(text, name)
+    if not trace.check_scans(source, target):
+        check_trace_fits(problem, trace.events, threshold, name)
+    return trace
+
+
+def trace_line(trace: Trace, T_init: np.ndarray, units: str = "units") -> str:
+    """One markdown line about a loaded trace: what run it was (method, seed, guess) or that it has no header."""
+    h = trace.header
+    if h is None:
+        return f"Trace **{trace.name}**: {NO_HEADER}; it fits them by E."
+    guess = h.differences(T_init, units=units)
+    where = guess[0].replace("initial guess (", "its guess is ").rstrip(")") + " from this page's" if guess else (
+        "its guess is this page's")
+    return f"Trace **{trace.name}**: method {h.method}, seed {h.seed}, rangereg {h.version}; {where}."
+
+
 class ReplayPanel:
     def __init__(self, tab):
         self.tab, self.state = tab, tab.state
@@ -48,6 +75,8 @@ class ReplayPanel:
             self.next_min = gui.add_button("Next minimum", disabled=True)
             self.upload = gui.add_upload_button("Load a trace", hint="a register --trace file (.jsonl) of these scans")
         self.events: list[Event] = []
+        self.loaded: Trace | None = None  # the last trace loaded; shown while its events are the timeline's
+        self.trace: Trace | None = None
         self.minima = np.zeros(0, int)
         self._playing: threading.Event | None = None
         self._drawn_at = 0.0
@@ -63,6 +92,8 @@ class ReplayPanel:
         self.stop_play()
         with self.state.lock:
             self.events = list(self.state.events)
+            loaded = self.loaded is not None and self.state.events is self.loaded.events
+        self.trace = self.loaded if loaded else None
         n = len(self.events)
         self.minima = np.array([k + 1 for k, e in enumerate(self.events) if e.local_minimum], int)
         self.slider.max = max(n, 1)
@@ -74,31 +105,45 @@ class ReplayPanel:
         st = self.state
         st.require_scans()
         st.require_idle()
-        events = parse_trace(content.decode("utf-8", errors="replace"), name)
         with st.lock:
-            problem, threshold = st.problem, st.threshold or 0.0
-        check_trace_fits(problem, events, threshold, name)
+            source, target, problem, threshold = st.source, st.target, st.problem, st.threshold or 0.0
+        trace = read_checked(content.decode("utf-8", errors="replace"), name, source, target, problem, threshold)
+        events = trace.events
         with st.lock:
             st.reset_run(events[0].T)
             st.events = events
             st.run_method = f"trace {name}"
+            st.run_header = trace.header  # exported again as it came
+        self.loaded = trace
         self.reset()
         self.show(len(events))
-        self.tab.notify("Trace loaded", f"{name}: {len(events)} events", error=False)
+        self.tab.notify("Trace loaded", f"{name}: {len(events)} events" + (
+            "" if trace.header else f"; {NO_HEADER}"), error=False)
 
     def describe(self, k: int) -> None:
         n = len(self.events)
         if not n:
             self.info.content = "No run to replay yet."
             return
+        about = ""
+        if self.trace is not None:
+            about = "\n\n" + trace_line(self.trace, self.state.T_init, self.state.target.units)
         if k == 0:
-            self.info.content = f"Event 0 of {n}: the initial pose"
+            self.info.content = f"Event 0 of {n}: the initial pose" + (
+                " (the trace's own guess)" if self.start() is not self.state.T_init else "") + about
             return
         e = self.events[k - 1]
         temp = f"{e.temperature:.4g}" if e.temperature is not None else "-"
         mark = " · **local minimum**" if e.local_minimum else ""
         self.info.content = (f"Event {k} of {n} · phase **{e.phase.upper()}** (leg {e.leg}) · "
-                             f"E = {e.error:.6g} {squared_unit(self.state.target.units)} · temperature {temp}{mark}")
+                             f"E = {e.error:.6g} {squared_unit(self.state.target.units)} · temperature {temp}{mark}"
+                             + about)
+
+    def start(self) -> np.ndarray:
+        """Event 0's pose: the loaded trace's own guess (its header), else the page's initial guess."""
+        if self.trace is not None and self.trace.start is not None:
+            return self.trace.start
+        return self.state.T_init
 
     def show(self, k: int) -> None:
         """Scrub to event ``k`` (0: the initial pose): the shown pose, the line above, the marker on the slice."""
@@ -109,9 +154,11 @@ class ReplayPanel:
         with st.lock:
             if st.events is not self.events and list(st.events) != self.events:
                 return  # a new pair or a reset: nothing to replay
-            T = st.T_init if k == 0 else self.events[k - 1].T
+            T = self.start() if k == 0 else self.events[k - 1].T
             if k == len(self.events) and st.result is not None and st.result.transform is not None:
                 T = st.result.transform  # the end of the timeline is the run's outcome (its best pose)
+            elif k == len(self.events) and self.trace is not None:
+                T = self.trace.end  # a loaded trace's outcome: its closing result line
             st.T = T
         with tab.client.atomic():
             scene3d.move_source(tab.nodes, st, T, gizmo=False)
@@ -169,6 +216,7 @@ class ReplayPanel:
         """A new pair or a new initial pose: the last run's timeline is gone."""
         self.stop_play()
         self.events, self.minima = [], np.zeros(0, int)
+        self.loaded = self.trace = None
         self.describe(0)
         self.lock(False)
 
@@ -176,7 +224,7 @@ class ReplayPanel:
         """A run holds the timeline; a new run or pair empties it."""
         if running:
             self.stop_play()
-            self.events = []
+            self.events, self.trace = [], None
             self.describe(0)
         off = running or not self.events
         self.slider.disabled = self.play.disabled = self.previous_min.disabled = self.next_min.disabled = off

@@ -8,12 +8,13 @@ import numpy as np
 import viser
 import viser.uplot as uplot
 
-from app.figures import PHASE_RGB, hex_colour
+from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, hex_colour
 from app.runner import Run
 from app.tab.fields import Range, parse_number, parse_optional
 from app.tab.settings import PageSettings, page_config
 from app.tab.state import TabState
 from core.errors import InputError
+from core.events import TraceHeader
 from core.frustum import KINDS
 from core.problem import prepare
 from core.register import register
@@ -71,9 +72,10 @@ def build(gui: viser.GuiApi) -> RunHandles:
                         "y: rx,rz,tx,ty,tz), rotation, translation, or turntable:px,py,pz,dx,dy,dz (an axis in the "
                         "target's frame, its units); empty: all six free")
     plot = gui.add_uplot(
-        data=(np.zeros(1), np.ones(1), np.ones(1)),
-        # points, not lines: each phase leaves gaps where the other ran
-        series=(uplot.Series(label="iteration"), _series("E (ICP)", "icp", 5), _series("E (SA)", "sa", 3)),
+        data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES)),
+        # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
+        series=(uplot.Series(label="iteration"), *(_series(f"E ({PHASE_LABEL[p]})", p, 5 if p == "icp" else 3)
+                                                   for p in PHASE_NAMES)),
         scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(distr=3)},
         axes=(uplot.Axis(), uplot.Axis(size=70)), title="E against iteration", aspect=1.6)
     with gui.add_folder("Settings", expand_by_default=False):
@@ -163,6 +165,7 @@ class RunPanel:
 
             st.reset_run(T_init)
             st.run_method = method
+            st.run_header = TraceHeader.of(source, target, T_init, cfg)  # the exported trace's first line
             st.run = run = Run(work, mode=mode, on_done=self._done)
             st.events = run.events
         self.tab.nodes.gizmo.visible = False

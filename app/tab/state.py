@@ -67,6 +67,7 @@ class TabState:
     threshold: float | None = None
     run: Run | None = None
     run_method: str = ""
+    run_header: object | None = None  # core.events.TraceHeader of the run (or loaded trace) the events belong to
     events: list = field(default_factory=list)
     result: Result | None = None
     finished_text: str = ""
@@ -97,6 +98,7 @@ class TabState:
     def reset_run(self, T: np.ndarray | None = None) -> None:
         """Forget the last run (its events, result and finished line); the shown pose goes to ``T``. Under the lock."""
         self.events, self.result, self.finished_text = [], None, ""
+        self.run_header = None
         self.residual_rgb = None
         if T is not None:
             self.T = T

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from app.figures import MINIMUM_RGB, PHASE_RGB, axis_label
+from app.figures import MINIMUM_RGB, PHASE_TABLE, axis_label, phase_code
 from core.landscape import Slice, project
 
 TERRAIN_AT = (1.4, -0.4, 0.0)  # page units: right of the scans (the page scales the target to size 1)
@@ -78,6 +78,7 @@ class PathOnSlice:
         self.problem, self.slice, self.events = problem, sl, events
         self.xy = project(problem, sl.T_center, sl.params, [T_start])
         self.sa = np.zeros(1, bool)
+        self.phase = np.zeros(1, np.int8)  # rows of PHASE_TABLE (the start's is never drawn)
         self.minimum = np.zeros(1, bool)
         self.n = 0
         self.lookup = height_lookup(sl)  # built once per slice, used on every redraw
@@ -88,6 +89,7 @@ class PathOnSlice:
         if new:
             self.xy = np.r_[self.xy, project(self.problem, self.slice.T_center, self.slice.params, [e.T for e in new])]
             self.sa = np.r_[self.sa, [e.phase == "sa" for e in new]].astype(bool)
+            self.phase = np.r_[self.phase, [phase_code(e.phase) for e in new]].astype(np.int8)
             self.minimum = np.r_[self.minimum, [e.local_minimum for e in new]].astype(bool)
             self.n = n
         return n
@@ -99,7 +101,7 @@ class PathOnSlice:
         keep = np.unique(np.r_[np.linspace(0, len(self.xy) - 1, min(len(self.xy), MAX_TERRAIN_PATH)).astype(int),
                                len(self.xy) - 1])
         p = on_surface(self.slice, self.xy[keep], self.lookup)
-        rgb = np.where(self.sa[keep][1:, None], np.array(PHASE_RGB["sa"]), np.array(PHASE_RGB["icp"])).astype(np.uint8)
+        rgb = PHASE_TABLE[self.phase[keep][1:]]
         return np.stack([p[:-1], p[1:]], axis=1), np.repeat(rgb[:, None, :], 2, axis=1)
 
     def minima(self) -> np.ndarray:

@@ -113,7 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--recut-rounds", type=_knob("recut_rounds"), default=cfg.recut_rounds, metavar="N",
                    help="hybrid: search again from an overlap re-cut at the pose found, up to N rounds in all, "
                    f"1 to {KNOBS['recut_rounds'].high} (default {cfg.recut_rounds})")
-    s.add_argument("--trace", help="write every ICP/SA step as JSON lines (.jsonl), put in place when the run ends")
+    s.add_argument("--trace", help="write every step as JSON lines (.jsonl): a header (both scans' fingerprints, "
+                   "the guess, every setting, seed, version), the events, the result; put in place when the run ends")
     s.add_argument("--out", help="write the transform as JSON (.json)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -124,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--span", help="half-widths a,b > 0 (units / degrees); default: the initial uncertainty")
     s.add_argument("--steps", type=_knob("steps"), default=61,
                    help=f"grid steps per axis, 2 to {KNOBS['steps'].high} (default 61)")
-    s.add_argument("--trace", dest="trace_in", help="a --trace file from 'register' to draw on the slice")
+    s.add_argument("--trace", dest="trace_in", help="a --trace file from 'register' to draw on the slice (refused when "
+                   "its header names other scans)")
     s.add_argument("--center", choices=("init", "end"), default="init",
                    help="slice around the initial pose or the trace's end (default init)")
     s.add_argument("--png", required=True, help="write the picture here (.png)")

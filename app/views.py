@@ -84,9 +84,14 @@ class Trail:
 
     @property
     def counts(self) -> tuple[int, int, int]:
-        """(ICP iterations, SA moves, local minima) so far."""
+        """(ICP iterations, SA moves, local minima) so far (candidates apart: :attr:`candidates`)."""
         n_min = int(self.minimum.sum())
-        return int((~self.sa).sum()) - n_min, int(self.sa.sum()), n_min
+        return int((self.phase == phase_code("icp")).sum()) - n_min, int(self.sa.sum()), n_min
+
+    @property
+    def candidates(self) -> int:
+        """Candidate poses scored so far (the global pipeline's own phase)."""
+        return int((self.phase == phase_code("candidates")).sum())
 
     def minima(self) -> np.ndarray:
         """(M, 3) float32 page positions of the local minima ICP stopped in (drawn as red markers)."""

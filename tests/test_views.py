@@ -44,6 +44,12 @@ def test_local_minima_are_marked_where_icp_stopped(display):
     assert trail.counts == (5 - 2, 2, 2)  # a minimum mark repeats ICP's last pose: not an iteration
 
 
+def test_candidates_are_counted_apart_from_icp_iterations(display):
+    trail = Trail(display, events(["candidates"] * 4 + ["icp"] * 3 + ["sa"] * 2))
+    trail.update()
+    assert trail.counts == (3, 2, 0) and trail.candidates == 4
+
+
 def test_a_trail_takes_in_new_events_incrementally(display):
     evs = events(["icp"] * 2)
     trail = Trail(display, evs)

@@ -202,7 +202,8 @@ class Tab:
             lines = [f"**{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}** "
                      f"({units}) · overlap {st.problem.used.sum() if st.problem else 0} points",
                      f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**",
-                     f"Iterations: ICP {n_icp}, SA {n_sa} · local minima {n_min}",
+                     f"Iterations: ICP {n_icp}, SA {n_sa}"
+                     + (f", candidates {trail.candidates}" if trail.candidates else "") + f" · local minima {n_min}",
                      f"E = {last.error:.6g} {e_unit}" if last else f"E = {E0:.6g} {e_unit} (initial)",
                      f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
                      else "Temperature -",

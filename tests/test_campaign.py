@@ -92,6 +92,7 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     assert len(closing) == 1 and closing[0]["status"] in ("used", "rejected")
     assert rep["graph"]["used"] + rep["graph"]["rejected"] + rep["graph"]["dropped"] == rep["graph"]["pairs"]
     assert rep["model"]["triangles"] > 0
+    assert rep["workers"] == 1 and rep["threads_per_worker"] is None  # serial: the libraries' own threads
 
 
 def _open3d_threads(_item) -> int:

@@ -40,15 +40,19 @@ ROT_TARGET, TRANS_TARGET = 1.0, 0.005  # degrees; fraction of the object's size
 
 
 def run(camp, initial, workers: int, threads: int | None, pairs: str, quiet: bool) -> tuple:
-    """One merge: (MergeResult, end-to-end seconds, cluster start seconds)."""
+    """One merge: (MergeResult, end-to-end seconds, cluster start seconds, CPU seconds of the merge in
+    (this process, each worker)); CPU time, unlike wall time, barely depends on the machine's load."""
     clear_geometry_cache()
     t0 = time.perf_counter()
     with TaskRunner(workers, progress=None if quiet else stderr_lines, threads=threads) as runner:
         runner.start()  # the cluster's start counts end to end, not in the pairwise stage
         started = time.perf_counter() - t0
+        cpu0, w0 = time.process_time(), runner.client.run(time.process_time) if runner.client else {}
         res = merge(camp.scans, initial, build_model=False, pairs=pairs, map_tasks=runner.map,
                     progress=None if quiet else stderr_lines)
-    return res, time.perf_counter() - t0, started
+        cpu1, w1 = time.process_time(), runner.client.run(time.process_time) if runner.client else {}
+    cpu = (cpu1 - cpu0, tuple(w1[k] - w0[k] for k in sorted(w1)))
+    return res, time.perf_counter() - t0, started, cpu
 
 
 def errors(camp, poses) -> tuple[np.ndarray, np.ndarray]:
@@ -83,26 +87,29 @@ def main() -> int:
     for _ in range(a.repeat):
         for t, threads in threadings.items():
             for workers in (1, a.workers):
-                res, wall, started = run(camp, initial, workers, threads, a.pairs, a.quiet)
-                rows[t, workers].append((res, wall, started, os.getloadavg()[0]))
+                res, wall, started, cpu = run(camp, initial, workers, threads, a.pairs, a.quiet)
+                rows[t, workers].append((res, wall, started, os.getloadavg()[0], cpu))
     for (t, workers), runs in rows.items():
         print(f"{t} threading, {workers} worker(s), each run: pairwise stage "
               f"{', '.join(f'{r.pair_seconds:.1f}' for r, *_ in runs)} s; cluster start "
-              f"{', '.join(f'{s:.1f}' for _, _, s, _ in runs)} s; end to end "
-              f"{', '.join(f'{w:.1f}' for _, w, _, _ in runs)} s; load average after "
-              f"{', '.join(f'{x:.1f}' for *_, x in runs)}")
+              f"{', '.join(f'{s:.1f}' for _, _, s, *_ in runs)} s; end to end "
+              f"{', '.join(f'{w:.1f}' for _, w, *_ in runs)} s; load average after "
+              f"{', '.join(f'{x:.1f}' for *_, x, _ in runs)}; CPU s (this process + each worker) "
+              f"{', '.join(' + '.join(f'{c:.1f}' for c in (cpu[0], *cpu[1])) for *_, cpu in runs)}")
     first = rows["equal", 1][0][0]
     same = all(np.array_equal(x, y) for runs in rows.values() for r, *_ in runs for x, y in zip(first.poses, r.poses))
     print(f"\npairs: {len(first.pairs)} registered, {len(first.used)} used, "
           f"{sum(p.status == 'rejected' for p in first.pairs)} rejected by the pose graph, "
           f"{sum(p.status == 'dropped' for p in first.pairs)} dropped")
-    loads = [x for runs in rows.values() for *_, x in runs]
+    loads = [x for runs in rows.values() for *_, x, _ in runs]
     print(f"medians of {a.repeat} interleaved runs each (load average after the runs {min(loads):.1f}-{max(loads):.1f}):")
     med = lambda t, w, f: float(np.median([f(*r) for r in rows[t, w]]))  # noqa: E731
-    cols = {"pairwise stage (s)": lambda r, w, s, x: r.pair_seconds,
-            "  of which overlaps (s)": lambda r, w, s, x: r.overlap_seconds,
-            "cluster start (s)": lambda r, w, s, x: s,
-            "end to end (s)": lambda r, w, s, x: w}
+    cols = {"pairwise stage (s)": lambda r, w, s, x, c: r.pair_seconds,
+            "  of which overlaps (s)": lambda r, w, s, x, c: r.overlap_seconds,
+            "cluster start (s)": lambda r, w, s, x, c: s,
+            "end to end (s)": lambda r, w, s, x, c: w,
+            "CPU, busiest process (s)": lambda r, w, s, x, c: max((c[0], *c[1])),
+            "CPU, all processes (s)": lambda r, w, s, x, c: c[0] + sum(c[1])}
     for t, threads in threadings.items():
         each = "1 thread per task stream in both modes" if threads else \
             f"serial: library defaults; {a.workers} workers: {max(1, (os.cpu_count() or 1) // a.workers)} thread(s) each"
@@ -110,7 +117,7 @@ def main() -> int:
         print(f"  {'':26s}{'1 worker':>12s}{f'{a.workers} workers':>12s}{'speed-up':>10s}")
         for name, f in cols.items():
             one, many = med(t, 1, f), med(t, a.workers, f)
-            ratio = f"{one / many:9.2f}x" if "start" not in name else ""
+            ratio = f"{one / many:9.2f}x" if "start" not in name and "all" not in name else ""
             print(f"  {name:26s}{one:12.1f}{many:12.1f}{ratio}")
     print(f"poses bitwise equal across all {sum(map(len, rows.values()))} runs: {same}")
     rot, tr = errors(camp, first.poses)

@@ -12,12 +12,21 @@ Tasks get plain numpy data (Open3D geometry does not pickle). What every task ne
 the scans) is sent once to every worker (``scatter(broadcast=True)``) and the task function builds its
 geometry once per process (``core.merge._built``), not once per task. Results come back in order.
 
-Threading, the same in both modes: each process (this one in the serial loop, each worker) runs
-one task at a time, and Open3D (TBB), OpenMP and BLAS keep their default thread pools (all cores).
-Dask's nanny would set ``OMP_NUM_THREADS=MKL_NUM_THREADS=OPENBLAS_NUM_THREADS=1`` in its workers; we
-unset that override so workers run as this process does (a value set in the environment is passed on
-unchanged). Results do not depend on it: tasks take their seeds from the task, never from the process,
-and the serial and distributed poses are bitwise equal (tests/test_campaign.py).
+Threading (``threads``: threads per task stream, the same knob in both modes). A task stream is the
+process that runs tasks one at a time: this process in the serial loop, or one worker. ``threads=k``
+limits every stream to k threads: Open3D (whose ray casts and closest-point queries run on oneAPI
+TBB, which reads no environment variable) through ``open3d.utility.set_max_threads(k)``, set in this
+process for the length of a serial map and in each worker by a worker plugin (also on workers that
+join or restart later); OpenMP/MKL/OpenBLAS through ``OMP_NUM_THREADS`` etc., set by the nanny
+before a local worker starts (this process's BLAS keeps its threads: numpy is loaded already, and
+the engine's BLAS calls are too small for OpenBLAS to split; scipy's neighbour search while a scan's
+surface is built, once per scan and process, uses every core). ``threads=None`` (default): the serial
+loop keeps the libraries' defaults (all cores), a local cluster of N workers gives each
+``max(1, cores // N)`` threads (so N workers do not ask for N x cores), and the workers of a
+``scheduler`` keep their own settings. ``--threads 1`` in both modes is the fair comparison of 1
+worker with N (benchmarks/campaign.py). Results do not depend on it: tasks take their seeds from
+the task, never from the process, each closest point and ray is computed alone (the same answer
+on any thread), and the serial and distributed poses are bitwise equal (tests/test_campaign.py).
 """
 
 from __future__ import annotations
@@ -26,12 +35,25 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from core.errors import InputError
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+# A local cluster's housekeeping, slowed down: the workers' statistical profiler off (it samples the
+# running task's stack every 10 ms) and the memory, system and event-loop monitors at 1 s / 2 s / 0.2 s
+# (100 / 500 / 20 ms by default). Measured on the 24-scan campaign, 2 workers, 2 cores: CPU time of
+# the pairwise stage 12.5 s per worker + 4.4 s in this process (scheduler, nannies) -> 10.4 + 1.9 s
+# (the serial loop: 16.8 s); idle, 20 s: 1.0 s per worker + 1.6 s here -> 0.14 + 0.36 s. The
+# dashboard's profile page stays empty and its system plots update every 2 s.
+QUIET_CLUSTER = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.admin.tick.interval": "200ms",
+}
 
 
 def default_workers() -> int:
@@ -75,20 +97,31 @@ class TaskRunner:
     """
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None,
-                 progress: Callable[[str], None] | None = None, connect_timeout: float = 10.0):
+                 progress: Callable[[str], None] | None = None, connect_timeout: float = 10.0,
+                 threads: int | None = None):
         if scheduler is not None:
             if not isinstance(scheduler, str) or not scheduler.startswith("tcp://") or ":" not in scheduler[6:]:
                 raise InputError(f"--scheduler must look like tcp://HOST:PORT, got {scheduler!r}")
         workers = default_workers() if workers is None else workers
         if not isinstance(workers, int) or workers < 1:
             raise InputError(f"--workers must be a whole number >= 1, got {workers!r}")
+        if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
+            raise InputError(f"--threads must be a whole number >= 1, got {threads!r}")
         self.workers, self.scheduler, self.say, self.connect_timeout = workers, scheduler, progress, connect_timeout
+        self.threads = threads
         self.client = None
         self.cluster = None
 
     @property
     def serial(self) -> bool:
         return self.scheduler is None and self.workers == 1
+
+    @property
+    def stream_threads(self) -> int | None:
+        """Threads each task stream may use (None: the libraries' defaults, or a scheduler's workers' own)."""
+        if self.threads is not None or self.serial or self.scheduler is not None:
+            return self.threads
+        return max(1, default_workers() // self.workers)  # a local cluster shares this machine's cores
 
     def __enter__(self) -> TaskRunner:
         return self
@@ -106,19 +139,34 @@ class TaskRunner:
             except (OSError, TimeoutError) as exc:
                 raise InputError(f"cannot reach the Dask scheduler at {self.scheduler} ({exc})") from None
         else:
-            env = {f"distributed.nanny.pre-spawn-environ.{k}": None for k in _THREAD_VARS}
-            with dask.config.set(env):
+            # the thread limits go into the environment before the worker's Python starts, so that its
+            # BLAS and OpenMP read them
+            env = {f"distributed.nanny.pre-spawn-environ.{k}": str(self.stream_threads) for k in _THREAD_VARS}
+            with dask.config.set({**env, **QUIET_CLUSTER}):
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                             host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                             silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
-        # Import the engine (numpy, scipy, Open3D: seconds each) in every worker now, at the cluster's
-        # start, not inside the first tasks.
-        self.client.run(_warm)
+        # Import the engine (numpy, scipy, Open3D: 1-2 s per worker, 5-6 s under load) in every worker
+        # now, at the cluster's start, so that the first map measures its tasks, not the imports.
+        if self.stream_threads is None:
+            self.client.run(_warm)
+        else:  # a plugin: also sets up workers that join or restart later
+            self.client.register_plugin(_stream_plugin(self.stream_threads))
         if self.say:
             n = len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
             where = self.scheduler or "a local cluster"
-            self.say(f"Dask: {n} workers on {where}; dashboard {self.client.dashboard_link}")
+            each = "" if self.stream_threads is None else f", {self.stream_threads} thread(s) each"
+            self.say(f"Dask: {n} workers on {where}{each}; dashboard {self.client.dashboard_link}")
+
+    def threading(self) -> dict[str, dict]:
+        """What each task stream runs with now: {"this process" or a worker's address: {"open3d": max
+        threads, "OMP_NUM_THREADS": ..., ...}} (the workers once the cluster has started; this process as
+        it runs a serial map)."""
+        if self.client is None:
+            with open3d_threads(self.threads):
+                return {"this process": _thread_settings()}
+        return self.client.run(_thread_settings)
 
     def __exit__(self, *exc) -> None:
         if self.client is not None:
@@ -134,9 +182,10 @@ class TaskRunner:
         bar = Progress(len(items), label, self.say)
         if self.serial or len(items) < 2:  # one task: a cluster would only add its start-up
             out = []
-            for item in items:
-                out.append(fn(item) if shared is None else fn(shared, item))
-                bar.step()
+            with open3d_threads(self.threads):
+                for item in items:
+                    out.append(fn(item) if shared is None else fn(shared, item))
+                    bar.step()
             return out
         from distributed import as_completed
 
@@ -160,10 +209,58 @@ class TaskRunner:
                 fut.release()
 
 
+@contextmanager
+def open3d_threads(threads: int | None) -> Iterator[None]:
+    """Open3D (TBB) limited to ``threads`` in this process inside the block (None: unchanged)."""
+    if threads is None:
+        yield
+        return
+    import open3d as o3d
+
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(threads)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(before)
+
+
 def _warm() -> None:
     import open3d  # noqa: F401
 
     import core.merge  # noqa: F401
+
+
+def _thread_settings() -> dict:
+    import open3d as o3d
+
+    return {"open3d": o3d.utility.get_max_threads(), **{k: os.environ.get(k) for k in _THREAD_VARS}}
+
+
+def _setup_stream(threads: int) -> None:
+    """In a worker: import the engine and limit Open3D (and OpenMP/BLAS in what it starts) to ``threads``."""
+    import open3d as o3d
+
+    _warm()
+    o3d.utility.set_max_threads(threads)
+    os.environ.update({k: str(threads) for k in _THREAD_VARS})
+
+
+def _stream_plugin(threads: int):
+    """A Dask worker plugin that runs :func:`_setup_stream` on every worker, present and future (defined
+    here, not at module level, so that the serial path never imports dask)."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class StreamThreads(WorkerPlugin):
+        name = "rangereg-stream-threads"
+
+        def __init__(self, threads: int):
+            self.threads = threads
+
+        def setup(self, worker) -> None:
+            _setup_stream(self.threads)
+
+    return StreamThreads(threads)
 
 
 def _run_batch(fn: Callable, shared: Any, batch: list) -> list:

@@ -1,15 +1,22 @@
 """A simulated turntable campaign merged with 1 worker and with N workers, side by side.
 
-    python benchmarks/campaign.py                      # 24 scans, seed 0: 1 vs 2 workers
+    python benchmarks/campaign.py                      # 24 scans, seed 0: 1 vs 2 workers, 3 runs each
     python benchmarks/campaign.py --scans 36 --workers 4 --pairs overlap
     python benchmarks/campaign.py --write DIR          # only write the campaign (PLY + .conf) into DIR
 
+Two threadings, each the same in both modes: "equal" (``threads=1``: every task stream, i.e. the
+serial process or each worker, one thread: the fair comparison, the speed-up the target is about)
+and "default" (what ``rangereg merge`` does: the serial process keeps the libraries' defaults, all
+cores for Open3D's ray casts; each of N local workers gets cores // N threads).
+
 Prints, per run: the pairwise stage's wall time (overlaps + registrations: the part that runs as
-tasks), the end-to-end time (cluster start, pose graph, no fused model), the speed-up, every scan's
-pose error against the truth (target: <= 1 degree and <= 0.5 % of the object's size), and whether
-all runs' poses are bitwise equal. Timings on a shared machine are noisy: the runs are interleaved
-(1, N, 1, N, ...), every run is printed with the load average after it, and the fastest of each
-setting is compared.
+tasks; the workers have imported the engine before it starts), the cluster's start (processes,
+imports), the end-to-end time (cluster start and stop, pose graph, no fused model), and the load
+average after the run. Then the medians and speed-ups, every scan's pose error against the truth
+(target: <= 1 degree and <= 0.5 % of the object's size), and whether all runs' poses are bitwise
+equal. Timings on a shared machine are noisy: the runs are interleaved (1, N, 1, N, ... for each
+threading in turn) so that a burst of load from elsewhere hits every setting, and medians compared.
+Every run starts from no built geometry, in this process as in fresh workers.
 """
 
 from __future__ import annotations
@@ -25,20 +32,27 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from app.distributed import TaskRunner, stderr_lines  # noqa: E402
-from core.merge import PAIR_MODES, merge  # noqa: E402
+from core.merge import PAIR_MODES, clear_geometry_cache, merge  # noqa: E402
 from core.transforms import invert, pose_error  # noqa: E402
 from core.turntable import TurntableConfig, make_campaign, write_campaign  # noqa: E402
 
 ROT_TARGET, TRANS_TARGET = 1.0, 0.005  # degrees; fraction of the object's size
 
 
-def run(camp, initial, workers: int, pairs: str, quiet: bool) -> tuple:
+def run(camp, initial, workers: int, threads: int | None, pairs: str, quiet: bool) -> tuple:
+    """One merge: (MergeResult, end-to-end seconds, cluster start seconds, CPU seconds of the merge in
+    (this process, each worker)); CPU time, unlike wall time, barely depends on the machine's load."""
+    clear_geometry_cache()
     t0 = time.perf_counter()
-    with TaskRunner(workers, progress=None if quiet else stderr_lines) as runner:
+    with TaskRunner(workers, progress=None if quiet else stderr_lines, threads=threads) as runner:
         runner.start()  # the cluster's start counts end to end, not in the pairwise stage
+        started = time.perf_counter() - t0
+        cpu0, w0 = time.process_time(), runner.client.run(time.process_time) if runner.client else {}
         res = merge(camp.scans, initial, build_model=False, pairs=pairs, map_tasks=runner.map,
                     progress=None if quiet else stderr_lines)
-    return res, time.perf_counter() - t0
+        cpu1, w1 = time.process_time(), runner.client.run(time.process_time) if runner.client else {}
+    cpu = (cpu1 - cpu0, tuple(w1[k] - w0[k] for k in sorted(w1)))
+    return res, time.perf_counter() - t0, started, cpu
 
 
 def errors(camp, poses) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +69,7 @@ def main() -> int:
     p.add_argument("--pairs", choices=PAIR_MODES, default="init")
     p.add_argument("--initial", choices=("perturbed", "chain"), default="perturbed")
     p.add_argument("--write", metavar="DIR", help="write the campaign into DIR and stop")
-    p.add_argument("--repeat", type=int, default=2, help="runs per setting, interleaved; the fastest is compared")
+    p.add_argument("--repeat", type=int, default=3, help="runs per setting, interleaved; medians compared")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     a = p.parse_args()
     cfg = TurntableConfig(scans=a.scans)
@@ -68,31 +82,45 @@ def main() -> int:
     initial = getattr(camp, a.initial)
     print(f"{camp!r}; initial poses: {a.initial}; pairs: {a.pairs}; {os.cpu_count()} cores, "
           f"load average before {os.getloadavg()[0]:.1f}")
-    rows: dict[int, list] = {1: [], a.workers: []}
-    for _ in range(a.repeat):  # interleaved, so that a burst of load from elsewhere hits both settings
-        for workers in (1, a.workers):
-            res, wall = run(camp, initial, workers, a.pairs, a.quiet)
-            rows[workers].append((res, wall, os.getloadavg()[0]))
-    for workers, runs in rows.items():
-        print(f"{workers} worker(s), each run: pairwise stage "
-              f"{', '.join(f'{r.pair_seconds:.1f}' for r, _, _ in runs)} s; end to end "
-              f"{', '.join(f'{w:.1f}' for _, w, _ in runs)} s; load average after {', '.join(f'{x:.1f}' for *_, x in runs)}")
-    # the fastest of the repeats: the run least disturbed by the machine's other work
-    (r1, w1, l1), (rn, wn, ln) = (min(rows[k], key=lambda r: r[0].pair_seconds) for k in (1, a.workers))
-    w1, wn = min(w for _, w, _ in rows[1]), min(w for _, w, _ in rows[a.workers])
-    same = all(np.array_equal(x, y) for runs in rows.values() for r, _, _ in runs for x, y in zip(r1.poses, r.poses))
-    used = r1.used
-    print(f"\npairs: {len(r1.pairs)} registered, {len(used)} used, "
-          f"{sum(p.status == 'rejected' for p in r1.pairs)} rejected by the pose graph, "
-          f"{sum(p.status == 'dropped' for p in r1.pairs)} dropped")
-    print(f"fastest of {a.repeat} interleaved runs each:")
-    print(f"{'':28s}{'1 worker':>12s}{f'{a.workers} workers':>12s}{'speed-up':>10s}")
-    print(f"{'pairwise stage (s)':28s}{r1.pair_seconds:12.1f}{rn.pair_seconds:12.1f}{r1.pair_seconds / rn.pair_seconds:9.2f}x")
-    print(f"{'  of which overlaps (s)':28s}{r1.overlap_seconds:12.1f}{rn.overlap_seconds:12.1f}"
-          f"{r1.overlap_seconds / rn.overlap_seconds:9.2f}x")
-    print(f"{'end to end (s)':28s}{w1:12.1f}{wn:12.1f}{w1 / wn:9.2f}x")
-    print(f"poses bitwise equal across all {2 * a.repeat} runs: {same}")
-    rot, tr = errors(camp, r1.poses)
+    threadings = {"equal": 1, "default": None}  # threads per task stream (TaskRunner's threads)
+    rows: dict[tuple, list] = {(t, w): [] for t in threadings for w in (1, a.workers)}
+    for _ in range(a.repeat):
+        for t, threads in threadings.items():
+            for workers in (1, a.workers):
+                res, wall, started, cpu = run(camp, initial, workers, threads, a.pairs, a.quiet)
+                rows[t, workers].append((res, wall, started, os.getloadavg()[0], cpu))
+    for (t, workers), runs in rows.items():
+        print(f"{t} threading, {workers} worker(s), each run: pairwise stage "
+              f"{', '.join(f'{r.pair_seconds:.1f}' for r, *_ in runs)} s; cluster start "
+              f"{', '.join(f'{s:.1f}' for _, _, s, *_ in runs)} s; end to end "
+              f"{', '.join(f'{w:.1f}' for _, w, *_ in runs)} s; load average after "
+              f"{', '.join(f'{x:.1f}' for *_, x, _ in runs)}; CPU s (this process + each worker) "
+              f"{', '.join(' + '.join(f'{c:.1f}' for c in (cpu[0], *cpu[1])) for *_, cpu in runs)}")
+    first = rows["equal", 1][0][0]
+    same = all(np.array_equal(x, y) for runs in rows.values() for r, *_ in runs for x, y in zip(first.poses, r.poses))
+    print(f"\npairs: {len(first.pairs)} registered, {len(first.used)} used, "
+          f"{sum(p.status == 'rejected' for p in first.pairs)} rejected by the pose graph, "
+          f"{sum(p.status == 'dropped' for p in first.pairs)} dropped")
+    loads = [x for runs in rows.values() for *_, x, _ in runs]
+    print(f"medians of {a.repeat} interleaved runs each (load average after the runs {min(loads):.1f}-{max(loads):.1f}):")
+    med = lambda t, w, f: float(np.median([f(*r) for r in rows[t, w]]))  # noqa: E731
+    cols = {"pairwise stage (s)": lambda r, w, s, x, c: r.pair_seconds,
+            "  of which overlaps (s)": lambda r, w, s, x, c: r.overlap_seconds,
+            "cluster start (s)": lambda r, w, s, x, c: s,
+            "end to end (s)": lambda r, w, s, x, c: w,
+            "CPU, busiest process (s)": lambda r, w, s, x, c: max((c[0], *c[1])),
+            "CPU, all processes (s)": lambda r, w, s, x, c: c[0] + sum(c[1])}
+    for t, threads in threadings.items():
+        each = "1 thread per task stream in both modes" if threads else \
+            f"serial: library defaults; {a.workers} workers: {max(1, (os.cpu_count() or 1) // a.workers)} thread(s) each"
+        print(f"{t} threading ({each}):")
+        print(f"  {'':26s}{'1 worker':>12s}{f'{a.workers} workers':>12s}{'speed-up':>10s}")
+        for name, f in cols.items():
+            one, many = med(t, 1, f), med(t, a.workers, f)
+            ratio = f"{one / many:9.2f}x" if "start" not in name and "all" not in name else ""
+            print(f"  {name:26s}{one:12.1f}{many:12.1f}{ratio}")
+    print(f"poses bitwise equal across all {sum(map(len, rows.values()))} runs: {same}")
+    rot, tr = errors(camp, first.poses)
     size = camp.size
     print(f"\npose error vs the truth (object {size:.0f} mm; target <= {ROT_TARGET} deg, <= {TRANS_TARGET * size:.2f} mm):")
     for s, r, t in zip(camp.scans, rot, tr):

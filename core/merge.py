@@ -123,6 +123,11 @@ def _token(scans: list[Scan], config: Config) -> str:
 _BUILT: dict[str, dict] = {}  # per process: token -> {scan index: (Scan, Surface)} and {("normals", k): (N, 3)}
 
 
+def clear_geometry_cache() -> None:
+    """Forget the scans built in this process (a benchmark's runs each start from none, as workers do)."""
+    _BUILT.clear()
+
+
 def _built(shared: Shared, k: int) -> tuple[Scan, Surface]:
     """Scan k rebuilt from its arrays, with its surface: built once per process, then reused."""
     if shared.token not in _BUILT:

@@ -92,19 +92,60 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     assert len(closing) == 1 and closing[0]["status"] in ("used", "rejected")
     assert rep["graph"]["used"] + rep["graph"]["rejected"] + rep["graph"]["dropped"] == rep["graph"]["pairs"]
     assert rep["model"]["triangles"] > 0
+    assert rep["workers"] == 1 and rep["threads_per_worker"] is None  # serial: the libraries' own threads
+
+
+def _open3d_threads(_item) -> int:
+    import open3d as o3d
+
+    return o3d.utility.get_max_threads()
 
 
 def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
     from app.distributed import TaskRunner
 
-    scans, initial, rep = serial
+    scans, initial, rep = serial  # the serial run kept the libraries' threads (all cores)
     lines = []
     with TaskRunner(2, progress=lines.append) as runner:
         res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
+        # by default a local cluster shares the cores out: each of the 2 workers gets cores // 2 threads,
+        # for Open3D (set in the worker) and for OpenMP/BLAS (in its environment before it started)
+        each = max(1, (os.cpu_count() or 1) // 2)
+        settings = runner.threading()
+        assert len(settings) == 2
+        for got in settings.values():
+            assert got["open3d"] == each and got["OMP_NUM_THREADS"] == got["OPENBLAS_NUM_THREADS"] == str(each)
+        assert runner.map(_open3d_threads, range(4)) == [each] * 4  # what the tasks themselves see
+    assert any(f"2 workers on a local cluster, {each} thread(s) each" in line for line in lines)
     assert any("dashboard http://127.0.0.1:" in line for line in lines)
     assert any(line.startswith(f"pairs {len(scans)}/{len(scans)}") for line in lines)
     for T, ref in zip(res.poses, rep["poses"]):
         assert np.array_equal(T, np.array(ref))  # JSON floats round-trip exactly
+
+
+def test_one_thread_per_task_stream_reaches_the_tasks_and_leaves_the_poses_unchanged(serial):
+    import open3d as o3d
+
+    from app.distributed import TaskRunner
+
+    scans, initial, rep = serial
+    before = o3d.utility.get_max_threads()
+    with TaskRunner(1, threads=1) as runner:
+        assert runner.threading()["this process"]["open3d"] == 1
+        assert runner.map(_open3d_threads, range(3)) == [1, 1, 1]
+        res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
+    assert o3d.utility.get_max_threads() == before  # the limit holds for the tasks only
+    # each closest point and ray is computed alone: the thread count does not change a bit of the result
+    for T, ref in zip(res.poses, rep["poses"]):
+        assert np.array_equal(T, np.array(ref))
+
+
+def test_an_explicit_thread_count_reaches_every_worker():
+    from app.distributed import TaskRunner
+
+    with TaskRunner(2, threads=1) as runner:
+        assert runner.map(_open3d_threads, range(4)) == [1, 1, 1, 1]
+        assert all(got["open3d"] == 1 and got["MKL_NUM_THREADS"] == "1" for got in runner.threading().values())
 
 
 def _free_port() -> int:
@@ -163,7 +204,8 @@ def test_a_scheduler_started_apart_gives_the_same_poses(serial):
 def test_bad_runner_settings_are_one_clear_error():
     from app.distributed import TaskRunner
 
-    for kw, words in (({"workers": 0}, "--workers"), ({"scheduler": "localhost:8786"}, "tcp://HOST:PORT")):
+    for kw, words in (({"workers": 0}, "--workers"), ({"scheduler": "localhost:8786"}, "tcp://HOST:PORT"),
+                      ({"threads": 0}, "--threads"), ({"threads": 1.5}, "--threads")):
         with pytest.raises(InputError, match=words):
             TaskRunner(**kw)
     port = _free_port()  # nobody listens there

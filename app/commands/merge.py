@@ -5,7 +5,7 @@ The output and side files are checked up front; the report is printed before the
 
 The pairwise registrations run as tasks (app.distributed): ``--workers 1`` a plain loop, ``--workers N``
 a local Dask cluster of N processes (default: one per core), ``--scheduler tcp://HOST:PORT`` an
-existing cluster.
+existing cluster; ``threads`` (when the parser has it) caps the threads of each task stream.
 """
 
 from __future__ import annotations
@@ -58,6 +58,7 @@ def run(a) -> int:
     from core.transforms import invert, pose_error
 
     workers, scheduler, pairs = a.workers, a.scheduler, a.pairs
+    threads = getattr(a, "threads", None)  # threads per task stream (app.distributed); None: its default
     if len(a.scans) < 2:
         raise InputError("merge needs at least two scans")
     for flag in ("--init", "--truth"):
@@ -77,7 +78,7 @@ def run(a) -> int:
         truth = [s.pose for s in scans]  # ground truth stored with the scans (sidecar or .conf beside them)
     config = to_config(Settings(seed=a.seed, rotation_uncertainty=25.0))
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
-    with TaskRunner(workers, scheduler, progress=say) as runner:
+    with TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
         res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map)
     gap = float(np.median([s.spacing for s in scans]))
     report = {
@@ -90,6 +91,7 @@ def run(a) -> int:
                   "dropped": sum(p.status == "dropped" for p in res.pairs)},
         "workers": 1 if runner.serial else (runner.workers if scheduler is None else None),
         "scheduler": scheduler,
+        "threads_per_worker": runner.stream_threads,  # None: the libraries' defaults (or the scheduler's workers')
         "pair_seconds": res.pair_seconds,
         "seconds": res.seconds,
         "model": {"path": str(out), "vertices": len(res.model.vertices), "triangles": len(res.model.faces),

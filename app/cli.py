@@ -167,6 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "plain loop here, N = a local Dask cluster of N processes (default: one per core)")
     s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the pairwise registrations on an existing "
                    "Dask cluster (started with 'dask scheduler' and 'dask worker')")
+    s.add_argument("--threads", type=_knob("threads"), default=None, help="threads per task stream (this process, or "
+                   "each worker): default all cores for --workers 1, cores // N for a local cluster of N")
     s.add_argument("--pairs", choices=("init", "chain", "overlap"), help="candidate pairs: init = each scan's "
                    "best-overlapping partners under the initial poses (default with initial poses); chain = "
                    "consecutive scans and the last with the first (default without); overlap = every overlapping pair")

@@ -60,6 +60,7 @@ KNOBS: dict[str, Knob] = {
     "runs": Knob("--runs", int, 1, 1000),  # a full bench of 10 starts takes about 15 min
     "rotation_samples": Knob("--rotation-samples", int, 0, 100_000),  # scored in one batch: 720 take ~50 ms
     "workers": Knob("--workers", int, 1, 1024),  # Dask worker processes (merge); more than the cores only queue
+    "threads": Knob("--threads", int, 1, 1024),  # threads per task stream (merge): Open3D's, OpenMP's, BLAS's
     "port": Knob("--port", int, 1, 65535),  # TCP ports
     "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
 }

@@ -95,6 +95,16 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     assert rep["workers"] == 1 and rep["threads_per_worker"] is None  # serial: the libraries' own threads
 
 
+def test_merge_takes_threads_per_task_stream_from_the_command_line(folder, capsys):
+    from app.cli import main
+
+    scans = sorted(str(p) for p in folder.glob("scan*.ply"))
+    argv = ["merge", *scans, "--init", str(folder / "init" / "chain.conf"), "--workers", "1", "--threads", "1",
+            "--pairs", "chain", "--json", "--out", str(folder / "threads.ply")]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["threads_per_worker"] == 1
+
+
 def _open3d_threads(_item) -> int:
     import open3d as o3d
 

@@ -22,7 +22,6 @@ from app.figures import (
     TARGET_RGB,
 )
 from app.tab.state import TabState
-from app.views import Trail
 
 RUN_POINTS = 6000  # while a run moves the scan, each cloud is drawn with at most this many points
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
@@ -108,6 +107,8 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     d, src, tgt, scene = state.display, state.source, state.target, client.scene
     size = 0.8 * min(src.spacing, tgt.spacing) / d.size
     scene.set_up_direction("+y")
+    # no shadow maps: they shade nothing a point cloud shows, and each frame drew three of them (software WebGL)
+    scene.configure_default_lights(True, cast_shadow=False)
     wxyz, pos = d.node_pose(state.T)
     frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)
@@ -172,10 +173,10 @@ def move_source(nodes: SceneNodes, state: TabState, T: np.ndarray, gizmo: bool =
         nodes.gizmo.wxyz, nodes.gizmo.position = wxyz, pos
 
 
-def draw_path(nodes: SceneNodes, trail: Trail) -> None:
-    seg, rgb = trail.segments()
-    nodes.path.points, nodes.path.colors = seg, rgb
-    nodes.minima.points = trail.minima()
+def draw_path(nodes: SceneNodes, segments: tuple[np.ndarray, np.ndarray], minima: np.ndarray) -> None:
+    """The path's segments and colours ((S, 2, 3) each, from Trail.segments) and its minima ((M, 3), Trail.minima)."""
+    nodes.path.points, nodes.path.colors = segments
+    nodes.minima.points = minima
 
 
 def clear_path(nodes: SceneNodes) -> None:

@@ -34,6 +34,7 @@ class Refresher:
         self.was_running = False
         self.failures = 0
         self.terrain_at = self.plot_at = 0.0
+        self.plotted = self.terrain_drawn = (None, 0)  # (trail, events) last drawn in the chart, on the terrain
         self.thread = threading.Thread(target=self._loop, daemon=True, name="rangereg-refresh")
 
     def start(self) -> None:
@@ -89,27 +90,33 @@ class Refresher:
         trail = tab.trail()
         before = trail.n
         n = trail.update()
-        if n == before and running:
+        now = time.monotonic()
+        moved = n != before or not running
+        # the chart and the terrain's path follow at their own pace; a paused run (Step) gets them on a later tick
+        plot_due = (not running or now - self.plot_at >= PLOT_REFRESH) and (self.plotted != (trail, n) or not running)
+        terrain_due = (not running or now - self.terrain_at >= TERRAIN_REFRESH) and (
+            self.terrain_drawn != (trail, n) or not running)
+        if not (moved or plot_due or terrain_due):
             tab.update_status()
             return
         with st.lock:
             if n and running and st.result is None:  # once the run's result is in, its pose is the one shown
                 st.T = st.events[n - 1].T
             T, E0 = st.T, st.E0
-        now = time.monotonic()
         # the arrays first, the messages then: the batch is held back from the browser only while it is assembled
-        path = trail.segments(), trail.minima()
-        plot = trail.plot(E0) if not running or now - self.plot_at >= PLOT_REFRESH else None
-        terrain_path = not running or now - self.terrain_at >= TERRAIN_REFRESH
+        path = (trail.segments(), trail.minima()) if moved else None
+        plot = trail.plot(E0) if plot_due else None
         with tab.client.atomic():
-            scene3d.move_source(tab.nodes, st, T, gizmo=False)
-            scene3d.draw_path(tab.nodes, *path)
+            if path is not None:
+                scene3d.move_source(tab.nodes, st, T, gizmo=False)
+                scene3d.draw_path(tab.nodes, *path)
             if plot is not None:
                 tab.run_panel.h.plot.data = plot
-                self.plot_at = now
-            tab.landscape.follow(T, path=terrain_path)
-            if terrain_path:
-                self.terrain_at = now
+                self.plot_at, self.plotted = now, (trail, n)
+            if moved or terrain_due:
+                tab.landscape.follow(T, path=terrain_due)
+            if terrain_due:
+                self.terrain_at, self.terrain_drawn = now, (trail, n)
             tab.update_status()
         if st.slice is not None and (not running or now - tab.landscape.drawn_at > SLICE_REFRESH):
             tab.landscape.draw(terrain=not running)

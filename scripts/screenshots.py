@@ -4,9 +4,10 @@
 
 Serves bun045 -> bun000 (the Stanford bunny, metres) with the workbench in this process, starts from
 60 degrees off the files' pose about the vertical, computes the tx-ry slice around that start, shows it
-as the 3-D terrain, runs the hybrid, then points the camera at the terrain (set from the server once the
-page is drawn: a camera set before the page has its first frame is overwritten by the page's own) and
-waits until the page's camera says it is there before taking the picture.
+as the 3-D terrain, runs the hybrid, hides the frustums, then points the camera at the terrain and waits
+until the page's camera says it is there before taking the picture. The camera's position is set before
+its look-at point: viser moves the look-at point along with a new position (keeping the orientation),
+which is why a camera set the other way round never looked at the terrain.
 """
 
 from __future__ import annotations
@@ -24,8 +25,14 @@ sys.path.insert(0, str(ROOT))
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
 START_DEG = 60.0  # the initial pose: this far off the files' pose, about the target's vertical axis
 SLICE = ("tx", "ry", "0.04", "75", "41")  # parameters, spans (m, deg) and steps of the slice
-LOOK_AT = (1.25, -0.25, 0.0)  # page units: the terrain's box is centred at app.tab.terrain.TERRAIN_AT
-CAMERA_AT = (0.55, 0.75, 1.55)  # in front of the terrain, above it, a little to the scans' side
+LOOK_AT = (1.6, -0.3, 0.0)  # page units: the terrain's box is centred at app.tab.terrain.TERRAIN_AT; a little
+# right of its centre, so that the terrain sits left of the control panel
+CAMERA_AT = (1.3, 1.05, 1.25)  # in front of the terrain, 45 degrees above it, a little to the scans' side
+CLOSE_NOTICE_JS = """() => {
+  const el = [...document.querySelectorAll('div')].find(d => d.innerText.startsWith('Software WebGL rendering'));
+  let n = el; while (n && !n.querySelector('button')) n = n.parentElement;
+  if (n) n.querySelector('button').click();
+}"""
 
 
 def wait_for(test, timeout: float, what: str) -> None:
@@ -80,14 +87,17 @@ def main() -> None:
             page.get_by_role("button", name="Run hybrid", exact=True).click()
             page.get_by_text("Finished:").wait_for(timeout=300_000)
             wait_for(lambda: len(tab.landscape.terrain.segments.points) >= len(st.events), 60, "the path on the terrain")
+            page.get_by_role("tab", name="Scans", exact=True).click()
+            tab.scans.h.show.frustums.value = False
+            tab.apply_visibility()
             page.get_by_role("tab", name="Landscape", exact=True).click()
-            for note in page.get_by_role("button", name="Close").all():  # the software-WebGL notice
-                note.click()
-            time.sleep(2.0)  # the page's first frames are drawn: a camera sent now is not overwritten
-            tab.client.camera.up_direction = (0.0, 1.0, 0.0)
-            tab.client.camera.look_at = LOOK_AT
-            tab.client.camera.position = CAMERA_AT
-            wait_for(lambda: np.allclose(tab.client.camera.position, CAMERA_AT, atol=1e-3), 30, "the camera")
+            page.evaluate(CLOSE_NOTICE_JS)  # the software-WebGL notice
+            camera = tab.client.camera
+            camera.up_direction = (0.0, 1.0, 0.0)
+            camera.position = CAMERA_AT  # first: setting the position moves the look-at point with it
+            camera.look_at = LOOK_AT
+            wait_for(lambda: np.allclose(camera.position, CAMERA_AT, atol=1e-3)
+                     and np.allclose(camera.look_at, LOOK_AT, atol=1e-3), 30, "the camera")
             time.sleep(3.0)
             out = ROOT / "docs" / "landscape.png"
             page.screenshot(path=str(out))

@@ -3,8 +3,9 @@
     python benchmarks/workbench_rate.py [BUNNY_DIR]
 
 Starts `rangereg serve bun045.ply bun000.ply` on a free port, opens it in headless Chromium,
-presses "Run SA" (a long run), and counts in the browser how often the status panel (redrawn with
-the path on every push) changes over 5 s, and how many frames the page draws meanwhile; then
+presses "Run SA" (a long run), and, once the page says it is running, counts in the browser how
+often the status panel (sent in one batch with the pose and the path on every push, so it changes
+only in a frame that draws them) changes over 5 s, and how many frames the page draws meanwhile; then
 clicks "Pause" from inside the page and times, in the page, until it says "paused" (Playwright's
 own click waits for the busy page to look stable, which is not what a user waits for). Then it
 computes a 21 x 21 slice, shows it as the 3-D terrain, and counts again during a second run.
@@ -27,6 +28,7 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--dis
 PAUSE_JS = """() => new Promise(done => {
   const button = [...document.querySelectorAll('button')].find(b => b.innerText.trim() === 'Pause');
   const t0 = performance.now();
+  setTimeout(() => done(-1), 10000);
   const obs = new MutationObserver(() => {
     if (document.body.innerText.includes('paused')) { obs.disconnect(); done(performance.now() - t0); }
   });
@@ -44,6 +46,20 @@ COUNT_JS = """() => new Promise(done => {
   obs.observe(el.parentElement, {subtree: true, childList: true, characterData: true});
   setTimeout(() => { obs.disconnect(); done(n); }, 5000);
 })"""
+
+
+RUNNING = "() => document.body.innerText.includes('· running ·')"
+
+
+def count(page, what: str) -> None:
+    """Status updates and frames during a run that is running (said on the page) before and after the count."""
+    page.wait_for_function(RUNNING, timeout=60_000)
+    time.sleep(1.0)
+    n = page.evaluate(COUNT_JS)
+    still = page.evaluate(RUNNING)
+    print(f"status/path updates during the run, {what}: {n / 5.0:.1f} per second"
+          + ("" if still else " (the run ended during the count: not a measurement)"))
+    print(f"frames the page draws during the run: {page.evaluate(FRAMES_JS):.1f} per second")
 
 
 def main() -> None:
@@ -68,11 +84,8 @@ def main() -> None:
             page.get_by_text("Initial E =").wait_for(timeout=120_000)
             print(f"page ready with both scans in {time.perf_counter() - t0:.1f} s")
             page.get_by_role("button", name="Run SA", exact=True).click()
-            time.sleep(1.0)
-            n = page.evaluate(COUNT_JS)
-            print(f"status/path updates during the run, terrain hidden: {n / 5.0:.1f} per second")
-            print(f"frames the page draws during the run: {page.evaluate(FRAMES_JS):.1f} per second")
-            print(f"Pause click to 'paused' on the page: {page.evaluate(PAUSE_JS):.0f} ms")
+            count(page, "terrain hidden")
+            print(f"Pause click to 'paused' on the page: {page.evaluate(PAUSE_JS):.0f} ms (-1: not within 10 s)")
             page.get_by_role("button", name="Cancel", exact=True).click()
             page.get_by_role("button", name="Reset", exact=True).click()
             page.get_by_role("tab", name="Landscape", exact=True).click()
@@ -84,12 +97,9 @@ def main() -> None:
             print(f"21 x 21 slice in {time.perf_counter() - t0:.1f} s")
             page.get_by_label("Show as 3-D terrain", exact=True).check()
             time.sleep(2.0)
-            page.get_by_role("tab", name="Run", exact=True).click()
+            page.get_by_role("tab", name="Run", exact=True).click(timeout=120_000)
             page.get_by_role("button", name="Run SA", exact=True).click()
-            time.sleep(1.0)
-            n = page.evaluate(COUNT_JS)
-            print(f"status/path updates during the run, terrain shown: {n / 5.0:.1f} per second")
-            print(f"frames the page draws during the run: {page.evaluate(FRAMES_JS):.1f} per second")
+            count(page, "terrain shown")
             page.get_by_role("button", name="Cancel", exact=True).click()
             browser.close()
             print(f"load average after: {os.getloadavg()[0]:.1f}")

@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import InputError
 from .problem import Problem
-from .transforms import PARAM_NAMES
+from .transforms import PARAM_NAMES, apply, invert
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,12 +54,18 @@ def delta_vector(problem: Problem, values: dict[str, float]) -> np.ndarray:
 
 
 def project(problem: Problem, T_center: np.ndarray, params: tuple[str, str], poses: list[np.ndarray]) -> np.ndarray:
-    """(K, 2) coordinates of poses on the slice's axes (units or degrees)."""
-    out = []
-    for T in poses:
-        x = problem.coords(T, T_center)
-        out.append([x[i] * problem.scale if i < 3 else np.degrees(x[i]) for i in map(PARAM_NAMES.index, params)])
-    return np.asarray(out).reshape(-1, 2)
+    """(K, 2) coordinates of poses on the slice's axes (units or degrees): ``problem.coords`` of each, in one
+    batch (the page projects a run's events as they arrive)."""
+    from scipy.spatial.transform import Rotation
+
+    Ts = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    if not len(Ts):
+        return np.zeros((0, 2))
+    center = apply(T_center, problem.center[None])[0]
+    D = Ts @ invert(T_center)  # as core.transforms.delta_between, for K poses at once
+    trans = D[:, :3, 3] - center + D[:, :3, :3] @ center
+    x = np.c_[trans, np.degrees(Rotation.from_matrix(D[:, :3, :3]).as_rotvec())]
+    return x[:, [PARAM_NAMES.index(p) for p in params]]
 
 
 def compute_slice(problem: Problem, T_center: np.ndarray, params: tuple[str, str], spans: tuple[float, float],

@@ -30,3 +30,31 @@ def test_a_path_lies_on_the_surface_and_is_clipped_to_its_box():
     h = heights(sl)
     assert np.isclose(p[0, 1], h[4, 4] + LIFT) and np.isclose(p[1, 1], h[-1, -1] + LIFT)
     assert np.isclose(p[2, 0], TERRAIN_SIZE / 2)  # beyond the slice: on its edge
+
+
+def test_a_run_is_projected_onto_the_slice_in_one_batch_as_the_problem_measures_each_pose():
+    from pathlib import Path
+
+    from scipy.spatial.transform import Rotation
+
+    from core.io import load_scan
+    from core.landscape import project
+    from core.problem import prepare, relative_guess
+    from core.transforms import PARAM_NAMES
+
+    corner = Path(__file__).resolve().parent.parent / "assets" / "corner"
+    source, target = load_scan(corner / "scan2.ply"), load_scan(corner / "scan1.ply")
+    T0 = relative_guess(source, target)
+    problem = prepare(source, target, T0, seed=0)
+    rng = np.random.default_rng(1)
+    poses = []
+    for _ in range(20):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix(), rng.normal(0, 5.0, 3)
+        poses.append(T @ T0)
+    for params in (("tx", "ry"), ("rz", "ty"), ("rx", "tz")):
+        one_by_one = [[problem.coords(T, poses[0])[PARAM_NAMES.index(p)] * (problem.scale if p[0] == "t" else 1)
+                       for p in params] for T in poses]
+        one_by_one = [[v if p[0] == "t" else np.degrees(v) for v, p in zip(row, params)] for row in one_by_one]
+        np.testing.assert_allclose(project(problem, poses[0], params, poses), one_by_one, atol=1e-9)
+    assert project(problem, T0, ("tx", "ry"), []).shape == (0, 2)

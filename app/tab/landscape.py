@@ -1,4 +1,9 @@
-"""The Landscape panel: a 2-D slice of E around the pose, with the run's path on it."""
+"""The Landscape panel: a 2-D slice of E around the pose, with the run's path on it.
+
+The run's path on the slice is projected once per event (app/tab/terrain.PathOnSlice), shared by the
+contour and the 3-D terrain; during a run the refresher moves the terrain's marker on every push and
+redraws its path and the contour less often (app/tab/refresher.py).
+"""
 
 from __future__ import annotations
 
@@ -20,6 +25,8 @@ from core.problem import Problem
 from core.transforms import PARAM_NAMES
 
 STEPS = Range(2, 201, integer=True)
+MAX_FIGURE_PATH = 600  # the contour's path is thinned to this many points: its figure is sent as JSON (2000 points
+# made 168 kB) and redrawn by Plotly in the browser; a 360-pixel plot shows no more
 
 
 def compute(problem: Problem, center, params: tuple[str, str], spans: tuple[float, float], steps: int,
@@ -71,13 +78,20 @@ def build(gui: viser.GuiApi) -> LandscapeHandles:
             folder=folder)
 
 
-def picture(st: TabState) -> tuple:
-    """(slice, path (K, 2), phases (K,), current pose (2,), title) for the page's figure and the PNG."""
+def picture(st: TabState, path: PathOnSlice | None = None, most: int | None = None) -> tuple:
+    """(slice, path (K, 2), phases (K,), current pose (2,), title) for the page's figure and the PNG.
+
+    ``path``: the run's events already projected (else projected here); ``most``: thin the path to this many points.
+    """
     view = st.slice
     sl, problem = view.slice, view.problem
-    events = st.events[: len(st.events)]
-    xy = project(problem, sl.T_center, sl.params, [st.T_init] + [e.T for e in events]) if events else None
-    phases = ["icp"] + [e.phase for e in events] if events else None
+    if path is None:
+        path = PathOnSlice(problem, sl, st.T_init, st.events)
+        path.update()
+    xy = phases = None
+    if path.n:
+        keep = path.thinned(most) if most else slice(None)
+        xy, phases = path.xy[keep], list(path.phases[keep])
     current = project(problem, sl.T_center, sl.params, [st.T])[0]
     title = f"{st.source.name} → {st.target.name}: log10 E({sl.params[0]}, {sl.params[1]})"
     return sl, xy, phases, current, title
@@ -92,8 +106,9 @@ class LandscapePanel:
         self.h.terrain.on_update(lambda e: tab.guarded(self.update_terrain))
         self.drawn_at = 0.0
         self.terrain: Terrain | None = None
-        self.terrain_lock = threading.Lock()  # one builder at a time (a checkbox and the refresher may race); taken
-        # outside client.atomic() and the state's lock, never inside them
+        self.path: PathOnSlice | None = None  # the last run projected on the slice, shared by contour and terrain
+        self.terrain_lock = threading.Lock()  # one drawer at a time (a checkbox, a replay and the refresher may
+        # race): guards the terrain and the path; taken before the state's lock, never inside it
 
     def start(self) -> None:
         st, h = self.state, self.h
@@ -152,16 +167,30 @@ class LandscapePanel:
             if self.state.slice_cancel is not None:
                 self.state.slice_cancel.set()
 
-    def draw(self) -> None:
-        """Draw (or redraw) the slice with the run's path so far."""
+    def _path(self, view: SliceView, events: list, T_init: np.ndarray) -> PathOnSlice:
+        """The events projected on the slice, brought up to date (under terrain_lock)."""
+        if self.path is None or not self.path.follows(view.problem, view.slice, T_init, events):
+            self.path = PathOnSlice(view.problem, view.slice, T_init, events)
+        self.path.update()
+        return self.path
+
+    def draw(self, terrain: bool = True) -> None:
+        """Draw (or redraw) the slice with the run's path so far; and the terrain, unless ``terrain`` is False (the
+        refresher keeps it in step during a run)."""
         st = self.state
         with st.lock:
             if st.slice is None:
                 return
-            args = picture(st)
-            units = st.target.units
+            view, events, T_init, units = st.slice, st.events, st.T_init, st.target.units
         self.drawn_at = time.monotonic()
-        self.update_terrain()
+        if terrain:
+            self.update_terrain()
+        with self.terrain_lock:
+            path = self._path(view, events, T_init)
+            with st.lock:
+                if st.slice is not view:
+                    return
+                args = picture(st, path, MAX_FIGURE_PATH)
         fig = slice_figure(*args, units=units)
         if self.h.plot is None:
             with self.h.folder:
@@ -180,6 +209,18 @@ class LandscapePanel:
             if self.terrain is not None:
                 self.terrain.mark(T)
 
+    def follow(self, T, path: bool) -> None:
+        """During a run (the refresher, inside its push): the marker to the shown pose ``T``, and the path so far when
+        ``path``. Nothing when no terrain is shown or it is out of date (update_terrain rebuilds it)."""
+        with self.terrain_lock:
+            terrain = self.terrain
+            if terrain is None:
+                return
+            if terrain.path is not self.path or terrain.path.events is not self.state.events:
+                self._update_terrain()  # a new run (or slice): its own path
+            else:
+                terrain.update(T, path=path)
+
     def _update_terrain(self) -> None:
         st, tab = self.state, self.tab
         with st.lock:
@@ -189,11 +230,12 @@ class LandscapePanel:
                 self.terrain.remove()
                 self.terrain = None
             return
+        path = self._path(view, events, T_init)  # outside atomic(): a long run's first projection takes a while
         with tab.client.atomic():
             if self.terrain is None or self.terrain.view is not view:
                 if self.terrain is not None:
                     self.terrain.remove()
-                self.terrain = Terrain(tab.client.scene, view, units, T_init, events)
-            elif self.terrain.path.events is not events:
-                self.terrain.path = PathOnSlice(view.problem, view.slice, T_init, events)
+                self.terrain = Terrain(tab.client.scene, view, units, T_init, events, path=path)
+            elif self.terrain.path is not path:
+                self.terrain.path, self.terrain.drawn = path, -1
             self.terrain.update(T)

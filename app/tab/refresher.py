@@ -1,8 +1,11 @@
 """The refresher: the one owner of workers' results, and the run's progress on the page at >= 10 Hz.
 
 Each tick it takes the run's state first, applies what workers handed over (under the tab's lock),
-then pushes a snapshot inside ``client.atomic()``: the source node's pose (never its points), the
-path, the chart, the status. A failed tick is logged with its traceback and the loop goes on.
+then pushes a snapshot inside one ``client.atomic()`` (one message batch, one frame in the browser):
+the source node's pose (never its points), the path, the status, the terrain's marker; the E chart
+and the terrain's path ride along less often, and the contour (a Plotly figure rebuilt in Python and
+redrawn in the browser) less often still. Ticks keep a fixed cadence: the time a push takes is not
+added to the wait. A failed tick is logged with its traceback and the loop goes on.
 """
 
 from __future__ import annotations
@@ -15,11 +18,14 @@ from app.tab import scene3d
 
 log = logging.getLogger("rangereg.workbench")
 
-REFRESH = 0.07  # seconds between pushes of a run's progress: ~14 Hz, >= 10 Hz and no faster than a
-# software-rendered page draws, so pushes never queue up in the browser (Pause shows at once)
-SLICE_REFRESH = 1.0  # seconds between redraws of the path on the slice during a run
-TERRAIN_REFRESH = 0.25  # seconds between redraws of the path on the 3-D terrain during a run: with it drawn on
-# every push the bunny pair's SA run fell from 6.6 to 3.8 pushes/s (load ~3.5 on 2 cores)
+REFRESH = 0.07  # seconds between pushes of a run's progress: ~14 Hz, >= 10 Hz; a browser slower than that
+# takes the latest (viser keeps only the newest value of each property it has not sent yet)
+PLOT_REFRESH = 0.25  # seconds between redraws of the E chart during a run (uPlot redraws its 2000 points)
+TERRAIN_REFRESH = 0.25  # seconds between redraws of the path on the 3-D terrain during a run (its marker moves
+# on every push)
+SLICE_REFRESH = 2.0  # seconds between redraws of the contour during a run: rebuilding the Plotly figure took
+# 90-180 ms of the refresher's time and projecting every event onto it 0.5-1.2 s before the projection was kept
+# (bunny SA run, load ~12 on 2 cores), which held the pushes to 4.8/s
 
 
 class Refresher:
@@ -27,15 +33,22 @@ class Refresher:
         self.tab, self.state = tab, tab.state
         self.was_running = False
         self.failures = 0
-        self.terrain_at = 0.0
+        self.terrain_at = self.plot_at = 0.0
+        self.plotted = self.terrain_drawn = (None, 0)  # (trail, events) last drawn in the chart, on the terrain
         self.thread = threading.Thread(target=self._loop, daemon=True, name="rangereg-refresh")
 
     def start(self) -> None:
         self.thread.start()
 
     def _loop(self) -> None:
+        due = time.monotonic()
         while not self.state.closed:
-            time.sleep(REFRESH)
+            due += REFRESH
+            wait = due - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            else:
+                due = time.monotonic()  # late (a slow push): go on from now, no burst of pushes to catch up
             try:
                 self.tick()
             except Exception:
@@ -68,8 +81,6 @@ class Refresher:
             tab.nodes.gizmo.visible = True
             scene3d.move_source(tab.nodes, st, st.T)
             tab.update_status()
-            if st.slice is not None:
-                tab.landscape.draw()
             tab.model.residuals.refresh()
             tab.replay.reset()
         self.was_running = running
@@ -79,20 +90,33 @@ class Refresher:
         trail = tab.trail()
         before = trail.n
         n = trail.update()
-        if n == before and running:
+        now = time.monotonic()
+        moved = n != before or not running
+        # the chart and the terrain's path follow at their own pace; a paused run (Step) gets them on a later tick
+        plot_due = (not running or now - self.plot_at >= PLOT_REFRESH) and (self.plotted != (trail, n) or not running)
+        terrain_due = (not running or now - self.terrain_at >= TERRAIN_REFRESH) and (
+            self.terrain_drawn != (trail, n) or not running)
+        if not (moved or plot_due or terrain_due):
             tab.update_status()
             return
         with st.lock:
             if n and running and st.result is None:  # once the run's result is in, its pose is the one shown
                 st.T = st.events[n - 1].T
             T, E0 = st.T, st.E0
+        # the arrays first, the messages then: the batch is held back from the browser only while it is assembled
+        path = (trail.segments(), trail.minima()) if moved else None
+        plot = trail.plot(E0) if plot_due else None
         with tab.client.atomic():
-            scene3d.move_source(tab.nodes, st, T, gizmo=False)
-            scene3d.draw_path(tab.nodes, trail)
-            tab.run_panel.h.plot.data = trail.plot(E0)
+            if path is not None:
+                scene3d.move_source(tab.nodes, st, T, gizmo=False)
+                scene3d.draw_path(tab.nodes, *path)
+            if plot is not None:
+                tab.run_panel.h.plot.data = plot
+                self.plot_at, self.plotted = now, (trail, n)
+            if moved or terrain_due:
+                tab.landscape.follow(T, path=terrain_due)
+            if terrain_due:
+                self.terrain_at, self.terrain_drawn = now, (trail, n)
             tab.update_status()
-        if tab.landscape.terrain is not None and (not running or time.monotonic() - self.terrain_at > TERRAIN_REFRESH):
-            self.terrain_at = time.monotonic()
-            tab.landscape.update_terrain()
-        if st.slice is not None and time.monotonic() - tab.landscape.drawn_at > SLICE_REFRESH:
-            tab.landscape.draw()
+        if st.slice is not None and (not running or now - tab.landscape.drawn_at > SLICE_REFRESH):
+            tab.landscape.draw(terrain=not running)

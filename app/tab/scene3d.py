@@ -3,12 +3,16 @@
 The target sits still; the source is one frame node (``/source``) whose pose is the registration's:
 a run moves it by that node's pose, never by re-sending points. Each cloud is drawn twice: all its
 points, and a fixed subset shown while a run moves the scan (the page redraws on every pose push;
-software WebGL draws ~1.3 M points/s on 2 cores).
+software WebGL draws ~1.3 M points/s on 2 cores). The frustum wireframes and the surfaces are in the
+scene only while shown: a hidden node still cost the software-rendered page (bunny pair, Chromium with
+software WebGL, load ~9 on 2 cores: 350-500 ms of CPU a frame with them hidden in the scene, 110-180
+ms with them removed).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 
 import numpy as np
 import viser
@@ -22,7 +26,6 @@ from app.figures import (
     TARGET_RGB,
 )
 from app.tab.state import TabState
-from app.views import Trail
 
 RUN_POINTS = 6000  # while a run moves the scan, each cloud is drawn with at most this many points
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
@@ -31,14 +34,35 @@ EMPTY_POINTS = np.zeros((0, 3), np.float32)
 
 @dataclass(eq=False)
 class CloudNodes:
-    """One scan's nodes: all points, the light subset drawn during a run (with its indices), frustum, surface."""
+    """One scan's nodes: all points, the light subset drawn during a run (with its indices), the viewpoint; and
+    the frustum (segments (S, 2, 3)) and the surface (vertices, faces), whose nodes exist only while shown."""
 
+    root: str
+    colour: tuple[int, int, int]
     points: viser.PointCloudHandle
     light: viser.PointCloudHandle | None
     light_index: np.ndarray | None
-    frustum: viser.LineSegmentsHandle
-    surface: viser.MeshHandle
     viewpoint: viser.IcosphereHandle
+    frustum_segments: np.ndarray
+    surface_mesh: tuple[np.ndarray, np.ndarray]
+    frustum: viser.LineSegmentsHandle | None = None
+    surface: viser.MeshHandle | None = None
+
+    def show_frustum(self, scene, shown: bool) -> None:
+        if shown and self.frustum is None:
+            self.frustum = scene.add_line_segments(f"{self.root}/frustum", self.frustum_segments, self.colour,
+                                                   thickness=1.5, thickness_units="screen")
+        elif not shown and self.frustum is not None:
+            self.frustum.remove()
+            self.frustum = None
+
+    def show_surface(self, scene, shown: bool) -> None:
+        if shown and self.surface is None:
+            self.surface = scene.add_mesh_simple(f"{self.root}/surface", *self.surface_mesh, color=self.colour,
+                                                 opacity=0.6, side="double", cast_shadow=False, receive_shadow=False)
+        elif not shown and self.surface is not None:
+            self.surface.remove()
+            self.surface = None
 
 
 @dataclass(eq=False)
@@ -50,6 +74,8 @@ class SceneNodes:
     path: viser.LineSegmentsHandle
     minima: viser.PointCloudHandle
     model: viser.MeshHandle | None = None
+    shown_lock: threading.Lock = field(default_factory=threading.Lock)  # adds/removes frustums and surfaces (the
+    # refresher and callback threads both set what is shown)
 
     def remove(self) -> None:
         for node in (self.source_frame, self.gizmo, self.path, self.minima, self.model, self.target.points,
@@ -94,13 +120,12 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
         light = scene.add_point_cloud(f"{root}/points_run", pts[index], rgb[index], point_size=size,
                                       precision="float32", point_shading="flat", visible=False)
     f = state.frusta[frustum_kind][0 if src else 1]
-    frustum = scene.add_line_segments(f"{root}/frustum", to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
-                                      base, thickness=1.5, thickness_units="screen")
     scan, surface = (state.source, state.surfaces[0]) if src else (state.target, state.surfaces[1])
-    mesh = scene.add_mesh_simple(f"{root}/surface", to_page(scan.points), surface.faces, color=base, opacity=0.6,
-                                 side="double", visible=False)
     vp = scene.add_icosphere(f"{root}/viewpoint", radius=0.015, color=base, position=to_page(scan.viewpoint))
-    return CloudNodes(points, light, index, frustum, mesh, vp)
+    cloud = CloudNodes(root, base, points, light, index, vp, to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
+                       (to_page(scan.points), surface.faces))
+    cloud.show_frustum(scene, True)
+    return cloud
 
 
 def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, overlap: bool) -> SceneNodes:
@@ -108,6 +133,8 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     d, src, tgt, scene = state.display, state.source, state.target, client.scene
     size = 0.8 * min(src.spacing, tgt.spacing) / d.size
     scene.set_up_direction("+y")
+    # no shadow maps: they shade nothing a point cloud shows, and each frame drew three of them (software WebGL)
+    scene.configure_default_lights(True, cast_shadow=False)
     wxyz, pos = d.node_pose(state.T)
     frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)
@@ -129,7 +156,11 @@ def redraw_frustums(scene, nodes: SceneNodes, state: TabState, kind: str) -> Non
     d = state.display
     for cloud, f, to_page in ((nodes.source, state.frusta[kind][0], d.source_local),
                               (nodes.target, state.frusta[kind][1], d.points)):
-        cloud.frustum.points = to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3)
+        segments = to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3)
+        with nodes.shown_lock:
+            cloud.frustum_segments = segments
+            if cloud.frustum is not None:
+                cloud.frustum.points = segments
 
 
 def recolour(nodes: SceneNodes, state: TabState, overlap: bool) -> None:
@@ -149,13 +180,14 @@ def show_model(scene, nodes: SceneNodes, state: TabState) -> None:
                                         side="double")
 
 
-def apply_visibility(nodes: SceneNodes, show: Visibility, run_drawing: bool) -> None:
+def apply_visibility(scene, nodes: SceneNodes, show: Visibility, run_drawing: bool) -> None:
     """Which nodes are drawn; ``run_drawing``: a run moves the scan (light clouds, no frustums)."""
     model = show.model and nodes.model is not None
     for cloud in (nodes.source, nodes.target):
-        # frustum wireframes cost a software-rendered page half its frame rate: off while a run draws
-        cloud.frustum.visible = show.frustums and not model and not run_drawing
-        cloud.surface.visible = show.surfaces and not model
+        with nodes.shown_lock:
+            # frustum wireframes cost a software-rendered page half its frame rate: off while a run draws
+            cloud.show_frustum(scene, show.frustums and not model and not run_drawing)
+            cloud.show_surface(scene, show.surfaces and not model)
         light = run_drawing and cloud.light is not None
         cloud.points.visible = not model and not light
         if cloud.light is not None:
@@ -172,10 +204,10 @@ def move_source(nodes: SceneNodes, state: TabState, T: np.ndarray, gizmo: bool =
         nodes.gizmo.wxyz, nodes.gizmo.position = wxyz, pos
 
 
-def draw_path(nodes: SceneNodes, trail: Trail) -> None:
-    seg, rgb = trail.segments()
-    nodes.path.points, nodes.path.colors = seg, rgb
-    nodes.minima.points = trail.minima()
+def draw_path(nodes: SceneNodes, segments: tuple[np.ndarray, np.ndarray], minima: np.ndarray) -> None:
+    """The path's segments and colours ((S, 2, 3) each, from Trail.segments) and its minima ((M, 3), Trail.minima)."""
+    nodes.path.points, nodes.path.colors = segments
+    nodes.minima.points = minima
 
 
 def clear_path(nodes: SceneNodes) -> None:

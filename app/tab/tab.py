@@ -170,7 +170,7 @@ class Tab:
             return
         model = bool(self.model.h.show.value and self.state.model is not None)
         with self.client.atomic():
-            scene3d.apply_visibility(self.nodes, self.scans.visibility(model), self.run_drawing)
+            scene3d.apply_visibility(self.client.scene, self.nodes, self.scans.visibility(model), self.run_drawing)
 
     def lock_panels(self, running: bool) -> None:
         """A run holds the scans: what would change them is disabled until it ends."""

@@ -4,7 +4,9 @@ The terrain's box is the slice's two parameter axes (horizontal) by log10 E (up)
 TERRAIN_SIZE page units and placed at TERRAIN_AT: an abstract space beside the scans, labelled with
 the parameters and their units. The path is drawn on the surface (ICP green, SA magenta), the local
 minima as red points, the shown pose as a white point. The projection of the events onto the slice's
-axes is kept incrementally (each event is projected once), so the path follows a run live.
+axes is kept incrementally (each event is projected once), so the path follows a run live; the
+Landscape panel shares one such projection between the terrain and the contour. During a run only the
+shown pose's marker moves on every push; the mesh is sent once per slice and the path in batches.
 """
 
 from __future__ import annotations
@@ -72,34 +74,51 @@ def on_surface(sl: Slice, xy: np.ndarray, lookup: RegularGridInterpolator | None
 
 
 class PathOnSlice:
-    """A run's events projected onto one slice's axes, extended as events arrive. xy: (K + 1, 2), the start first."""
+    """A run's events projected onto one slice's axes, extended as events arrive.
+
+    xy: (K + 1, 2), the start first; phases: (K + 1,) "icp" / "sa" / "candidates" (the start counts as ICP);
+    sa, minimum: (K + 1,) bool. Not thread-safe: its owner (the Landscape panel) updates it under its lock.
+    """
 
     def __init__(self, problem, sl: Slice, T_start: np.ndarray, events: list):
-        self.problem, self.slice, self.events = problem, sl, events
+        self.problem, self.slice, self.events, self.T_start = problem, sl, events, T_start
         self.xy = project(problem, sl.T_center, sl.params, [T_start])
-        self.sa = np.zeros(1, bool)
+        self.phases = np.array(["icp"], dtype=object)
         self.phase = np.zeros(1, np.int8)  # rows of PHASE_TABLE (the start's is never drawn)
         self.minimum = np.zeros(1, bool)
         self.n = 0
         self.lookup = height_lookup(sl)  # built once per slice, used on every redraw
+
+    def follows(self, problem, sl: Slice, T_start: np.ndarray, events: list) -> bool:
+        """Whether this projection is the one of these events from this start on this slice."""
+        return (self.problem is problem and self.slice is sl and self.events is events
+                and np.array_equal(self.T_start, T_start))
+
+    @property
+    def sa(self) -> np.ndarray:
+        return self.phases == "sa"
 
     def update(self) -> int:
         n = len(self.events)
         new = self.events[self.n:n]
         if new:
             self.xy = np.r_[self.xy, project(self.problem, self.slice.T_center, self.slice.params, [e.T for e in new])]
-            self.sa = np.r_[self.sa, [e.phase == "sa" for e in new]].astype(bool)
+            self.phases = np.r_[self.phases, np.array([e.phase for e in new], dtype=object)]
             self.phase = np.r_[self.phase, [phase_code(e.phase) for e in new]].astype(np.int8)
             self.minimum = np.r_[self.minimum, [e.local_minimum for e in new]].astype(bool)
             self.n = n
         return n
 
+    def thinned(self, most: int) -> np.ndarray:
+        """Indices of at most ``most`` (+1) evenly spread points, the first and the last always among them."""
+        k = len(self.xy)
+        return np.unique(np.r_[np.linspace(0, k - 1, min(k, most)).astype(int), k - 1])
+
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
         """(S, 2, 3) float32 segments on the terrain and (S, 2, 3) uint8 colours, thinned to MAX_TERRAIN_PATH."""
         if len(self.xy) < 2:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
-        keep = np.unique(np.r_[np.linspace(0, len(self.xy) - 1, min(len(self.xy), MAX_TERRAIN_PATH)).astype(int),
-                               len(self.xy) - 1])
+        keep = self.thinned(MAX_TERRAIN_PATH)
         p = on_surface(self.slice, self.xy[keep], self.lookup)
         rgb = PHASE_TABLE[self.phase[keep][1:]]
         return np.stack([p[:-1], p[1:]], axis=1), np.repeat(rgb[:, None, :], 2, axis=1)
@@ -109,18 +128,23 @@ class PathOnSlice:
 
 
 class Terrain:
-    """The terrain's scene nodes for one slice; ``update`` redraws the path, ``mark`` the shown pose."""
+    """The terrain's scene nodes for one slice; ``update`` redraws the path, ``mark`` the shown pose.
 
-    def __init__(self, scene, view, units: str, T_start: np.ndarray, events: list):
+    ``path``: the projection to draw (shared with the contour); by default one of ``events`` from ``T_start``.
+    """
+
+    def __init__(self, scene, view, units: str, T_start: np.ndarray, events: list, path: PathOnSlice | None = None):
         import trimesh
 
         sl = view.slice
         self.view, self.scene = view, scene
-        self.path = PathOnSlice(view.problem, sl, T_start, events)
+        self.path = path if path is not None else PathOnSlice(view.problem, sl, T_start, events)
+        self.drawn = -1  # events of the path drawn so far (-1: none yet)
         vertices, faces, rgba = surface(sl)
         self.frame = scene.add_frame("/terrain", show_axes=False, position=TERRAIN_AT)
         mesh = trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False)
-        self.surface = scene.add_mesh_trimesh("/terrain/surface", mesh)
+        # no shadows: the page's lights cast none (app/tab/tab.py), and the surface is sent once per slice
+        self.surface = scene.add_mesh_trimesh("/terrain/surface", mesh, cast_shadow=False, receive_shadow=False)
         half = 0.5 * TERRAIN_SIZE
         scene.add_label("/terrain/label_a", axis_label(sl.params[0], units), position=(0.0, 0.0, half + 0.08))
         scene.add_label("/terrain/label_b", axis_label(sl.params[1], units), position=(half + 0.08, 0.0, 0.0))
@@ -131,13 +155,13 @@ class Terrain:
                                                  point_size=0.015, precision="float32")
         self.current = scene.add_icosphere("/terrain/current", radius=0.02, color=(255, 255, 255))
 
-    def update(self, T_shown: np.ndarray) -> None:
-        """Draw the events that arrived since the last call, and the shown pose."""
-        before = self.path.n
-        if self.path.update() != before or before == 0:
+    def update(self, T_shown: np.ndarray, path: bool = True) -> None:
+        """Draw the shown pose, and (``path``) the events that arrived since the path was last drawn."""
+        if path and self.path.update() != self.drawn:
             seg, rgb = self.path.segments()
             self.segments.points, self.segments.colors = seg, rgb
             self.minima_node.points = self.path.minima()
+            self.drawn = self.path.n
         self.mark(T_shown)
 
     def mark(self, T_shown: np.ndarray) -> None:

@@ -1,0 +1,111 @@
+"""The README's pictures of the workbench, taken in headless Chromium: docs/landscape.png.
+
+    python scripts/screenshots.py [BUNNY_DIR]
+
+Serves bun045 -> bun000 (the Stanford bunny, metres) with the workbench in this process, starts from
+60 degrees off the files' pose about the vertical, computes the tx-ry slice around that start, shows it
+as the 3-D terrain, runs the hybrid, hides the frustums, then points the camera at the terrain and waits
+until the page's camera says it is there before taking the picture. The camera's position is set before
+its look-at point: viser moves the look-at point along with a new position (keeping the orientation),
+which is why a camera set the other way round never looked at the terrain.
+"""
+
+from __future__ import annotations
+
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
+START_DEG = 60.0  # the initial pose: this far off the files' pose, about the target's vertical axis
+SLICE = ("tx", "ry", "0.04", "75", "41")  # parameters, spans (m, deg) and steps of the slice
+LOOK_AT = (1.6, -0.3, 0.0)  # page units: the terrain's box is centred at app.tab.terrain.TERRAIN_AT; a little
+# right of its centre, so that the terrain sits left of the control panel
+CAMERA_AT = (1.3, 1.05, 1.25)  # in front of the terrain, 45 degrees above it, a little to the scans' side
+CLOSE_NOTICE_JS = """() => {
+  const el = [...document.querySelectorAll('div')].find(d => d.innerText.startsWith('Software WebGL rendering'));
+  let n = el; while (n && !n.querySelector('button')) n = n.parentElement;
+  if (n) n.querySelector('button').click();
+}"""
+
+
+def wait_for(test, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if test():
+            return
+        time.sleep(0.2)
+    raise SystemExit(f"timed out waiting for {what}")
+
+
+def turned(T: np.ndarray, degrees: float, about: np.ndarray) -> np.ndarray:
+    """T followed by a rotation of ``degrees`` about the vertical (y) through ``about`` (target frame)."""
+    from scipy.spatial.transform import Rotation
+
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_euler("y", degrees, degrees=True).as_matrix()
+    D[:3, 3] = about - D[:3, :3] @ about
+    return D @ T
+
+
+def main() -> None:
+    from playwright.sync_api import sync_playwright
+
+    from app.workbench import ServeOptions, Workbench
+
+    folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    wb = Workbench(ServeOptions(source=str(folder / "bun045.ply"), target=str(folder / "bun000.ply"), port=port))
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
+            page = browser.new_page(viewport={"width": 1600, "height": 1000})
+            page.goto(f"http://127.0.0.1:{port}")
+            page.get_by_text("Initial E =").wait_for(timeout=120_000)
+            tab = next(iter(wb.tabs.values()))
+            st = tab.state
+            source_centre = st.T_file[:3, :3] @ st.source.centroid + st.T_file[:3, 3]
+            tab.set_initial(turned(st.T_file, START_DEG, source_centre))
+            tab.update_status()
+            page.get_by_role("tab", name="Landscape", exact=True).click()
+            h = tab.landscape.h
+            h.param_a.value, h.param_b.value = SLICE[:2]
+            h.span_a.value, h.span_b.value, h.steps.value = SLICE[2:]
+            page.get_by_role("button", name="Compute slice", exact=True).click()
+            wait_for(lambda: st.slice is not None, 900, "the slice")
+            page.get_by_label("Show as 3-D terrain", exact=True).check()
+            wait_for(lambda: tab.landscape.terrain is not None, 60, "the terrain")
+            page.get_by_role("tab", name="Run", exact=True).click()
+            page.get_by_role("button", name="Run hybrid", exact=True).click()
+            page.get_by_text("Finished:").wait_for(timeout=300_000)
+            wait_for(lambda: len(tab.landscape.terrain.segments.points) >= len(st.events), 60, "the path on the terrain")
+            page.get_by_role("tab", name="Scans", exact=True).click()
+            tab.scans.h.show.frustums.value = False
+            tab.apply_visibility()
+            page.get_by_role("tab", name="Landscape", exact=True).click()
+            page.evaluate(CLOSE_NOTICE_JS)  # the software-WebGL notice
+            camera = tab.client.camera
+            camera.up_direction = (0.0, 1.0, 0.0)
+            camera.position = CAMERA_AT  # first: setting the position moves the look-at point with it
+            camera.look_at = LOOK_AT
+            wait_for(lambda: np.allclose(camera.position, CAMERA_AT, atol=1e-3)
+                     and np.allclose(camera.look_at, LOOK_AT, atol=1e-3), 30, "the camera")
+            time.sleep(3.0)
+            out = ROOT / "docs" / "landscape.png"
+            page.screenshot(path=str(out))
+            print(f"wrote {out}")
+            browser.close()
+    finally:
+        wb.server.stop()
+
+
+if __name__ == "__main__":
+    main()

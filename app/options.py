@@ -245,8 +245,10 @@ def parse_init(text: str) -> np.ndarray:
 
     if text is None or not str(text).strip():
         raise InputError("--init: expected 16 numbers or a file, got nothing")
+    from core.sidefiles import names_a_file
+
     p = Path(text)
-    if p.exists():
+    if names_a_file(text):
         read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
     elif len([t for t in _SEPARATORS.split(str(text).strip()) if t]) < 2:
         raise InputError(f"--init {text}: no such file (and not 16 numbers)")

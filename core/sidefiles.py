@@ -142,13 +142,22 @@ def parse_transform(text_or_path: str | Path) -> np.ndarray:
     """A rigid 4 x 4 transform from a file (16 numbers, row-major, whitespace or commas; or JSON
     with ``transform``) or, when ``text_or_path`` is a string naming no file, from the text itself
     (16 numbers, or that JSON)."""
-    if isinstance(text_or_path, str) and not Path(text_or_path).exists() and _looks_like_numbers(text_or_path):
+    if isinstance(text_or_path, str) and not names_a_file(text_or_path) and _looks_like_numbers(text_or_path):
         text = text_or_path.strip()
         return _transform_from_text(text, f"the transform {text if len(text) <= 40 else text[:37] + '...'!r}")
     path = Path(text_or_path)
     if not path.exists():
         raise InputError(f"{path}: no such file (and not 16 numbers)")
     return _transform_from_text(_read_text(path, "a transform file").strip(), str(path))
+
+
+def names_a_file(text: str | Path) -> bool:
+    """Whether ``text`` is the path of something that exists (False for 16 numbers too long to be a
+    file name: the system refuses such a path with an error rather than saying it is absent)."""
+    try:
+        return Path(text).exists()
+    except (OSError, ValueError):
+        return False
 
 
 def read_transform(path: str | Path) -> np.ndarray:

@@ -4,17 +4,17 @@ and the initial guess read (cheap checks first, so a typo never waits for a scan
 from __future__ import annotations
 
 from argparse import Namespace
-from pathlib import Path
 
 import numpy as np
 
 from app.options import Settings, parse_init, to_config
+from core.sidefiles import names_a_file
 
 
 def inputs(a: Namespace) -> list[str]:
     """Every file the command reads (never to be overwritten by an output)."""
     files = [a.source, a.target]
-    if getattr(a, "init", None) and Path(a.init).exists():
+    if getattr(a, "init", None) and names_a_file(a.init):
         files.append(a.init)
     if getattr(a, "trace_in", None) is not None:
         files.append(a.trace_in)

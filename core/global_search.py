@@ -42,7 +42,7 @@ from .events import Cancelled, Event, Listener
 from .icp import icp
 from .lock import LockFrame
 from .noise import noise_floor
-from .problem import ProblemConfig, prepare
+from .problem import Problem, ProblemConfig, prepare
 from .result import Result, Stop, StopReason
 from .scan import Scan
 from .surface import Surface
@@ -141,17 +141,19 @@ def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
-           on_step=None, seed: int = 0, frame: LockFrame | None = None) -> np.ndarray:
-    """ICP on the robust E from T: on the overlap cut at T, then on the cut at the pose found
-    (under ``frame``'s lock, when given: core.lock)."""
+           on_step=None, seed: int = 0, frame: LockFrame | None = None, at_T: Problem | None = None
+           ) -> tuple[np.ndarray, Problem]:
+    """ICP on the robust E from T: on the overlap cut at T (``at_T``, when one was cut there already),
+    then on the cut at the pose found (under ``frame``'s lock, when given: core.lock). Returns the
+    pose and that last cut."""
     # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
     near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, REFINE_ROTATION_DEG), visibility=False)
     conv = replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
                    translation_uncertainty=CONVERGED_TRANSLATION * target.size)
     for cfg in (near, conv):
-        p = prepare(source, target, T, cfg, surface=surface, seed=seed)
+        p = at_T if cfg is near and at_T is not None else prepare(source, target, T, cfg, surface=surface, seed=seed)
         T = icp(p.error, T, icp_config, on_step, frame=frame).T
-    return T
+    return T, p
 
 
 def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: Config = Config(method="global"),
@@ -180,7 +182,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     poses: list[np.ndarray] = []  # every candidate scored
     refined: list[np.ndarray] = []  # every candidate refined
     sources: dict[str, int | str] = {}
-    trusted = False
+    trusted, last = False, None
 
     def accept(T: np.ndarray) -> bool:
         """Trusted, and within REGION x the stated uncertainty (a twin of a symmetric scene may fit as well)."""
@@ -198,8 +200,9 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
             if isinstance(found, str) or not found:
                 continue
             poses += found
-            done, trusted = _round(run, basis, accept, found, n_refine, source, target, surface, pc, hybrid, frame)
+            done, last = _round(run, basis, accept, found, n_refine, source, target, surface, pc, hybrid, frame, problem)
             refined += done
+            trusted = last is not None
             if trusted:
                 best, best_s = done[-1], float(basis.evaluate(done[-1][None]).score[0])
                 break
@@ -219,14 +222,15 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
             trusted = accept(best)
     except Cancelled:
         best, best_s = T_init, float(basis.evaluate(T_init[None]).score[0])
-        poses, sources, trusted, stop = [T_init], {"guess": 1}, False, Stop(StopReason.CANCELLED)
-    final = prepare(source, target, best, replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
-                                                  translation_uncertainty=CONVERGED_TRANSLATION * target.size),
-                    surface=surface, seed=config.seed)
+        poses, sources, trusted, stop, last = [T_init], {"guess": 1}, False, Stop(StopReason.CANCELLED), None
+    if last is None:  # (a refinement that was taken ends on a cut at the pose it found: E is read there)
+        last = prepare(source, target, best, replace(pc, rotation_uncertainty_deg=CONVERGED_ROTATION_DEG,
+                                                     translation_uncertainty=CONVERGED_TRANSLATION * target.size),
+                       surface=surface, seed=config.seed)
     iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
     details = {"threshold_derivation": threshold.to_json(), "score": best_s, "candidates": len(poses),
                "candidate_sources": sources}
-    return Result(best, final.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",
+    return Result(best, last.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",
                   threshold.value, stop, cut=problem.cut, trusted=trusted, details=details)
 
 
@@ -274,11 +278,12 @@ def _shifted(basis: Basis, poses: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _round(run: _Counter, basis: Basis, accept, poses: list[np.ndarray], n: int, source: Scan, target: Scan,
-           surface: Surface, pc: ProblemConfig, base: Config, frame: LockFrame | None = None
-           ) -> tuple[list[np.ndarray], bool]:
+           surface: Surface, pc: ProblemConfig, base: Config, frame: LockFrame | None, at_guess: Problem
+           ) -> tuple[list[np.ndarray], Problem | None]:
     """Score ``poses`` in one query (events of phase 'candidates'); refine the best ``n`` by score (once
-    each: near-duplicates are skipped) with ICP, in order, until ``accept`` takes one. Returns the
-    refined poses and whether the last one was taken."""
+    each: near-duplicates are skipped) with ICP, in order, until ``accept`` takes one. The guess is
+    refined from the cut ``at_guess`` made under it. Returns the refined poses and, when the last one
+    was taken, its last cut (else None)."""
     scores = basis.evaluate(np.stack(poses))
     run.leg("candidates")
     for T, s in zip(poses, scores.score):
@@ -288,11 +293,12 @@ def _round(run: _Counter, basis: Basis, accept, poses: list[np.ndarray], n: int,
     out = []
     for k in order:
         run.leg("icp")
-        out.append(refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed,
-                          frame))
-        if accept(out[-1]):
-            return out, True
-    return out, False
+        T, last = refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed,
+                         frame, at_guess if poses[k] is at_guess.T_init else None)
+        out.append(T)
+        if accept(T):
+            return out, last
+    return out, None
 
 
 def _best(basis: Basis, poses: list[np.ndarray], T_init: np.ndarray, center: np.ndarray, r_unc: float,

@@ -90,7 +90,7 @@ def _window(b: np.ndarray, q: np.ndarray, radius: float, whole: tuple | None = N
     edge's bound (core.surface) of a point well inside it. ``whole``: the scan's k-d tree and the
     half's mask in it, to query instead of building a tree for ``b``."""
     tree, in_b = whole if whole is not None else (cKDTree(b), None)  # (the scan's tree, b's mask in it)
-    near = tree.query_ball_point(q, radius, workers=-1)
+    near = tree.query_ball_point(q, radius)  # a few hundred queries: threads would cost more than they save
     keep = np.zeros(tree.n, dtype=bool)
     keep[np.concatenate([np.asarray(n, dtype=np.int64) for n in near])] = True
     return b[keep[in_b]] if in_b is not None else b[keep]

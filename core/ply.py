@@ -146,10 +146,11 @@ def _whole_numbers(tokens: list[bytes]) -> np.ndarray | None:
         return None
     u = S.view(np.uint8).reshape(len(tokens), width)
     length = np.count_nonzero(u, axis=1)
-    v = np.zeros(len(tokens), dtype=np.int64)
+    it = np.int32 if width <= 9 else np.int64  # nine digits fit an int32
+    v = np.zeros(len(tokens), dtype=it)
     for j in range(width):  # Horner's rule, one digit column at a time (the shorter tokens are zero-padded)
         live = j < length
-        d = u[:, j].astype(np.int64) - 48
+        d = u[:, j].astype(it) - 48
         if np.any(live & ((d < 0) | (d > 9))):
             return None
         v = np.where(live, v * 10 + d, v)
@@ -202,19 +203,22 @@ def _ascii_list(values: np.ndarray, pos: int, count: int, prop, name: str):
     k = values[pos:]
     with np.errstate(invalid="ignore"):
         bad = ~np.isfinite(k) | (k < 0) | (k != np.floor(k))  # a problem only where it is a row's count
-    step = np.where(bad, 0, k).astype(np.int64) + 1
+    it = np.int32 if len(k) < 2**30 else np.int64  # half the memory traffic of the gathers below
+    step = np.minimum(np.where(bad, 0, k), len(k)).astype(it) + 1
     # successor of every token (in tokens from ``pos``), n - pos as the sentinel past the end
-    nxt = np.minimum(np.arange(len(k), dtype=np.int64) + step, len(k))
-    nxt = np.append(nxt, len(k))
+    nxt = np.empty(len(k) + 1, dtype=it)
+    np.minimum(np.arange(len(k), dtype=it) + step, len(k), out=nxt[:-1])
+    nxt[-1] = len(k)
     jumps = [nxt]
     while (1 << len(jumps)) < count:
         jumps.append(jumps[-1][jumps[-1]])
-    starts = np.zeros(1, dtype=np.int64)
+    starts = np.zeros(1, dtype=it)
     for j in reversed(jumps):  # rows 0..2^m - 1 in order: each level interleaves a row with its 2^l-th successor
         starts = np.stack([starts, j[starts]], axis=1).reshape(-1)
     starts = starts[:count]
     if starts[-1] >= len(k):
         raise PlyError(f"the file ends inside element {name!r}: the header says {count} rows")
+    starts = starts.astype(np.int64)
     if bad[starts].any():
         raise PlyError(f"element {name!r}: a list of {k[starts][bad[starts]][0]:g} items")
     counts = k[starts].astype(np.int64)

@@ -20,12 +20,14 @@ from .scan import Scan
 
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
+PARALLEL_QUERY = 20_000  # k-d tree queries of more points than this run on every core
 
 
 def local_spacing(points: np.ndarray) -> np.ndarray:
     """(N,) mean distance from each point to its ``SPACING_NEIGHBOURS`` nearest neighbours."""
     k = min(SPACING_NEIGHBOURS + 1, len(points))
-    d, _ = cKDTree(points).query(points, k=k, workers=-1)  # the same answer, on every core
+    # the same answer on every core; below ~20k points starting the threads costs more than they save
+    d, _ = cKDTree(points).query(points, k=k, workers=-1 if len(points) > PARALLEL_QUERY else 1)
     return d[:, 1:].mean(axis=1)
 
 

@@ -101,9 +101,11 @@ def _patch(points: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
     centre = points.mean(0)
     # start from a random point in the central half (by distance to the centroid), so the patch is
     # a full disc of the surface rather than a sliver at its edge
-    d_c = np.einsum("ij,ij->i", points - centre, points - centre)
+    # |p - c|^2 as |p|^2 - 2 p.c + |c|^2: (N,) temporaries only, no (N, 3) ones (memory linear and small)
+    sq = np.einsum("ij,ij->i", points, points)
+    d_c = sq - 2.0 * (points @ centre) + centre @ centre
     inner = np.flatnonzero(d_c <= np.median(d_c))
     seed_point = points[inner[rng.integers(len(inner))]]
-    d = np.einsum("ij,ij->i", points - seed_point, points - seed_point)
+    d = sq - 2.0 * (points @ seed_point) + seed_point @ seed_point
     return points[np.sort(np.argpartition(d, n - 1)[:n])]
 

@@ -108,3 +108,17 @@ def browser():
         b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
         yield b
         b.close()
+
+
+@pytest.fixture
+def rangereg(capsys):
+    """Run the CLI in this process: (exit status, stdout, stderr)."""
+
+    from app.cli import main
+
+    def run(*args):
+        code = main([str(a) for a in args])
+        cap = capsys.readouterr()
+        return code, cap.out, cap.err
+
+    return run

@@ -9,22 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
 from tests.conftest import ASSETS, BUNNY
 
 CORNER_SRC, CORNER_TGT = str(ASSETS / "corner" / "scan2.ply"), str(ASSETS / "corner" / "scan1.ply")
-
-
-@pytest.fixture
-def rangereg(capsys):
-    """Run the CLI in this process: (exit status, stdout, stderr)."""
-
-    def run(*args):
-        code = main([str(a) for a in args])
-        cap = capsys.readouterr()
-        return code, cap.out, cap.err
-
-    return run
 
 
 def test_help_lists_subcommands(rangereg):

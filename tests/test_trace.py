@@ -23,16 +23,6 @@ CORNER = ASSETS / "corner" / "scan2.ply", ASSETS / "corner" / "scan1.ply"
 WING = ASSETS / "wing" / "scan2.ply", ASSETS / "wing" / "scan1.ply"
 
 
-@pytest.fixture
-def rangereg(capsys):
-    def run(*args):
-        code = main([str(a) for a in args])
-        cap = capsys.readouterr()
-        return code, cap.out, cap.err
-
-    return run
-
-
 @pytest.fixture(scope="module")
 def corner_trace(tmp_path_factory):
     """(trace path, register's --json result) of a seeded hybrid run on the corner."""

@@ -59,7 +59,7 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int) -> dict:
         tr, r = random_perturbation(rng, rng.uniform(20, 120), rng.uniform(0.0, 0.3) * t.size)
         T0 = perturb(T_true, np.r_[tr, r], c_t)
         try:
-            T, _ = refine(s, t, surface, T0, pc, IcpConfig())
+            T, _ = refine(s, t, surface, T0, pc, IcpConfig(metric=CandidateConfig().refine_metric))
         except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
             continue
         rot, trans = pose_error(T, T_true, s.centroid)

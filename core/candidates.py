@@ -23,6 +23,7 @@ import numpy as np
 
 from .errors import InputError
 from .frustum import Frustum, frustum_of
+from .icp import METRICS
 from .scan import Scan
 from .surface import Surface
 from .transforms import apply, invert
@@ -53,6 +54,9 @@ class CandidateConfig:
     fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
     refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)
+    # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations
+    # on the same robust E; "point" is the paper's Horn step
+    refine_metric: str = "plane"
 
     def validate(self) -> None:
         if self.sample < 10:
@@ -61,6 +65,9 @@ class CandidateConfig:
             raise InputError(f"min_overlap must be in [0, 1), got {self.min_overlap}")
         if self.rotation_samples < 0 or self.fpfh_seeds < 0 or self.refine < 1:
             raise InputError("rotation samples and FPFH seeds must be >= 0, refine >= 1")
+        if self.refine_metric not in METRICS:
+            raise InputError(f"the refinement's ICP metric must be one of {', '.join(METRICS)}, "
+                             f"not {self.refine_metric!r}")
         if any(not v > 0 for v in self.fpfh_voxels):
             raise InputError(f"FPFH voxel sizes must be positive, got {self.fpfh_voxels}")
 
@@ -246,9 +253,19 @@ def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) ->
 
     # KISS-Matcher refuses small voxels (it is made for outdoor scans in metres): run it in units
     # where the voxel is its default 0.3, and scale the translation back.
+    import open3d as o3d
+
     k = KISS_VOXEL / (voxel * spacing)
+
+    def cloud(scan: Scan) -> np.ndarray:
+        # Open3D's voxel grid first: KISS-Matcher then builds its features on ~1/10 of the points (its own
+        # grid of the same size finds the same cells). Measured on three bunny pairs from 180 deg: 0.17-0.27 s
+        # of CPU instead of 0.33-0.44 s, hypotheses 0.7-4.1 deg off instead of 0.8-5.2.
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points * k)).voxel_down_sample(KISS_VOXEL)
+        return np.asarray(pcd.points, dtype=np.float32)
+
     matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL))
-    sol = matcher.estimate((source.points * k).astype(np.float32), (target.points * k).astype(np.float32))
+    sol = matcher.estimate(cloud(source), cloud(target))
     if not sol.valid:
         return []
     T = np.eye(4)

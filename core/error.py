@@ -35,7 +35,8 @@ def robust_weights(d2: np.ndarray, widen: float = 1.0) -> tuple[np.ndarray, floa
 
 @dataclass(frozen=True, eq=False)
 class ErrorTerms:
-    """One evaluation: E, moved points (N, 3), their closest surface points (N, 3), d2 (N,), w (N,), t."""
+    """One evaluation: E, moved points (N, 3), their closest surface points (N, 3), d2 (N,), w (N,), t,
+    and the unit normals (N, 3) of the triangles the closest points lie on (None when not known)."""
 
     error: float
     moved: np.ndarray
@@ -43,6 +44,7 @@ class ErrorTerms:
     d2: np.ndarray
     weights: np.ndarray
     t: float
+    normals: np.ndarray | None = None
 
 
 class ErrorFunction(Protocol):
@@ -82,9 +84,9 @@ class RobustError:
 
     def terms(self, T_target_source: np.ndarray) -> ErrorTerms:
         moved = apply(T_target_source, self._points)
-        closest, d2 = self._surface.closest(moved)
+        closest, d2, normals = self._surface.closest_with_normals(moved)
         w, t = robust_weights(d2, self._widen)
-        return ErrorTerms(float(np.mean(w * d2)), moved, closest, d2, w, t)
+        return ErrorTerms(float(np.mean(w * d2)), moved, closest, d2, w, t, normals)
 
     def __call__(self, T_target_source: np.ndarray) -> float:
         return self.terms(T_target_source).error

@@ -293,7 +293,8 @@ def _round(run: _Counter, basis: Basis, accept, poses: list[np.ndarray], n: int,
     out = []
     for k in order:
         run.leg("icp")
-        T, last = refine(source, target, surface, poses[k], pc, base.icp, lambda T, E: run.emit("icp", T, E), base.seed,
+        T, last = refine(source, target, surface, poses[k], pc, replace(base.icp, metric=base.candidates.refine_metric),
+                         lambda T, E: run.emit("icp", T, E), base.seed,
                          frame, at_guess if poses[k] is at_guess.T_init else None)
         out.append(T)
         if accept(T):

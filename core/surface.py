@@ -153,13 +153,18 @@ class Surface:
 
     def closest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points (N, 3) float64 and squared distances (N,) for (N, 3) queries."""
+        c, d2, _ = self.closest_with_normals(query)
+        return c, d2
+
+    def closest_with_normals(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`closest`, and the unit normals (N, 3) float64 of the triangles the closest points lie on."""
         import open3d as o3d
 
         q = np.ascontiguousarray(query - self.offset, dtype=np.float32)
         ans = self._scene.compute_closest_points(o3d.core.Tensor(q))
         c = ans["points"].numpy().astype(np.float64)
         d2 = np.einsum("ij,ij->i", c - q, c - q)
-        return c + self.offset, d2
+        return c + self.offset, d2, ans["primitive_normals"].numpy().astype(np.float64)
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(N,) distance along each unit ray to the first triangle hit (inf when none)."""

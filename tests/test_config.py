@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from core import prepare
-from core.config import Config, SearchConfig, ThresholdConfig
+from core.config import Config, IcpConfig, SearchConfig, ThresholdConfig
 from core.errors import InputError
 from core.search import SearchState
 from core.threshold import estimate_threshold, threshold_for
@@ -44,6 +44,16 @@ def test_search_config_refuses_nonsense(field, bad, message):
 def test_threshold_config_refuses_nonsense(bad):
     with pytest.raises(InputError, match="threshold factor"):
         Config(threshold_estimate=ThresholdConfig(factor=bad)).validate()
+
+
+@pytest.mark.parametrize("bad, message", [(dict(refine_metric="planar"), "refinement's ICP metric"),
+                                          (dict(refine=0), "refine >= 1"), (dict(sample=5), "at least 10")])
+def test_candidate_config_refuses_nonsense(bad, message):
+    from core.candidates import CandidateConfig
+
+    with pytest.raises(InputError, match=message):
+        Config(candidates=CandidateConfig(**bad)).validate()
+    assert CandidateConfig().refine_metric == "plane" and IcpConfig().metric == "point"  # the paper's ICP stays Horn's
 
 
 @pytest.mark.parametrize("bad", [dict(seed=-1), dict(simplex_scale=0.0), dict(restarts=0)])

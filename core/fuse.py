@@ -55,7 +55,7 @@ def sample_quality(scan: Scan) -> tuple[np.ndarray, np.ndarray]:
     n = _normals_towards(scan.points, scan.viewpoint)
     rays = scan.viewpoint - scan.points
     cos = np.einsum("ij,ij->i", n, rays) / np.linalg.norm(rays, axis=1)
-    return n, np.clip(cos, 0.0, 1.0) / np.maximum(local_spacing(scan.points), 1e-300)
+    return n, np.clip(cos, 0.0, 1.0) / np.maximum(local_spacing(scan.points, scan.tree), 1e-300)
 
 
 def fuse(scans: list[Scan], poses: list[np.ndarray], surfaces: list[Surface] | None = None,

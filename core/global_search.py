@@ -21,6 +21,7 @@ With candidates off (``CandidateConfig.enabled=False``) only the guess is a cand
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -126,9 +127,9 @@ def sampled(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
 
 
 def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig, seed: int,
-            method: str) -> list[np.ndarray] | str:
+            method: str, ahead: Future | None = None) -> list[np.ndarray] | str:
     """Feature-matching hypotheses of ``method`` ("fpfh-ransac" or "kiss-matcher") within the guess's
-    uncertainty (a string: why there are none)."""
+    uncertainty (a string: why there are none); ``ahead``: KISS-Matcher's, already started (:func:`kiss_ahead`)."""
     r_unc, t_unc = np.radians(pc.rotation_uncertainty_deg), pc.translation_uncertainty_for(target.size)
     spacing = pair_spacing(source, target)
     if method == "fpfh-ransac":
@@ -136,8 +137,21 @@ def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
     elif not kiss_available():
         return "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)"
     else:
-        Ts = kiss_candidates(source, target, spacing, max(cc.fpfh_voxels))
+        Ts = ahead.result() if ahead is not None else kiss_candidates(source, target, spacing, max(cc.fpfh_voxels))
     return _kept(Ts, T_init, source.centroid, r_unc, t_unc, target.size)
+
+
+def kiss_ahead(source: Scan, target: Scan, pc: ProblemConfig, cc: CandidateConfig) -> Future | None:
+    """KISS-Matcher's hypotheses, started on a thread of their own when the first stage scores them (a
+    guess stated wider than GUESS_FIRST_DEG); else None. It runs in C++ without holding the GIL, so it
+    overlaps the cut, the noise floor and the basis, which are Python and numpy on one core (the same
+    inputs, so the same hypotheses)."""
+    if not (cc.enabled and cc.kiss_matcher and pc.rotation_uncertainty_deg > GUESS_FIRST_DEG and kiss_available()):
+        return None
+    pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
+    future = pool.submit(kiss_candidates, source, target, pair_spacing(source, target), max(cc.fpfh_voxels))
+    pool.shutdown(wait=False)
+    return future
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, icp_config,
@@ -166,6 +180,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
+    ahead = kiss_ahead(source, target, pc, cc)
     problem = prepare(source, target, T_init, pc, seed=config.seed)
     T_init, surface = problem.T_init, problem.surface
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
@@ -192,7 +207,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         # Stages, cheapest first; the first refined pose the pair threshold trusts ends the search (it
         # said "trust" only where the pose was right in every sweep run). A stage is a list of poses,
         # scored in one query; the best few are refined by ICP one by one.
-        for name, make, n_refine in _stages(source, target, T_init, pc, cc, basis, config.seed):
+        for name, make, n_refine in _stages(source, target, T_init, pc, cc, basis, config.seed, ahead):
             found = make()
             if frame is not None and not isinstance(found, str):
                 found = [frame.pose(frame.free(T)) for T in found]
@@ -244,7 +259,7 @@ def _distinct(poses: list[np.ndarray], order: list[int], center: np.ndarray, tra
 
 
 def _stages(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, cc: CandidateConfig, basis: Basis,
-            seed: int):
+            seed: int, ahead: Future | None = None):
     """(name, make poses or say why none, how many to refine) per stage, cheapest first.
 
     A guess stated within GUESS_FIRST_DEG: the guess alone, then the rotation samples, then
@@ -255,7 +270,7 @@ def _stages(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
     samples = ("rotation samples", lambda: _shifted(basis, sampled(source, target, T_init, pc, cc)), cc.refine)
     if pc.rotation_uncertainty_deg > GUESS_FIRST_DEG and kiss:
         def guess_and_kiss():
-            found = matched(source, target, T_init, pc, cc, seed, "kiss-matcher")
+            found = matched(source, target, T_init, pc, cc, seed, "kiss-matcher", ahead)
             return [T_init] + ([] if isinstance(found, str) else found)
 
         yield "guess, kiss-matcher", guess_and_kiss, 2

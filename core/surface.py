@@ -23,11 +23,13 @@ SPACING_NEIGHBOURS = 4
 PARALLEL_QUERY = 20_000  # k-d tree queries of more points than this run on every core
 
 
-def local_spacing(points: np.ndarray) -> np.ndarray:
-    """(N,) mean distance from each point to its ``SPACING_NEIGHBOURS`` nearest neighbours."""
+def local_spacing(points: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
+    """(N,) mean distance from each point to its ``SPACING_NEIGHBOURS`` nearest neighbours (``tree``: a
+    k-d tree of ``points`` already built)."""
     k = min(SPACING_NEIGHBOURS + 1, len(points))
+    tree = cKDTree(points) if tree is None else tree
     # the same answer on every core; below ~20k points starting the threads costs more than they save
-    d, _ = cKDTree(points).query(points, k=k, workers=-1 if len(points) > PARALLEL_QUERY else 1)
+    d, _ = tree.query(points, k=k, workers=-1 if len(points) > PARALLEL_QUERY else 1)
     return d[:, 1:].mean(axis=1)
 
 
@@ -92,7 +94,7 @@ def triangulate(scan: Scan, axis: np.ndarray | None = None) -> np.ndarray:
             raise InputError(f"{scan.name}: the points are too thin to triangulate as seen from the viewpoint "
                              f"{np.round(scan.viewpoint, 4).tolist()} (seen edge-on?)") from None
     if len(faces):
-        spacing = local_spacing(pts)
+        spacing = local_spacing(pts, scan.tree)  # the scan's own tree (built once, for its spacing too)
         faces = faces[np.all(edge_lengths(pts, faces) <= edge_bound(spacing, faces), axis=1)]
     if len(faces) == 0:
         raise InputError(f"{scan.name}: no surface could be built (every triangle bridged a gap)")

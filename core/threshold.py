@@ -51,11 +51,16 @@ def threshold_for(problem: Problem, config: Config) -> float:
 #   the lowest), >= 0.74 on the bowl; wrong minima match <= 0.19 of the sample on the bunny except one of
 #   0.31 on bun090->bun045 (its median is 9.8 x the floor: the median test rejects it).
 # - FACTOR: at the truth the matched median is 2.4-5.8 x the floor on the bunny (a range bias between
-#   views that one scan's own noise does not show), 0.9 x on the bowl; the nearest wrong minimum that
-#   passes the overlap test lies at 8.6 x (bowl, 12 deg off: it slides over itself) and 10.2 x
-#   (bun090->bun045). FACTOR is the geometric mean of 5.8 and 8.6; fitted with one case left out it
-#   ranges 5.5-7.7, and 5.5 (bun315->bun045 left out) would not trust that pair's truth (5.8 x).
-#   (Re-measured with the windowed noise floor, core.noise; before it: 2.3-5.7, 9.8, 5.4-7.5.)
+#   views that one scan's own noise does not show), 0.9 x on the bowl. With 20 starts a case the nearest
+#   wrong minimum that passed the overlap test lay at 8.6 x (bowl, 12 deg off: it slides over itself)
+#   and 10.2 x (bun090->bun045); FACTOR is the geometric mean of 5.8 and 8.6, and fitted with one case
+#   left out it ranged 5.5-7.7. KNOWN TO FAIL ON THE BOWL: with 40 starts a case the bowl has a wrong
+#   minimum at 5.7 x (29 deg, 51 mm off; the Horn-step refinement finds one at 5.8 x, 32 deg off), below
+#   FACTOR, while no bunny wrong minimum passes the overlap test. The median ratio alone cannot tell the
+#   bunny's biased truths (up to 5.8 x) from the bowl's sliding twins (from 5.7 x): a bowl refinement
+#   that ends in that valley within REGION x the stated uncertainty is trusted. Kept at 7 for the real
+#   scans (the sweep's "trust" was right in every run); a statistic that separates both is open work.
+#   (benchmarks/threshold_evidence.py --starts 40 prints all of it.)
 # A pose that fails is not called wrong; it is not promised right. On unseen real scans whose bias is
 # larger, the test says "do not trust" more often, and the pipeline then runs the hybrid.
 FACTOR = 7.0  # see the notes above and benchmarks/threshold_evidence.py

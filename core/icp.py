@@ -8,6 +8,10 @@ Point-to-point ICP creeps along shallow valleys (planes sliding past each other)
 McKay's accelerated ICP (paper ref. [5], section IV) does, when the last steps point the same
 way we also try the step taken 2, 4, 8... times over and keep the longest that lowers E.
 
+Beyond the paper, ``IcpConfig(metric="plane")`` (the global pipeline's refinement) takes Gauss-Newton
+steps on the distances along the closest triangles' normals (Chen and Medioni's point-to-plane ICP)
+with the same robust weights, on the same E: a few iterations where Horn's steps take dozens.
+
 Optionally ICP is kept inside a region of poses (``inside``): the hybrid searches only where the
 initial guess allows (paper section 2.1), so an ICP step that would leave it ends the leg there,
 a local minimum on the region's wall, and annealing takes over from a pose it may search around.

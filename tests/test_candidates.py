@@ -117,3 +117,23 @@ def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
     steps = [e.iteration for e in events if not e.local_minimum]
     assert steps == list(range(1, len(steps) + 1))
     assert all(e.phase_iteration >= 1 and e.leg >= 1 for e in events)
+
+
+def test_kiss_matcher_started_ahead_gives_the_hypotheses_it_gives_in_line(bunny):
+    from core.candidates import kiss_available, kiss_candidates, pair_spacing
+    from core.global_search import kiss_ahead
+
+    if not kiss_available():
+        pytest.skip("kiss-matcher is not installed (an optional extra)")
+    source, target = bunny("bun045"), bunny("bun000")
+    cc = CandidateConfig()
+    assert kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=30.0), cc) is None  # the guess first
+    assert kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=90.0), CandidateConfig(enabled=False)) is None
+    ahead = kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=90.0), cc)
+    inline = kiss_candidates(source, target, pair_spacing(source, target), max(cc.fpfh_voxels))
+    got = ahead.result(timeout=60)
+    assert len(got) == len(inline) == 1
+    assert np.allclose(got[0], inline[0], atol=1e-9)
+    truth = invert(target.pose) @ source.pose
+    rot, trans = pose_error(got[0], truth, source.centroid)
+    assert rot < 10 and trans < 0.01  # a hypothesis the refinement can take from there

@@ -15,8 +15,38 @@ from core.events import Event
 from core.landscape import Slice
 from core.scan import Scan
 
-MAX_PATH_POINTS = 1500  # the drawn path is thinned to this many points (the trace keeps them all)
+MAX_PATH_POINTS = 512  # the drawn path is thinned to at most this many points, plus its phase ends and minima
+# (the trace keeps them all). Each segment is a fat line of 6 triangles: in software WebGL (headless Chromium,
+# SwiftShader) a frame of the bunny SA run cost the GPU process 125-155 ms of CPU with 1500 segments, 85-90 ms
+# with 300, ~90 ms with the path hidden (load 4-6 on 2 cores); its thickness and its updates cost nothing seen
 MAX_PLOT_POINTS = 2000
+
+
+def thin(n: int, most: int, keep: np.ndarray | None = None) -> np.ndarray:
+    """Sorted indices of at most ``most`` (+ the last) of ``n`` path points, every ``2**k``-th one, and every index
+    where ``keep`` (n,) bool is set (a phase's ends, local minima).
+
+    The stride is a power of two that doubles as the path grows, so the points kept stay the same from one push
+    to the next (a live path does not shimmer), and the first and the last point are always kept.
+    """
+    if n <= 0:
+        return np.zeros(0, int)
+    stride = 1 << max(0, int(np.ceil(np.log2(n / most)))) if n > most else 1
+    idx = np.r_[np.arange(0, n, stride), n - 1]
+    if keep is not None and keep.any():
+        idx = np.r_[idx, np.flatnonzero(keep)]
+    return np.unique(idx)
+
+
+def phase_ends(phase: np.ndarray) -> np.ndarray:
+    """(K,) bool: the first and last point of each run of one phase in ``phase`` (K,), so a thinned path keeps
+    every leg, however short, in its own colour."""
+    change = np.zeros(len(phase), bool)
+    if len(phase) > 1:
+        d = phase[1:] != phase[:-1]
+        change[1:] |= d
+        change[:-1] |= d
+    return change
 
 
 class Display:
@@ -98,29 +128,33 @@ class Trail:
         return self.pos[self.minimum] if self.minimum.any() else np.zeros((0, 3), np.float32)
 
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
-        """Line segments (S, 2, 3) and colours (S, 2, 3) for the path, thinned to MAX_PATH_POINTS."""
+        """Line segments (S, 2, 3) and colours (S, 2, 3) for the path, thinned (:func:`thin`, MAX_PATH_POINTS)."""
         pos = self.pos
         if len(pos) < 2:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
-        keep = np.unique(np.r_[np.linspace(0, len(pos) - 1, min(len(pos), MAX_PATH_POINTS)).astype(int), len(pos) - 1])
+        keep = thin(len(pos), MAX_PATH_POINTS, phase_ends(self.phase) | self.minimum)
         seg = np.stack([pos[keep][:-1], pos[keep][1:]], axis=1)
         rgb = PHASE_TABLE[self.phase[keep][1:]]  # each segment in the phase of its end
         return seg, np.repeat(rgb[:, None, :], 2, axis=1)
 
     def plot(self, E0: float) -> tuple[np.ndarray, ...]:
-        """(iteration, then E during each phase of PHASE_NAMES: ICP, SA, candidates) for the uPlot chart; the
-        other phases are NaN (a gap).
+        """(iteration, then log10 E during each phase of PHASE_NAMES: ICP, SA, candidates) for the uPlot chart;
+        the other phases are NaN (a gap).
 
-        Every series starts at iteration 0 with E at the initial pose (``E0``), the start all share; a
-        series of NaN only would leave the chart blank.
+        log10 E on a linear axis, not E on uPlot's log axis: that one put a tick on every 1-9 of each decade and
+        printed values below 0.01 as '0', a column of overlapping labels; a linear axis spaces its ticks (a
+        zero E, which has no log, is drawn at the smallest positive one). Every series starts at iteration 0
+        with E at the initial pose (``E0``), the start all share; a series of NaN only would leave the chart blank.
         """
         keep = np.unique(np.linspace(0, self.n - 1, min(self.n, MAX_PLOT_POINTS)).astype(int)) if self.n else []
         it = np.r_[0.0, self.iteration[keep]]
         # an ICP "local minimum" mark repeats the last iteration: nudge it so x stays increasing
         it = np.maximum.accumulate(it + np.arange(len(it)) * 1e-6)
-        err = np.r_[E0, self.error[keep]]
+        err = np.r_[E0, self.error[keep]].astype(float)
+        positive = err[err > 0]
+        log_err = np.log10(np.maximum(err, positive.min() if len(positive) else 1.0))
         phase = np.r_[-1, self.phase[keep]]  # -1: the shared start
-        return it, *(np.where((phase == c) | (phase == -1), err, np.nan) for c in range(len(PHASE_NAMES)))
+        return it, *(np.where((phase == c) | (phase == -1), log_err, np.nan) for c in range(len(PHASE_NAMES)))
 
 
 def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None, current: np.ndarray | None,

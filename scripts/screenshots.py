@@ -1,11 +1,14 @@
-"""The README's pictures of the workbench, taken in headless Chromium: docs/landscape.png.
+"""The README's pictures of the workbench, taken in headless Chromium: docs/landscape.png, docs/residuals.png.
 
     python scripts/screenshots.py [BUNNY_DIR]
 
 Serves bun045 -> bun000 (the Stanford bunny, metres) with the workbench in this process, starts from
 60 degrees off the files' pose about the vertical, computes the tx-ry slice around that start, shows it
 as the 3-D terrain, runs the hybrid, hides the frustums, then points the camera at the terrain and waits
-until the page's camera says it is there before taking the picture. The camera's position is set before
+until the page's camera says it is there before taking the picture. Then it hides the terrain, ticks
+"Colour by residual" on the Model tab (the source coloured by its distance to the target at the
+hybrid's pose, the histogram with the cap), hides the gizmo and points the camera back at the scans
+for the second picture. The camera's position is set before
 its look-at point: viser moves the look-at point along with a new position (keeping the orientation),
 which is why a camera set the other way round never looked at the terrain.
 """
@@ -54,6 +57,12 @@ def turned(T: np.ndarray, degrees: float, about: np.ndarray) -> np.ndarray:
     return D @ T
 
 
+def scans_camera(st) -> np.ndarray:
+    """Where the page's camera opens (app/tab/scene3d.draw_pair): behind the target's sensor, looking at the scans."""
+    eye = st.display.points(st.target.viewpoint).astype(np.float64)
+    return 1.5 * eye / max(np.linalg.norm(eye), 1e-9) + np.array([0.0, 0.3, 0.0])
+
+
 def main() -> None:
     from playwright.sync_api import sync_playwright
 
@@ -100,6 +109,22 @@ def main() -> None:
                      and np.allclose(camera.look_at, LOOK_AT, atol=1e-3), 30, "the camera")
             time.sleep(3.0)
             out = ROOT / "docs" / "landscape.png"
+            page.screenshot(path=str(out))
+            print(f"wrote {out}")
+            tab.landscape.h.terrain.value = False
+            tab.landscape.update_terrain()
+            page.get_by_role("tab", name="Model", exact=True).click()
+            page.get_by_label("Colour by residual", exact=True).check()
+            wait_for(lambda: tab.model.residuals.plot is not None and st.residual_rgb is not None, 120, "the residuals")
+            page.mouse.move(5, 5)  # off the checkbox: its hint would cover the panel
+            tab.nodes.gizmo.visible = False  # the picture is about the colours
+            scans_at = tuple(float(x) for x in scans_camera(st))
+            camera.position = scans_at
+            camera.look_at = (0.0, 0.0, 0.0)
+            wait_for(lambda: np.allclose(camera.position, scans_at, atol=1e-3)
+                     and np.allclose(camera.look_at, (0.0, 0.0, 0.0), atol=1e-3), 30, "the camera")
+            time.sleep(3.0)
+            out = ROOT / "docs" / "residuals.png"
             page.screenshot(path=str(out))
             print(f"wrote {out}")
             browser.close()

@@ -55,3 +55,28 @@ def test_serve_refuses_a_trace_of_other_scans_before_it_listens(tmp_path):
     path.write_text(json.dumps(Event("icp", 1, 1, 1, far, 1e-3).to_json()) + "\n")
     with pytest.raises(InputError, match="does not fit these scans"):
         Workbench(ServeOptions(trace=str(path), port=1))
+
+
+def test_a_loaded_traces_path_on_the_slice_starts_at_its_own_guess_not_the_pages():
+    # the trace was run from another guess than the page's: its path (contour, terrain, recording) starts there
+    from app.tab.landscape import picture
+    from app.tab.state import SliceView, TabState
+    from core.config import Config
+    from core.events import TraceHeader
+    from core.landscape import Slice, project
+
+    problem, source, target = corner_problem()
+    T_page = relative_guess(source, target)
+    T_trace = from_params(np.array([4.0, -2.0, 1.0, 0.0, 0.1, 0.0])) @ T_page  # the trace's own guess
+    events = [Event("icp", 1, 1, 1, T_page, float(problem.error(T_page)))]
+    a, b = np.linspace(-10.0, 10.0, 3), np.linspace(-20.0, 20.0, 3)
+    st = TabState(source=source, target=target, T_init=T_page, T=T_page, problem=problem)
+    st.slice = SliceView(Slice(("tx", "ry"), a, b, np.ones((3, 3)), T_page), problem, 1)
+    st.events = events
+    st.run_header = TraceHeader.of(source, target, T_trace, Config())  # as ReplayPanel.load_trace sets it
+    assert st.run_start is st.run_header.T_init
+    _, xy, _, _, _ = picture(st)
+    want = project(problem, T_page, ("tx", "ry"), [T_trace, T_page])
+    assert np.allclose(xy, want) and not np.allclose(xy[0], xy[1])
+    st.run_header = None  # a page run without a header starts at the page's guess
+    assert picture(st)[1][0] == pytest.approx(project(problem, T_page, ("tx", "ry"), [T_page])[0])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.views import MAX_PATH_POINTS, PHASE_RGB, Display, Trail, slice_figure
+from app.views import MAX_PATH_POINTS, PHASE_RGB, Display, Trail, slice_figure, thin
 from core.events import Event
 from core.io import load_scan
 from core.landscape import Slice
@@ -66,12 +66,49 @@ def test_a_long_path_is_thinned_but_keeps_its_last_point(display):
     assert len(seg) < MAX_PATH_POINTS and np.allclose(seg[-1, 1], trail.pos[-1])
 
 
+def test_a_short_leg_and_a_minimum_inside_a_long_thinned_path_keep_their_colour(display):
+    # a 3-event ICP leg ending in a minimum between thousands of SA moves: thinning drops neither
+    phases = ["sa"] * (4 * MAX_PATH_POINTS) + ["icp"] * 3 + ["sa"] * (4 * MAX_PATH_POINTS)
+    k = 4 * MAX_PATH_POINTS + 2
+    trail = Trail(display, events(phases, minima={k}))
+    trail.update()
+    seg, rgb = trail.segments()
+    assert len(seg) <= MAX_PATH_POINTS + 8
+    icp = np.all(rgb[:, 0] == PHASE_RGB["icp"], axis=1)
+    assert icp.sum() >= 2 and any(np.allclose(s, trail.pos[k]) for s in seg[:, 1])
+
+
+def test_the_thinned_path_keeps_the_same_points_as_it_grows():
+    # a live path must not shimmer: between two pushes the kept points only gain the new end, until the stride
+    # doubles (then every other one goes)
+    most = 64
+    for n in range(most + 1, 8 * most):
+        a, b = set(thin(n, most)) - {n - 1}, set(thin(n + 1, most))
+        if len(b) >= len(a):
+            assert a <= b, n
+        assert len(b) <= most + 1 and {0, n} <= b
+
+
 def test_the_chart_starts_both_series_at_the_initial_error(display):
     trail = Trail(display, events(["icp"] * 2 + ["sa"] * 2))
     trail.update()
     it, icp, sa, candidates = trail.plot(E0=7.0)
-    assert icp[0] == sa[0] == candidates[0] == 7.0 and np.all(np.diff(it) > 0)
+    assert icp[0] == sa[0] == candidates[0] == np.log10(7.0) and np.all(np.diff(it) > 0)
     assert np.isnan(icp[3:]).all() and np.isnan(sa[1:3]).all() and np.isnan(candidates[1:]).all()
+
+
+def test_the_chart_draws_log10_E_on_a_linear_axis_so_its_ticks_are_spaced(display):
+    # uPlot's log axis (distr 3) stacked a tick on every 1-9 of each decade and printed E < 0.01 as '0': a column
+    # of overlapping labels. The chart draws log10 E on a linear axis, whose ticks uPlot spaces by `space` pixels
+    from app.tab.run import CHART_AXES, CHART_SCALES, CHART_TITLE
+
+    assert CHART_SCALES["y"].get("distr", 1) == 1 and CHART_AXES[1]["space"] >= 20 and "log10 E" in CHART_TITLE
+    errors = [3e-3, 2e-5, 4e-9, 0.0]  # spans six decades, and a zero (no log: drawn at the smallest positive E)
+    evs = [Event("sa", k + 1, k + 1, 1, np.eye(4), e, 0.5, True, False) for k, e in enumerate(errors)]
+    trail = Trail(display, evs)
+    trail.update()
+    _, _, sa, _ = trail.plot(E0=1e-2)
+    assert np.allclose(sa, np.log10([1e-2, 3e-3, 2e-5, 4e-9, 4e-9]))
 
 
 def a_slice() -> Slice:

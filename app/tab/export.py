@@ -101,7 +101,7 @@ class ExportPanel:
         with st.lock:
             if not st.events:
                 raise InputError("no run yet: nothing to record")
-            run = RunToRecord(st.source, st.target, st.display, st.frusta[kind], st.T_init, list(st.events),
+            run = RunToRecord(st.source, st.target, st.display, st.frusta[kind], st.run_start, list(st.events),
                               st.slice, st.target.units)
         self.h.recording.disabled = True
 

@@ -86,7 +86,7 @@ def picture(st: TabState, path: PathOnSlice | None = None, most: int | None = No
     view = st.slice
     sl, problem = view.slice, view.problem
     if path is None:
-        path = PathOnSlice(problem, sl, st.T_init, st.events)
+        path = PathOnSlice(problem, sl, st.run_start, st.events)
         path.update()
     xy = phases = None
     if path.n:
@@ -167,10 +167,10 @@ class LandscapePanel:
             if self.state.slice_cancel is not None:
                 self.state.slice_cancel.set()
 
-    def _path(self, view: SliceView, events: list, T_init: np.ndarray) -> PathOnSlice:
+    def _path(self, view: SliceView, events: list, start: np.ndarray) -> PathOnSlice:
         """The events projected on the slice, brought up to date (under terrain_lock)."""
-        if self.path is None or not self.path.follows(view.problem, view.slice, T_init, events):
-            self.path = PathOnSlice(view.problem, view.slice, T_init, events)
+        if self.path is None or not self.path.follows(view.problem, view.slice, start, events):
+            self.path = PathOnSlice(view.problem, view.slice, start, events)
         self.path.update()
         return self.path
 
@@ -181,12 +181,12 @@ class LandscapePanel:
         with st.lock:
             if st.slice is None:
                 return
-            view, events, T_init, units = st.slice, st.events, st.T_init, st.target.units
+            view, events, start, units = st.slice, st.events, st.run_start, st.target.units
         self.drawn_at = time.monotonic()
         if terrain:
             self.update_terrain()
         with self.terrain_lock:
-            path = self._path(view, events, T_init)
+            path = self._path(view, events, start)
             with st.lock:
                 if st.slice is not view:
                     return
@@ -224,18 +224,18 @@ class LandscapePanel:
     def _update_terrain(self) -> None:
         st, tab = self.state, self.tab
         with st.lock:
-            view, events, T_init, T, units = st.slice, st.events, st.T_init, st.T, st.target.units if st.target else ""
+            view, events, start, T, units = st.slice, st.events, st.run_start, st.T, st.target.units if st.target else ""
         if not self.h.terrain.value or view is None or tab.nodes is None:
             if self.terrain is not None:
                 self.terrain.remove()
                 self.terrain = None
             return
-        path = self._path(view, events, T_init)  # outside atomic(): a long run's first projection takes a while
+        path = self._path(view, events, start)  # outside atomic(): a long run's first projection takes a while
         with tab.client.atomic():
             if self.terrain is None or self.terrain.view is not view:
                 if self.terrain is not None:
                     self.terrain.remove()
-                self.terrain = Terrain(tab.client.scene, view, units, T_init, events, path=path)
+                self.terrain = Terrain(tab.client.scene, view, units, start, events, path=path)
             elif self.terrain.path is not path:
                 self.terrain.path, self.terrain.drawn = path, -1
             self.terrain.update(T)

@@ -60,6 +60,13 @@ def _series(label: str, phase: str, size: int) -> uplot.Series:
     return uplot.Series(label=label, stroke=c, width=0, points=uplot.Series_Points(show=True, size=size, fill=c, stroke=c))
 
 
+# E spans decades: the chart draws log10 E (Trail.plot) on linear axes, whose ticks uPlot spaces itself (its own
+# log axis, distr 3, stacked a tick on every 1-9 of each decade and printed E below 0.01 as '0')
+CHART_SCALES = {"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)}
+CHART_AXES = (uplot.Axis(), uplot.Axis(size=50, space=28))
+CHART_TITLE = "log10 E against iteration"
+
+
 def build(gui: viser.GuiApi) -> RunHandles:
     run = {label: gui.add_button(label) for label in RUN_BUTTONS}
     step = gui.add_button("Step", hint="one ICP iteration or one annealing move, then pause")
@@ -74,10 +81,9 @@ def build(gui: viser.GuiApi) -> RunHandles:
     plot = gui.add_uplot(
         data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES)),
         # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
-        series=(uplot.Series(label="iteration"), *(_series(f"E ({PHASE_LABEL[p]})", p, 5 if p == "icp" else 3)
+        series=(uplot.Series(label="iteration"), *(_series(PHASE_LABEL[p], p, 5 if p == "icp" else 3)
                                                    for p in PHASE_NAMES)),
-        scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(distr=3)},
-        axes=(uplot.Axis(), uplot.Axis(size=70)), title="E against iteration", aspect=1.6)
+        scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=1.6)
     with gui.add_folder("Settings", expand_by_default=False):
         settings = SettingsHandles(
             threshold=gui.add_text("Threshold", "auto", hint="stop below this E; auto: from the scans' noise; "

@@ -80,6 +80,13 @@ class TabState:
     _handed: deque = field(default_factory=deque)
 
     @property
+    def run_start(self) -> np.ndarray:
+        """The pose the events on show started from: their header's T_init (a loaded trace's own guess, which
+        need not be this page's), else T_init. Paths on the slice and in a recording start here."""
+        start = getattr(self.run_header, "T_init", None)
+        return self.T_init if start is None else start
+
+    @property
     def running(self) -> bool:
         return self.run is not None and self.run.running
 

@@ -15,13 +15,15 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from app.figures import MINIMUM_RGB, PHASE_TABLE, axis_label, phase_code
+from app.views import phase_ends, thin
 from core.landscape import Slice, project
 
 TERRAIN_AT = (1.4, -0.4, 0.0)  # page units: right of the scans (the page scales the target to size 1)
 TERRAIN_SIZE = 1.0  # width and depth of the box; its height is HEIGHT
 HEIGHT = 0.5
 LIFT = 0.01  # the path floats this far above the surface, so the surface never hides it
-MAX_TERRAIN_PATH = 1500  # segments drawn at most (the projection keeps every event)
+MAX_TERRAIN_PATH = 512  # points drawn at most, plus phase ends and minima (the projection keeps every event; see
+# app/views.MAX_PATH_POINTS for what a segment costs a software-rendered page)
 
 
 def heights(sl: Slice) -> np.ndarray:
@@ -110,9 +112,9 @@ class PathOnSlice:
         return n
 
     def thinned(self, most: int) -> np.ndarray:
-        """Indices of at most ``most`` (+1) evenly spread points, the first and the last always among them."""
-        k = len(self.xy)
-        return np.unique(np.r_[np.linspace(0, k - 1, min(k, most)).astype(int), k - 1])
+        """Indices of at most ``most`` (+1) points, each phase's ends and the minima always among them
+        (:func:`app.views.thin`: the kept points stay put as the path grows)."""
+        return thin(len(self.xy), most, phase_ends(self.phase) | self.minimum)
 
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
         """(S, 2, 3) float32 segments on the terrain and (S, 2, 3) uint8 colours, thinned to MAX_TERRAIN_PATH."""

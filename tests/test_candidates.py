@@ -127,7 +127,7 @@ def test_kiss_matcher_started_ahead_gives_the_hypotheses_it_gives_in_line(bunny)
         pytest.skip("kiss-matcher is not installed (an optional extra)")
     source, target = bunny("bun045"), bunny("bun000")
     cc = CandidateConfig()
-    assert kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=30.0), cc) is None  # the guess first
+    assert kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=15.0), cc) is None  # the guess first
     assert kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=90.0), CandidateConfig(enabled=False)) is None
     ahead = kiss_ahead(source, target, ProblemConfig(rotation_uncertainty_deg=90.0), cc)
     inline = kiss_candidates(source, target, pair_spacing(source, target), max(cc.fpfh_voxels))

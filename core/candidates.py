@@ -17,6 +17,8 @@ candidate must overlap the other scan by at least ``min_overlap`` both ways.
 
 from __future__ import annotations
 
+import os
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -245,11 +247,46 @@ def kiss_available() -> bool:
     return True
 
 
+_serial_lock = threading.Lock()
+_serial_done = False
+
+
+def _kiss_serial() -> None:
+    """Make KISS-Matcher run on one thread, so that the same clouds give the same hypothesis.
+
+    Its parallel feature matching does not: on bun045->bun000 ten runs gave hypotheses up to 0.12 deg
+    and 0.2 mm apart (upstream: MIT-SPARK/KISS-Matcher issue 89, open), and a global run refined from
+    them ended up to 0.08 deg apart. Run serially, every run gave the same bits on four bunny pairs,
+    in 0.14-0.25 s (0.14-0.17 in parallel; it overlaps our Python work on the other core anyway). Its
+    bundled TBB reads its thread count once, from the main thread's CPU mask, when first used: so the
+    first use is a tiny estimate with that mask narrowed to one CPU for its ~10 ms, then restored.
+    Where the mask cannot be set (not Linux) KISS-Matcher keeps its threads and its spread."""
+    global _serial_done
+    with _serial_lock:
+        if _serial_done:
+            return
+        _serial_done = True
+        if not hasattr(os, "sched_setaffinity"):
+            return
+        import kiss_matcher
+
+        pid = os.getpid()  # the main thread's mask (Linux keeps one per thread)
+        mask = os.sched_getaffinity(pid)
+        os.sched_setaffinity(pid, {max(mask)})
+        try:
+            pts = np.random.default_rng(0).random((200, 3)).astype(np.float32)
+            kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL)).estimate(pts, pts)
+        finally:
+            os.sched_setaffinity(pid, mask)
+
+
 def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) -> list[np.ndarray]:
     """KISS-Matcher's one hypothesis (voxel size in units), or none when it is not installed."""
     if not kiss_available():
         return []
     import kiss_matcher
+
+    _kiss_serial()
 
     # KISS-Matcher refuses small voxels (it is made for outdoor scans in metres): run it in units
     # where the voxel is its default 0.3, and scale the translation back.

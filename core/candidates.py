@@ -17,8 +17,6 @@ candidate must overlap the other scan by at least ``min_overlap`` both ways.
 
 from __future__ import annotations
 
-import os
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +35,6 @@ from .transforms import apply, invert
 # off below the truth (they cover more of the bowl), 9 x the floor leaves the bunny's truth half capped
 # (a range bias between views). 0.7 spacing is ~50-65 x the floor on the bunny and the bowl.
 CAP_SPACINGS = 0.7
-KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size
 SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
 SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
@@ -237,75 +234,3 @@ def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[fl
                 reg.RANSACConvergenceCriteria(100000, 0.999))
             out.append(np.asarray(res.transformation).copy())
     return out
-
-
-def kiss_available() -> bool:
-    try:
-        import kiss_matcher  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-_serial_lock = threading.Lock()
-_serial_done = False
-
-
-def _kiss_serial() -> None:
-    """Make KISS-Matcher run on one thread, so that the same clouds give the same hypothesis.
-
-    Its parallel feature matching does not: on bun045->bun000 ten runs gave hypotheses up to 0.12 deg
-    and 0.2 mm apart (upstream: MIT-SPARK/KISS-Matcher issue 89, open), and a global run refined from
-    them ended up to 0.08 deg apart. Run serially, every run gave the same bits on four bunny pairs,
-    in 0.14-0.25 s (0.14-0.17 in parallel; it overlaps our Python work on the other core anyway). Its
-    bundled TBB reads its thread count once, from the main thread's CPU mask, when first used: so the
-    first use is a tiny estimate with that mask narrowed to one CPU for its ~10 ms, then restored.
-    Where the mask cannot be set (not Linux) KISS-Matcher keeps its threads and its spread."""
-    global _serial_done
-    with _serial_lock:
-        if _serial_done:
-            return
-        _serial_done = True
-        if not hasattr(os, "sched_setaffinity"):
-            return
-        import kiss_matcher
-
-        pid = os.getpid()  # the main thread's mask (Linux keeps one per thread)
-        mask = os.sched_getaffinity(pid)
-        os.sched_setaffinity(pid, {max(mask)})
-        try:
-            pts = np.random.default_rng(0).random((200, 3)).astype(np.float32)
-            kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL)).estimate(pts, pts)
-        finally:
-            os.sched_setaffinity(pid, mask)
-
-
-def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) -> list[np.ndarray]:
-    """KISS-Matcher's one hypothesis (voxel size in units), or none when it is not installed."""
-    if not kiss_available():
-        return []
-    import kiss_matcher
-
-    _kiss_serial()
-
-    # KISS-Matcher refuses small voxels (it is made for outdoor scans in metres): run it in units
-    # where the voxel is its default 0.3, and scale the translation back.
-    import open3d as o3d
-
-    k = KISS_VOXEL / (voxel * spacing)
-
-    def cloud(scan: Scan) -> np.ndarray:
-        # Open3D's voxel grid first: KISS-Matcher then builds its features on ~1/10 of the points (its own
-        # grid of the same size finds the same cells). Measured on three bunny pairs from 180 deg: 0.17-0.27 s
-        # of CPU instead of 0.33-0.44 s, hypotheses 0.7-4.1 deg off instead of 0.8-5.2.
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points * k)).voxel_down_sample(KISS_VOXEL)
-        return np.asarray(pcd.points, dtype=np.float32)
-
-    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL))
-    sol = matcher.estimate(cloud(source), cloud(target))
-    if not sol.valid:
-        return []
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(sol.rotation)
-    T[:3, 3] = np.asarray(sol.translation).ravel() / k
-    return [T]

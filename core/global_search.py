@@ -30,8 +30,6 @@ from .candidates import (
     Basis,
     CandidateConfig,
     fpfh_candidates,
-    kiss_available,
-    kiss_candidates,
     make_basis,
     pair_spacing,
     rotation_candidates,
@@ -41,8 +39,9 @@ from .candidates import (
 from .config import Config
 from .events import Cancelled, Event, Listener
 from .icp import icp
+from .kiss import kiss_available, kiss_candidates
 from .lock import LockFrame
-from .noise import noise_floor
+from .noise import noise_floors
 from .problem import Problem, ProblemConfig, prepare
 from .result import Result, Stop, StopReason
 from .scan import Scan
@@ -146,9 +145,9 @@ def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
 
 def kiss_ahead(source: Scan, target: Scan, pc: ProblemConfig, cc: CandidateConfig) -> Future | None:
     """KISS-Matcher's hypotheses, started on a thread of their own when the first stage scores them (a
-    guess stated wider than GUESS_FIRST_DEG); else None. It runs in C++ without holding the GIL, so it
-    overlaps the cut, the noise floor and the basis, which are Python and numpy on one core (the same
-    inputs, so the same hypotheses)."""
+    guess stated wider than GUESS_FIRST_DEG); else None. The thread makes the voxel clouds and waits on
+    core.kiss's child process, which runs on the other core while this one cuts the overlap, takes the
+    noise floor and the basis (the same inputs, so the same hypotheses)."""
     if not (cc.enabled and cc.kiss_matcher and pc.rotation_uncertainty_deg > GUESS_FIRST_DEG and kiss_available()):
         return None
     pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
@@ -190,7 +189,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.
     frame = config.lock.bind(T_init, problem.center, problem.scale) if config.lock.active else None
     rng = np.random.default_rng(config.seed)
-    floor = float(np.mean([noise_floor(s, rng, len(problem.points)) for s in (source, target)]))
+    floor = float(np.mean(noise_floors([source, target], rng, len(problem.points))))
     basis = make_basis(source, target, surface, floor, rng, cc, pc.frustum)
     threshold = pair_threshold(floor, cc.min_overlap)
     run = _Counter(listener, frame)

@@ -9,6 +9,7 @@ E of a perfect registration, in the scan's own units, with no knowledge of the s
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -37,14 +38,38 @@ WINDOW_MARGIN = 0.8  # a face is kept when its circumcircle lies within this sha
 
 def noise_floor(scan: Scan, rng: np.random.Generator, n_points: int = 500) -> float:
     """Robust E (squared units) of half of ``scan`` against a surface over the other half."""
+    return _measure(scan, *_draw(scan, rng, n_points))
+
+
+def noise_floors(scans: list[Scan], rng: np.random.Generator, n_points: int = 500) -> list[float]:
+    """:func:`noise_floor` of each scan, the same bits as one after the other from ``rng``: the draws
+    are made first, in that order, and the measures run side by side (Delaunay, the k-d trees and
+    the closest-point queries release the GIL: two bunny scans 0.10-0.13 s instead of 0.16-0.19)."""
+    draws = [_draw(scan, rng, n_points) for scan in scans]
+    if len(scans) < 2:
+        return [_measure(scan, *d) for scan, d in zip(scans, draws)]
+    with ThreadPoolExecutor(len(scans), thread_name_prefix="noise-floor") as pool:
+        return list(pool.map(lambda sd: _measure(sd[0], *sd[1]), zip(scans, draws)))
+
+
+def _draw(scan: Scan, rng: np.random.Generator, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every random choice of a floor: (the points measured on, which of them are the queries' half)
+    and the queries' indices into that half."""
     points = scan.points
     if len(points) > PATCH_POINTS:
         points = _patch(points, rng, PATCH_POINTS)
     half = rng.random(len(points)) < 0.5
-    a, b = points[half], points[~half]
-    if len(a) < 3 or len(b) < 3:
+    n_a = int(half.sum())
+    pick = rng.choice(n_a, min(n_points, n_a), replace=False) if n_a >= 3 and len(points) - n_a >= 3 else None
+    return (points, half), pick
+
+
+def _measure(scan: Scan, drawn: tuple[np.ndarray, np.ndarray], pick: np.ndarray | None) -> float:
+    points, half = drawn
+    if pick is None:
         return 0.0
-    q = a[rng.choice(len(a), min(n_points, len(a)), replace=False)]
+    a, b = points[half], points[~half]
+    q = a[pick]
     axis = b.mean(0) - scan.viewpoint  # the whole half's viewing direction, windowed or not
     radius = WINDOW_SPACINGS * scan.spacing
     windowed = len(b) > WINDOW_MIN_POINTS

@@ -15,7 +15,7 @@ import numpy as np
 
 from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
-from .noise import noise_floor
+from .noise import noise_floors
 from .problem import Problem
 
 
@@ -23,7 +23,7 @@ def estimate_threshold(problem: Problem, seed: int = 0, config: ThresholdConfig 
     """E expected at perfect registration (squared units): ``config.factor`` x the noise floor of
     two noisy samplings of one surface (see core.noise), drawn with ``seed``."""
     rng = np.random.default_rng(seed)
-    floors = [noise_floor(s, rng, len(problem.points)) for s in (problem.source, problem.target)]
+    floors = noise_floors([problem.source, problem.target], rng, len(problem.points))
     return config.factor * float(np.mean(floors))
 
 

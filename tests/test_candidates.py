@@ -70,7 +70,7 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     assert g.below_threshold
     # the guess, 90 degrees off, is not what was refined into the answer: a stage beyond it was scored
     assert g.iterations["candidates"] >= 2 and set(g.details["candidate_sources"]) - {"guess"}
-    # the same run again gives the same bits (KISS-Matcher's hypothesis included: core.candidates._kiss_serial)
+    # the same run again gives the same bits (KISS-Matcher's hypothesis included: core.kiss)
     again = register(source, target, T0, Config(method="global", problem=pc))
     assert np.array_equal(again.transform, g.transform) and again.error == g.error
 
@@ -123,8 +123,9 @@ def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
 
 
 def test_kiss_matcher_started_ahead_gives_the_hypotheses_it_gives_in_line(bunny):
-    from core.candidates import kiss_available, kiss_candidates, pair_spacing
+    from core.candidates import pair_spacing
     from core.global_search import kiss_ahead
+    from core.kiss import kiss_available, kiss_candidates
 
     if not kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
@@ -142,18 +143,34 @@ def test_kiss_matcher_started_ahead_gives_the_hypotheses_it_gives_in_line(bunny)
     assert rot < 10 and trans < 0.01  # a hypothesis the refinement can take from there
 
 
-def test_kiss_matcher_gives_the_same_hypothesis_every_run_and_leaves_the_cpu_mask_as_it_was(bunny):
+def test_kiss_matcher_gives_the_same_bits_every_run_in_its_own_process_or_in_this_one(bunny, monkeypatch):
     # In parallel it gave hypotheses up to 0.12 deg apart on this pair (upstream issue 89); serially, the same bits.
     import os
+    from pathlib import Path
 
-    from core.candidates import kiss_available, kiss_candidates, pair_spacing
+    from core import kiss
+    from core.candidates import pair_spacing
 
-    if not kiss_available():
+    if not kiss.kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
     source, target = bunny("bun045"), bunny("bun000")
-    mask = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     spacing = pair_spacing(source, target)
-    runs = [kiss_candidates(source, target, spacing, 5.0) for _ in range(6)]
-    assert all(len(r) == 1 and np.array_equal(r[0], runs[0][0]) for r in runs)
+    first = kiss.kiss_candidates(source, target, spacing, 5.0)
+    assert len(first) == 1
+    a, b, k = kiss.voxel_clouds(source, target, spacing, 5.0)
+    runs = [kiss._CHILD.estimate(a, b) for _ in range(4)]
+    assert all(np.array_equal(T, runs[0]) for T in runs)
+    assert np.allclose(first[0][:3, 3] * k, runs[0][:3, 3], rtol=1e-12) and np.array_equal(first[0][:3, :3], runs[0][:3, :3])
+    # the fallback in this process: the same bits, and the CPU mask it narrows for a moment is as it was
+    mask = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    assert all(np.array_equal(kiss._estimate_here(a, b), runs[0]) for _ in range(3))
     if mask is not None:
         assert os.sched_getaffinity(0) == mask
+    # a child that died is started again; one that cannot start leaves the work to this process
+    kiss._CHILD._proc.kill()
+    kiss._CHILD._proc.wait()
+    assert np.array_equal(kiss.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
+    kiss._CHILD.close()
+    monkeypatch.setattr(kiss, "CHILD", Path(kiss.CHILD.parent / "no_such_child.py"))
+    assert np.array_equal(kiss.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
+    kiss._CHILD.close()

@@ -1,0 +1,176 @@
+"""KISS-Matcher's hypothesis (Lim et al. 2025; pip ``kiss-matcher``, an optional extra), computed in a
+process of its own.
+
+Two facts about the library, measured here, shape this module:
+
+- Its Python binding holds the GIL for the whole estimate (0.15-0.25 s on a bunny pair): on a thread
+  of ours it stalls the cut, the noise floor and the basis it was meant to overlap. In a child
+  process (core/kiss_child.py, started once and kept) it runs on the other core while they run here.
+- Its parallel feature matching gives a slightly different hypothesis from run to run (ten runs on
+  bun045->bun000: up to 0.12 deg and 0.2 mm apart; upstream MIT-SPARK/KISS-Matcher issue 89, open),
+  and a global run refined from them ended up to 0.08 deg apart. On one thread every run gives the
+  same bits (four bunny pairs, ten runs each). So the child pins itself to one CPU, and the fallback
+  in this process (when the child cannot start) first makes its TBB serial (``_serial_in_process``).
+"""
+
+from __future__ import annotations
+
+import atexit
+import importlib.util
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from .kiss_child import HEAD, _read
+from .scan import Scan
+
+KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size; it refuses small ones (it is made for metres)
+CHILD = Path(__file__).with_name("kiss_child.py")
+
+
+def kiss_available() -> bool:
+    """Whether kiss-matcher is installed (without importing it)."""
+    return importlib.util.find_spec("kiss_matcher") is not None
+
+
+def voxel_clouds(source: Scan, target: Scan, spacing: float, voxel: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Both scans on Open3D's voxel grid, in units where the voxel (``voxel`` point spacings) is
+    KISS_VOXEL: (source (S, 3) float32, target (T, 3) float32, the scale k applied)."""
+    import open3d as o3d
+
+    k = KISS_VOXEL / (voxel * spacing)
+
+    def cloud(scan: Scan) -> np.ndarray:
+        # Open3D's grid first: KISS-Matcher then builds its features on ~1/10 of the points (its own grid of
+        # the same size finds the same cells). Measured on three bunny pairs from 180 deg: 0.17-0.27 s of
+        # CPU instead of 0.33-0.44 s, hypotheses 0.7-4.1 deg off instead of 0.8-5.2.
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points * k)).voxel_down_sample(KISS_VOXEL)
+        return np.ascontiguousarray(np.asarray(pcd.points), dtype=np.float32)
+
+    return cloud(source), cloud(target), k
+
+
+def start() -> None:
+    """Start KISS-Matcher's process now, when it is installed, so that its start-up (~0.15-0.3 s: an
+    interpreter, numpy, the library) overlaps other work (the CLI's imports and file reading); else
+    it starts on first use."""
+    if kiss_available():
+        with _CHILD._lock:
+            try:
+                _CHILD._started()
+            except OSError:
+                pass  # first use says it again and falls back to this process
+
+
+def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) -> list[np.ndarray]:
+    """KISS-Matcher's one hypothesis T_target_source (voxel size in point spacings), or none when it is
+    not installed or finds none."""
+    if not kiss_available():
+        return []
+    a, b, k = voxel_clouds(source, target, spacing, voxel)
+    try:
+        found = _CHILD.estimate(a, b)
+    except OSError:  # the child could not start or died: the same serial estimate here (the same bits)
+        found = _estimate_here(a, b)
+    if found is None:
+        return []
+    found[:3, 3] /= k
+    return [found]
+
+
+class _Child:
+    """The one child process of this process (started on first use, kept, ended at exit); one request
+    at a time. A process forked from this one starts a child of its own (the pipes are not shared)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._proc: subprocess.Popen | None = None
+        self._pid = 0
+
+    def estimate(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """T (4x4) for float32 clouds ``a`` (source) and ``b`` (target), or None when none is valid.
+        Raises OSError when the child cannot start or answer (it is then dropped)."""
+        with self._lock:
+            proc = self._started()
+            try:
+                proc.stdin.write(HEAD.pack(len(a), len(b), KISS_VOXEL) + a.tobytes() + b.tobytes())
+                proc.stdin.flush()
+                reply = _read(proc.stdout, 1 + 16 * 8)
+            except EOFError as exc:
+                self._drop()
+                raise OSError("KISS-Matcher's process ended") from exc
+            except (OSError, ValueError) as exc:
+                self._drop()
+                raise OSError(str(exc)) from exc
+        return np.frombuffer(reply[1:], dtype="<f8").reshape(4, 4).astype(np.float64) if reply[0] else None
+
+    def _started(self) -> subprocess.Popen:
+        if self._proc is None or self._pid != os.getpid() or self._proc.poll() is not None:
+            self._proc = subprocess.Popen([sys.executable, str(CHILD)], stdin=subprocess.PIPE,
+                                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+            self._pid = os.getpid()
+        return self._proc
+
+    def _drop(self) -> None:
+        if self._proc is not None and self._pid == os.getpid():
+            self._proc.kill()
+            self._proc.wait()
+        self._proc = None
+
+    def close(self) -> None:
+        """End the child (at exit): end of its input ends it."""
+        with self._lock:
+            if self._proc is not None and self._pid == os.getpid():
+                try:
+                    self._proc.stdin.close()
+                    self._proc.wait(timeout=2)
+                except (OSError, subprocess.TimeoutExpired):
+                    self._proc.kill()
+            self._proc = None
+
+
+_CHILD = _Child()
+atexit.register(_CHILD.close)
+
+_serial_lock = threading.Lock()
+_serial_done = False
+
+
+def _estimate_here(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    import kiss_matcher
+
+    _serial_in_process()
+    sol = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL)).estimate(a, b)
+    if not sol.valid:
+        return None
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(sol.rotation)
+    T[:3, 3] = np.asarray(sol.translation).ravel()
+    return T
+
+
+def _serial_in_process() -> None:
+    """KISS-Matcher's bundled TBB reads its thread count once, from the main thread's CPU mask, when
+    first used: so its first use here is a tiny estimate with that mask narrowed to one CPU for its
+    ~10 ms, then restored. Where the mask cannot be set (not Linux) it keeps its threads and its spread."""
+    global _serial_done
+    with _serial_lock:
+        if _serial_done:
+            return
+        _serial_done = True
+        if not hasattr(os, "sched_setaffinity"):
+            return
+        import kiss_matcher
+
+        pid = os.getpid()  # the main thread's mask (Linux keeps one per thread)
+        mask = os.sched_getaffinity(pid)
+        os.sched_setaffinity(pid, {max(mask)})
+        try:
+            pts = np.random.default_rng(0).random((200, 3)).astype(np.float32)
+            kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(KISS_VOXEL)).estimate(pts, pts)
+        finally:
+            os.sched_setaffinity(pid, mask)

@@ -1,0 +1,40 @@
+"""The noise floor (core.noise, the paper's section 2.3 "lowest expected error"): the two scans'
+floors measured side by side give the bits they give one after the other, and the floor follows
+the scanner's noise."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from core.noise import noise_floor, noise_floors
+from core.simulate import Scanner
+from tests.conftest import BUNNY, _bunny
+
+
+def test_floors_side_by_side_are_the_floors_one_after_the_other(scene):
+    pairs = [scene("corner"), scene("bowl")]
+    if BUNNY.is_dir():  # windowed: each half holds > 5,000 points (without the shared scans, the scenes alone)
+        pairs.append((_bunny("bun045"), _bunny("bun000")))
+    for a, b in pairs:
+        for seed in (0, 3):
+            rng = np.random.default_rng(seed)
+            one_by_one = [noise_floor(s, rng, 300) for s in (a, b)]
+            assert noise_floors([a, b], np.random.default_rng(seed), 300) == one_by_one
+            assert all(f > 0 for f in one_by_one)
+
+
+def test_the_floor_grows_with_the_scanners_noise():
+    from core.simulate import corner_mesh, look_at, scan_mesh
+
+    vertices, faces = corner_mesh()
+    eye = vertices.mean(0) + np.array([900.0, 700.0, 600.0])
+    floors = []
+    for noise in (0.2, 0.8, 3.2):
+        scanner = replace(Scanner(rows=80, cols=80, fov_deg=(40.0, 40.0), outliers=0.0), noise=noise)
+        scan = scan_mesh(vertices, faces, look_at(eye, vertices.mean(0)), scanner, np.random.default_rng(1))
+        floors.append(np.median([noise_floor(scan, np.random.default_rng(k), 300) for k in range(5)]))
+    assert floors[0] < floors[1] < floors[2]
+    # E is a mean squared distance: 4 x the noise gives ~16 x the floor (spacing adds a part that does not grow)
+    assert floors[2] / floors[1] > 4

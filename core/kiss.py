@@ -9,18 +9,19 @@ Two facts about the library, measured here, shape this module:
 - Its parallel feature matching gives a slightly different hypothesis from run to run (ten runs on
   bun045->bun000: up to 0.12 deg and 0.2 mm apart; upstream MIT-SPARK/KISS-Matcher issue 89, open),
   and a global run refined from them ended up to 0.08 deg apart. On one thread every run gives the
-  same bits (four bunny pairs, ten runs each). So the child pins itself to one CPU, and the fallback
-  in this process (when the child cannot start) first makes its TBB serial (``_serial_in_process``).
+  same bits (four bunny pairs, ten runs each). Its TBB takes its thread count once, from the CPU
+  mask at its first use: so the child makes that first use on one CPU, and so does the fallback in
+  this process when the child cannot start (``_serial_in_process``).
 """
 
 from __future__ import annotations
 
 import atexit
-import importlib.util
 import os
 import subprocess
 import sys
 import threading
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +33,14 @@ KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size; it refuses small ones (it
 CHILD = Path(__file__).with_name("kiss_child.py")
 
 
+@cache
 def kiss_available() -> bool:
-    """Whether kiss-matcher is installed (without importing it)."""
-    return importlib.util.find_spec("kiss_matcher") is not None
+    """Whether kiss-matcher is installed and imports (~0.1 s, once)."""
+    try:
+        import kiss_matcher  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def voxel_clouds(source: Scan, target: Scan, spacing: float, voxel: float) -> tuple[np.ndarray, np.ndarray, float]:

@@ -44,15 +44,20 @@ def noise_floor(scan: Scan, rng: np.random.Generator, n_points: int = 500) -> fl
 def noise_floors(scans: list[Scan], rng: np.random.Generator, n_points: int = 500) -> list[float]:
     """:func:`noise_floor` of each scan, the same bits as one after the other from ``rng``: the draws
     are made first, in that order, and the measures run side by side (Delaunay, the k-d trees and
-    the closest-point queries release the GIL: two bunny scans 0.10-0.13 s instead of 0.16-0.19)."""
+    the closest-point queries release the GIL: two bunny scans 0.10-0.13 s instead of 0.16-0.19),
+    unless this process may use one thread only (Open3D's thread limit, which app.distributed sets
+    per task stream)."""
+    import open3d as o3d
+
     draws = [_draw(scan, rng, n_points) for scan in scans]
-    if len(scans) < 2:
+    threads = min(len(scans), o3d.utility.get_max_threads())
+    if threads < 2:
         return [_measure(scan, *d) for scan, d in zip(scans, draws)]
-    with ThreadPoolExecutor(len(scans), thread_name_prefix="noise-floor") as pool:
+    with ThreadPoolExecutor(threads, thread_name_prefix="noise-floor") as pool:
         return list(pool.map(lambda sd: _measure(sd[0], *sd[1]), zip(scans, draws)))
 
 
-def _draw(scan: Scan, rng: np.random.Generator, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+def _draw(scan: Scan, rng: np.random.Generator, n_points: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray | None]:
     """Every random choice of a floor: (the points measured on, which of them are the queries' half)
     and the queries' indices into that half."""
     points = scan.points

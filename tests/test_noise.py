@@ -38,3 +38,23 @@ def test_the_floor_grows_with_the_scanners_noise():
     assert floors[0] < floors[1] < floors[2]
     # E is a mean squared distance: 4 x the noise gives ~16 x the floor (spacing adds a part that does not grow)
     assert floors[2] / floors[1] > 4
+
+
+def test_a_stream_held_to_one_thread_measures_the_floors_one_after_the_other(scene, monkeypatch):
+    import open3d as o3d
+
+    import core.noise
+
+    a, b = scene("corner")
+    expect = noise_floors([a, b], np.random.default_rng(2), 300)
+
+    def no_threads(*args, **kwargs):
+        raise AssertionError("a thread pool in a stream held to one thread")
+
+    before = o3d.utility.get_max_threads()
+    monkeypatch.setattr(core.noise, "ThreadPoolExecutor", no_threads)
+    o3d.utility.set_max_threads(1)  # what app.distributed sets for --threads 1
+    try:
+        assert noise_floors([a, b], np.random.default_rng(2), 300) == expect
+    finally:
+        o3d.utility.set_max_threads(before)

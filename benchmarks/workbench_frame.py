@@ -16,7 +16,6 @@ with the optimiser: compare rows of one run, not runs.
 from __future__ import annotations
 
 import os
-import socket
 import sys
 import time
 from pathlib import Path
@@ -24,8 +23,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync"]
+from benchmarks.browser import bunny_page  # noqa: E402
+
 SECONDS = 3.0  # counted per part and round
 ROUNDS = 2
 FRAMES_JS = """(ms) => new Promise(done => {
@@ -60,49 +59,31 @@ def parts(nodes) -> dict[str, list]:
 
 
 def main() -> None:
-    from playwright.sync_api import sync_playwright
-
-    from app.workbench import ServeOptions, Workbench
-
     folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
     print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    wb = Workbench(ServeOptions(source=str(folder / "bun045.ply"), target=str(folder / "bun000.ply"), port=port))
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
-            page = browser.new_page(viewport={"width": 1400, "height": 900})
-            page.goto(f"http://127.0.0.1:{port}")
-            page.get_by_text("Initial E =").wait_for(timeout=120_000)
-            tab = next(iter(wb.tabs.values()))
-            tab.run_panel.h.settings.sa_max.value = "10000000"  # a run that outlasts the count
-            tab.run_panel.start("sa")
-            page.wait_for_function("() => document.body.innerText.includes('· running ·')", timeout=60_000)
-            print(f"{'':22s} {'frames/s':>9s} {'GPU process ms/frame':>21s} {'renderer ms/frame':>18s}")
-            for _ in range(ROUNDS):
-                for name, hidden in parts(tab.nodes).items():
-                    shown = [h.visible for h in hidden]
-                    for h in hidden:
-                        h.visible = False
-                    time.sleep(1.0)
-                    before = chromium_cpu()
-                    frames = page.evaluate(FRAMES_JS, SECONDS * 1000)
-                    after = chromium_cpu()
-                    for h, v in zip(hidden, shown):
-                        h.visible = v
-                    per = {k: 1000 * (after[k] - before.get(k, 0.0)) / max(frames, 1) for k in after}
-                    state = "" if tab.state.running else "  (the run had ended: not a measurement)"
-                    print(f"{name:22s} {frames / SECONDS:9.1f} {per.get('gpu-process', 0):21.0f} "
-                          f"{per.get('renderer', 0):18.0f}{state}", flush=True)
-            tab.state.run.cancel()
-            browser.close()
-        print(f"load average after: {os.getloadavg()[0]:.1f}")
-    finally:
-        for tab in list(wb.tabs.values()):
-            tab.close()
-        wb.server.stop()
+    with bunny_page(folder, (1400, 900)) as (wb, _, page):
+        tab = next(iter(wb.tabs.values()))
+        tab.run_panel.h.settings.sa_max.value = "10000000"  # a run that outlasts the count
+        tab.run_panel.start("sa")
+        page.wait_for_function("() => document.body.innerText.includes('· running ·')", timeout=60_000)
+        print(f"{'':22s} {'frames/s':>9s} {'GPU process ms/frame':>21s} {'renderer ms/frame':>18s}")
+        for _ in range(ROUNDS):
+            for name, hidden in parts(tab.nodes).items():
+                shown = [h.visible for h in hidden]
+                for h in hidden:
+                    h.visible = False
+                time.sleep(1.0)
+                before = chromium_cpu()
+                frames = page.evaluate(FRAMES_JS, SECONDS * 1000)
+                after = chromium_cpu()
+                for h, v in zip(hidden, shown):
+                    h.visible = v
+                per = {k: 1000 * (after[k] - before.get(k, 0.0)) / max(frames, 1) for k in after}
+                state = "" if tab.state.running else "  (the run had ended: not a measurement)"
+                print(f"{name:22s} {frames / SECONDS:9.1f} {per.get('gpu-process', 0):21.0f} "
+                      f"{per.get('renderer', 0):18.0f}{state}", flush=True)
+        tab.state.run.cancel()
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

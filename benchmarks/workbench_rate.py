@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import os
 import re
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync"]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.browser import free_port, launch  # noqa: E402
+
 PAUSE_JS = """() => new Promise(done => {
   const button = [...document.querySelectorAll('button')].find(b => b.innerText.trim() === 'Pause');
   const t0 = performance.now();
@@ -67,9 +68,7 @@ def main() -> None:
 
     folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
     print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (the figures are noisy above ~2)")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", str(folder / "bun045.ply"), str(folder / "bun000.ply"),
                              "--port", str(port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -77,7 +76,7 @@ def main() -> None:
             if proc.poll() is not None:
                 raise SystemExit("the server did not start")
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
+            browser = launch(p)
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             t0 = time.perf_counter()
             page.goto(f"http://127.0.0.1:{port}")

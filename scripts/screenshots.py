@@ -15,7 +15,6 @@ which is why a camera set the other way round never looked at the terrain.
 
 from __future__ import annotations
 
-import socket
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking"]
+from benchmarks.browser import bunny_page  # noqa: E402
+
 START_DEG = 60.0  # the initial pose: this far off the files' pose, about the target's vertical axis
 SLICE = ("tx", "ry", "0.04", "75", "41")  # parameters, spans (m, deg) and steps of the slice
 LOOK_AT = (1.6, -0.3, 0.0)  # page units: the terrain's box is centred at app.tab.terrain.TERRAIN_AT; a little
@@ -64,72 +64,56 @@ def scans_camera(st) -> np.ndarray:
 
 
 def main() -> None:
-    from playwright.sync_api import sync_playwright
-
-    from app.workbench import ServeOptions, Workbench
-
     folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    wb = Workbench(ServeOptions(source=str(folder / "bun045.ply"), target=str(folder / "bun000.ply"), port=port))
-    try:
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
-            page = browser.new_page(viewport={"width": 1600, "height": 1000})
-            page.goto(f"http://127.0.0.1:{port}")
-            page.get_by_text("Initial E =").wait_for(timeout=120_000)
-            tab = next(iter(wb.tabs.values()))
-            st = tab.state
-            source_centre = st.T_file[:3, :3] @ st.source.centroid + st.T_file[:3, 3]
-            tab.set_initial(turned(st.T_file, START_DEG, source_centre))
-            tab.update_status()
-            page.get_by_role("tab", name="Landscape", exact=True).click()
-            h = tab.landscape.h
-            h.param_a.value, h.param_b.value = SLICE[:2]
-            h.span_a.value, h.span_b.value, h.steps.value = SLICE[2:]
-            page.get_by_role("button", name="Compute slice", exact=True).click()
-            wait_for(lambda: st.slice is not None, 900, "the slice")
-            page.get_by_label("Show as 3-D terrain", exact=True).check()
-            wait_for(lambda: tab.landscape.terrain is not None, 60, "the terrain")
-            page.get_by_role("tab", name="Run", exact=True).click()
-            page.get_by_role("button", name="Run hybrid", exact=True).click()
-            page.get_by_text("Finished:").wait_for(timeout=300_000)
-            wait_for(lambda: len(tab.landscape.terrain.segments.points) >= len(st.events), 60, "the path on the terrain")
-            page.get_by_role("tab", name="Scans", exact=True).click()
-            tab.scans.h.show.frustums.value = False
-            tab.apply_visibility()
-            page.get_by_role("tab", name="Landscape", exact=True).click()
-            page.evaluate(CLOSE_NOTICE_JS)  # the software-WebGL notice
-            camera = tab.client.camera
-            camera.up_direction = (0.0, 1.0, 0.0)
-            camera.position = CAMERA_AT  # first: setting the position moves the look-at point with it
-            camera.look_at = LOOK_AT
-            wait_for(lambda: np.allclose(camera.position, CAMERA_AT, atol=1e-3)
-                     and np.allclose(camera.look_at, LOOK_AT, atol=1e-3), 30, "the camera")
-            time.sleep(3.0)
-            out = ROOT / "docs" / "landscape.png"
-            page.screenshot(path=str(out))
-            print(f"wrote {out}")
-            tab.landscape.h.terrain.value = False
-            tab.landscape.update_terrain()
-            page.get_by_role("tab", name="Model", exact=True).click()
-            page.get_by_label("Colour by residual", exact=True).check()
-            wait_for(lambda: tab.model.residuals.plot is not None and st.residual_rgb is not None, 120, "the residuals")
-            page.mouse.move(5, 5)  # off the checkbox: its hint would cover the panel
-            tab.nodes.gizmo.visible = False  # the picture is about the colours
-            scans_at = tuple(float(x) for x in scans_camera(st))
-            camera.position = scans_at
-            camera.look_at = (0.0, 0.0, 0.0)
-            wait_for(lambda: np.allclose(camera.position, scans_at, atol=1e-3)
-                     and np.allclose(camera.look_at, (0.0, 0.0, 0.0), atol=1e-3), 30, "the camera")
-            time.sleep(3.0)
-            out = ROOT / "docs" / "residuals.png"
-            page.screenshot(path=str(out))
-            print(f"wrote {out}")
-            browser.close()
-    finally:
-        wb.server.stop()
+    with bunny_page(folder, (1600, 1000)) as (wb, _, page):
+        tab = next(iter(wb.tabs.values()))
+        st = tab.state
+        source_centre = st.T_file[:3, :3] @ st.source.centroid + st.T_file[:3, 3]
+        tab.set_initial(turned(st.T_file, START_DEG, source_centre))
+        tab.update_status()
+        page.get_by_role("tab", name="Landscape", exact=True).click()
+        h = tab.landscape.h
+        h.param_a.value, h.param_b.value = SLICE[:2]
+        h.span_a.value, h.span_b.value, h.steps.value = SLICE[2:]
+        page.get_by_role("button", name="Compute slice", exact=True).click()
+        wait_for(lambda: st.slice is not None, 900, "the slice")
+        page.get_by_label("Show as 3-D terrain", exact=True).check()
+        wait_for(lambda: tab.landscape.terrain is not None, 60, "the terrain")
+        page.get_by_role("tab", name="Run", exact=True).click()
+        page.get_by_role("button", name="Run hybrid", exact=True).click()
+        page.get_by_text("Finished:").wait_for(timeout=300_000)
+        wait_for(lambda: len(tab.landscape.terrain.segments.points) >= len(st.events), 60, "the path on the terrain")
+        page.get_by_role("tab", name="Scans", exact=True).click()
+        tab.scans.h.show.frustums.value = False
+        tab.apply_visibility()
+        page.get_by_role("tab", name="Landscape", exact=True).click()
+        page.evaluate(CLOSE_NOTICE_JS)  # the software-WebGL notice
+        camera = tab.client.camera
+        camera.up_direction = (0.0, 1.0, 0.0)
+        camera.position = CAMERA_AT  # first: setting the position moves the look-at point with it
+        camera.look_at = LOOK_AT
+        wait_for(lambda: np.allclose(camera.position, CAMERA_AT, atol=1e-3)
+                 and np.allclose(camera.look_at, LOOK_AT, atol=1e-3), 30, "the camera")
+        time.sleep(3.0)
+        out = ROOT / "docs" / "landscape.png"
+        page.screenshot(path=str(out))
+        print(f"wrote {out}")
+        tab.landscape.h.terrain.value = False
+        tab.landscape.update_terrain()
+        page.get_by_role("tab", name="Model", exact=True).click()
+        page.get_by_label("Colour by residual", exact=True).check()
+        wait_for(lambda: tab.model.residuals.plot is not None and st.residual_rgb is not None, 120, "the residuals")
+        page.mouse.move(5, 5)  # off the checkbox: its hint would cover the panel
+        tab.nodes.gizmo.visible = False  # the picture is about the colours
+        scans_at = tuple(float(x) for x in scans_camera(st))
+        camera.position = scans_at
+        camera.look_at = (0.0, 0.0, 0.0)
+        wait_for(lambda: np.allclose(camera.position, scans_at, atol=1e-3)
+                 and np.allclose(camera.look_at, (0.0, 0.0, 0.0), atol=1e-3), 30, "the camera")
+        time.sleep(3.0)
+        out = ROOT / "docs" / "residuals.png"
+        page.screenshot(path=str(out))
+        print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,52 @@
+"""Headless Chromium on the workbench, shared by the page benchmarks and scripts/screenshots.py.
+
+Debian's /usr/bin/chromium driven by Playwright, software WebGL (no browser is downloaded).
+"""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync"]
+CHROMIUM = "/usr/bin/chromium"
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def launch(playwright):
+    """Chromium with FLAGS, from a ``sync_playwright()`` context."""
+    return playwright.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
+
+
+@contextmanager
+def bunny_page(folder: Path, viewport: tuple[int, int]) -> Iterator[tuple[object, object, object]]:
+    """(workbench, browser, page): bun045 -> bun000 of ``folder`` served by a workbench in this process
+    on a free port, opened in Chromium at ``viewport`` (width, height) pixels, once the page shows the
+    initial E. The tabs and the server are closed afterwards."""
+    from playwright.sync_api import sync_playwright
+
+    from app.workbench import ServeOptions, Workbench
+
+    port = free_port()
+    wb = Workbench(ServeOptions(source=str(folder / "bun045.ply"), target=str(folder / "bun000.ply"), port=port))
+    try:
+        with sync_playwright() as p:
+            browser = launch(p)
+            page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+            page.goto(f"http://127.0.0.1:{port}")
+            page.get_by_text("Initial E =").wait_for(timeout=120_000)
+            yield wb, browser, page
+            browser.close()
+    finally:
+        for tab in list(wb.tabs.values()):
+            tab.close()
+        wb.server.stop()

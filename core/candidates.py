@@ -24,8 +24,9 @@ import numpy as np
 from .errors import InputError
 from .frustum import Frustum, frustum_of
 from .icp import METRICS
+from .noise import NORMAL_NEIGHBOURS, normal_angles, normal_floor
 from .scan import Scan
-from .surface import Surface
+from .surface import Surface, pca_normals
 from .transforms import apply, invert
 
 # The cap is (CAP_SPACINGS x the pair's point spacing)^2 + the pair's noise floor (core.noise). Measured
@@ -88,7 +89,9 @@ class Scores:
 @dataclass(frozen=True, eq=False)
 class Basis:
     """The fixed scoring basis of a pair: points (M, 3) source sample (source frame), target_points
-    (K, 3) target sample (target frame), cap (squared units), the target surface, both frusta."""
+    (K, 3) target sample (target frame), cap (squared units), the target surface, both frusta;
+    normals (M, 3) the source's at its sample, the target scan (for its normals at closest points),
+    angle_floor (degrees, core.noise.normal_floor over both samples)."""
 
     points: np.ndarray
     target_points: np.ndarray
@@ -97,6 +100,9 @@ class Basis:
     source_frustum: Frustum
     target_frustum: Frustum
     min_overlap: float
+    normals: np.ndarray
+    target: Scan
+    angle_floor: float
 
     def evaluate(self, poses: np.ndarray) -> Scores:
         """Score (P, 4, 4) T_target_source poses; all closest points in one query."""
@@ -115,6 +121,21 @@ class Basis:
         with np.errstate(all="ignore"):
             med = np.array([np.median(d2[k][close[k]]) if n_close[k] else self.cap for k in range(P)])
         return Scores(capped.mean(1), inside.mean(1), reverse, med, n_close / M)
+
+    def normal_angle(self, T: np.ndarray) -> float:
+        """Median angle (degrees) between the source sample's normals under pose T (4, 4) and the
+        target's normals at their closest points, over the points that match (inside the target's
+        frustum, within the cap); nan when fewer than 3 match. A pose that lays a surface on a
+        different one (a twin sliding over itself) tilts them; a range bias between views does not."""
+        T = np.asarray(T, dtype=np.float64)
+        moved = self.points @ T[:3, :3].T + T[:3, 3]
+        closest, d2 = self.surface.closest(moved)
+        close = self.target_frustum.contains(moved) & (d2 < self.cap)
+        k = NORMAL_NEIGHBOURS
+        if close.sum() < 3 or len(self.target.points) < k:
+            return float("nan")
+        _, idx = self.target.tree.query(closest[close], k)
+        return float(np.median(normal_angles(self.normals[close] @ T[:3, :3].T, pca_normals(self.target.points, idx))))
 
     def shift_to_fit(self, poses: np.ndarray, steps: int = SHIFT_STEPS) -> np.ndarray:
         """(P, 4, 4) poses, each translated so that its sample points meet the target surface: ``steps``
@@ -149,8 +170,11 @@ def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: 
     src = source.points[np.sort(rng.choice(len(source.points), min(config.sample, len(source.points)), replace=False))]
     tgt = target.points[np.sort(rng.choice(len(target.points), min(config.sample, len(target.points)), replace=False))]
     cap = (CAP_SPACINGS * pair_spacing(source, target)) ** 2 + floor
+    k = min(NORMAL_NEIGHBOURS, len(source.points))
+    normals = pca_normals(source.points, source.tree.query(src, k)[1].reshape(len(src), k))
+    angle_floor = float(np.mean([normal_floor(source, src), normal_floor(target, tgt)]))
     return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
-                 config.min_overlap)
+                 config.min_overlap, normals, target, angle_floor)
 
 
 # ---- where candidates come from -------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .scan import Scan
-from .surface import Surface, local_spacing
+from .surface import Surface, local_spacing, pca_normals
 from .transforms import apply
 
 
@@ -41,10 +41,7 @@ class FusedModel:
 def _normals_towards(points: np.ndarray, viewpoint: np.ndarray, k: int = 12) -> np.ndarray:
     """(N, 3) PCA normals of (N, 3) points, each flipped to face ``viewpoint``."""
     _, idx = cKDTree(points).query(points, k=min(k, len(points)))
-    nb = points[idx] - points[idx].mean(1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    _, vecs = np.linalg.eigh(cov)
-    n = vecs[:, :, 0]
+    n = pca_normals(points, idx)
     flip = np.einsum("ij,ij->i", n, viewpoint - points) < 0
     n[flip] *= -1
     return n

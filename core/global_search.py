@@ -191,7 +191,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     rng = np.random.default_rng(config.seed)
     floor = float(np.mean(noise_floors([source, target], rng, len(problem.points))))
     basis = make_basis(source, target, surface, floor, rng, cc, pc.frustum)
-    threshold = pair_threshold(floor, cc.min_overlap)
+    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
     run = _Counter(listener, frame)
     r_unc, t_unc = problem.rotation_uncertainty, problem.translation_uncertainty
     hybrid = replace(config, method="hybrid")

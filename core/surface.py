@@ -33,6 +33,15 @@ def local_spacing(points: np.ndarray, tree: cKDTree | None = None) -> np.ndarray
     return d[:, 1:].mean(axis=1)
 
 
+def pca_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """(Q, 3) unit normals, sign arbitrary: the direction of least spread of each row of (Q, k) indices
+    into (N, 3) ``points`` (the smallest eigenvector of the neighbourhood's covariance)."""
+    nb = points[neighbours]
+    nb = nb - nb.mean(1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return vecs[:, :, 0]
+
+
 def edge_bound(spacing: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(M, 3) longest allowed length of each triangle edge: EDGE_FACTOR x the smaller endpoint spacing.
 

@@ -58,3 +58,24 @@ def test_a_stream_held_to_one_thread_measures_the_floors_one_after_the_other(sce
         assert noise_floors([a, b], np.random.default_rng(2), 300) == expect
     finally:
         o3d.utility.set_max_threads(before)
+
+
+def test_the_normals_floor_is_zero_on_a_clean_plane_and_follows_the_scanners_noise():
+    from core.noise import normal_floor
+    from core.scan import Scan
+    from core.simulate import corner_mesh, look_at, scan_mesh
+
+    g = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0)), -1).reshape(-1, 2)
+    tilt = np.c_[g, 0.3 * g[:, 0] - 0.2 * g[:, 1]]  # a tilted plane, 1 unit apart
+    plane = Scan(tilt, np.array([20.0, 20.0, 100.0]), name="plane")
+    assert normal_floor(plane, tilt[::37]) < 1e-6
+    assert normal_floor(plane, tilt[::37]) == normal_floor(plane, tilt[::37])  # no random draw
+
+    vertices, faces = corner_mesh()
+    eye = vertices.mean(0) + np.array([900.0, 700.0, 600.0])
+    floors = []
+    for noise in (0.2, 0.8, 3.2):
+        scanner = replace(Scanner(rows=80, cols=80, fov_deg=(40.0, 40.0), outliers=0.0), noise=noise)
+        scan = scan_mesh(vertices, faces, look_at(eye, vertices.mean(0)), scanner, np.random.default_rng(1))
+        floors.append(normal_floor(scan, scan.points[::40]))
+    assert 0 < floors[0] < floors[1] < floors[2] < 90

@@ -70,11 +70,11 @@ def starts_from(T_true: np.ndarray, s, rng: np.random.Generator, n: int, size: f
                 yield perturb(T_true, np.r_[0, 0, 0, np.radians(sign * deg) * axis], c_t)
 
 
-def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int) -> dict:
+def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: CandidateConfig = CandidateConfig()) -> dict:
     surface = Surface.from_scan(t)
     rng = np.random.default_rng(0)
     floor = float(np.mean([noise_floor(x, rng, 300) for x in (s, t)]))
-    basis = make_basis(s, t, surface, floor, rng, CandidateConfig())
+    basis = make_basis(s, t, surface, floor, rng, config)
     truth = misfit(basis, T_true, floor)
     rng = np.random.default_rng(7)
     wrong = []
@@ -105,12 +105,14 @@ def main() -> int:
     ap.add_argument("--starts", type=int, default=40)
     ap.add_argument("--folder", default=str(ROOT.parent / "shared" / "data" / "bunny"))
     ap.add_argument("--cases", help="only these cases, comma-separated (e.g. corner,bowl)")
+    ap.add_argument("--neighbours", type=int, default=CandidateConfig().normal_neighbours,
+                    help="points a normal is fitted to (core.noise.NORMAL_NEIGHBOURS by default)")
     a = ap.parse_args()
     rows = []
     for c in cases(Path(a.folder)):
         if a.cases and c[0] not in a.cases.split(","):
             continue
-        rows.append(measure(*c, starts=a.starts))
+        rows.append(measure(*c, starts=a.starts, config=CandidateConfig(normal_neighbours=a.neighbours)))
         r = rows[-1]
         m, d2, ang, share = r["truth"]
         w = r["near"]

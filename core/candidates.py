@@ -57,6 +57,7 @@ class CandidateConfig:
     # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations
     # on the same robust E; "point" is the paper's Horn step
     refine_metric: str = "plane"
+    normal_neighbours: int = NORMAL_NEIGHBOURS  # points a normal is fitted to (the pair threshold's angle)
 
     def validate(self) -> None:
         if self.sample < 10:
@@ -68,6 +69,8 @@ class CandidateConfig:
         if self.refine_metric not in METRICS:
             raise InputError(f"the refinement's ICP metric must be one of {', '.join(METRICS)}, "
                              f"not {self.refine_metric!r}")
+        if self.normal_neighbours < 3:
+            raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):
             raise InputError(f"FPFH voxel sizes must be positive, got {self.fpfh_voxels}")
 
@@ -90,8 +93,8 @@ class Scores:
 class Basis:
     """The fixed scoring basis of a pair: points (M, 3) source sample (source frame), target_points
     (K, 3) target sample (target frame), cap (squared units), the target surface, both frusta;
-    normals (M, 3) the source's at its sample, the target scan (for its normals at closest points),
-    angle_floor (degrees, core.noise.normal_floor over both samples)."""
+    normals (M, 3) the source's at its sample, fitted to ``neighbours`` points; the target scan (for
+    its normals at closest points); angle_floor (degrees, core.noise.normal_floor over both samples)."""
 
     points: np.ndarray
     target_points: np.ndarray
@@ -101,6 +104,7 @@ class Basis:
     target_frustum: Frustum
     min_overlap: float
     normals: np.ndarray
+    neighbours: int
     target: Scan
     angle_floor: float
 
@@ -131,7 +135,7 @@ class Basis:
         moved = self.points @ T[:3, :3].T + T[:3, 3]
         closest, d2 = self.surface.closest(moved)
         close = self.target_frustum.contains(moved) & (d2 < self.cap)
-        k = NORMAL_NEIGHBOURS
+        k = self.neighbours
         if close.sum() < 3 or len(self.target.points) < k:
             return float("nan")
         _, idx = self.target.tree.query(closest[close], k)
@@ -170,11 +174,11 @@ def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: 
     src = source.points[np.sort(rng.choice(len(source.points), min(config.sample, len(source.points)), replace=False))]
     tgt = target.points[np.sort(rng.choice(len(target.points), min(config.sample, len(target.points)), replace=False))]
     cap = (CAP_SPACINGS * pair_spacing(source, target)) ** 2 + floor
-    k = min(NORMAL_NEIGHBOURS, len(source.points))
+    k = min(config.normal_neighbours, len(source.points))
     normals = pca_normals(source.points, source.tree.query(src, k)[1].reshape(len(src), k))
-    angle_floor = float(np.mean([normal_floor(source, src), normal_floor(target, tgt)]))
+    angle_floor = float(np.mean([normal_floor(s, at, config.normal_neighbours) for s, at in ((source, src), (target, tgt))]))
     return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
-                 config.min_overlap, normals, target, angle_floor)
+                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor)
 
 
 # ---- where candidates come from -------------------------------------------------------------------------

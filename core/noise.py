@@ -34,9 +34,9 @@ PATCH_POINTS = 100_000
 WINDOW_MIN_POINTS = 5_000
 WINDOW_SPACINGS = 5.0
 WINDOW_MARGIN = 0.8  # a face is kept when its circumcircle lies within this share of the window's radius
-# Normals are fitted to this many nearest points (as core.fuse does). The pair threshold's separation
-# (benchmarks/threshold_evidence.py) measured with 8, 12 and 20 on the bunny pairs and the scenes: the
-# largest ratio at a truth 7.0 / 7.6 / 6.3, the nearest wrong minimum's 17.0 / 20.4 / 22.3.
+# Normals are fitted to this many nearest points (as core.fuse does; CandidateConfig.normal_neighbours).
+# The pair threshold's separation (benchmarks/threshold_evidence.py --neighbours K, the five bunny pairs
+# and the bowl) hardly moves with it: see the README's Conventions for 8, 12 and 20.
 NORMAL_NEIGHBOURS = 12
 
 

@@ -45,8 +45,8 @@ def threshold_for(problem: Problem, config: Config) -> float:
 # is below FACTOR: distance and angle, each over its noise level, multiplied. The floors are two noisy
 # samplings of one surface (core.noise: the d^2 of one half of a scan against the other half's surface;
 # the angle between normals fitted to interleaved halves of a neighbourhood), so each ratio is ~1 at a
-# perfect registration of noise-only scans. The median, because
-# a registration's overlap holds points without a partner (holes, the overlap's fringe) whatever the pose.
+# perfect registration of noise-only scans. The median, because a registration's overlap holds points
+# without a partner (holes, the overlap's fringe) whatever the pose.
 # The product, because neither ratio alone separates: real scans carry a range bias between views that
 # one scan's own noise does not show (distance 1.6-2.4 x at the bunny truths; d^2 2.4-5.8 x) while their
 # normals agree (angle 0.9-1.4 x); a twin sliding over itself (the bowl turned about its axis) fits in

@@ -47,7 +47,8 @@ def test_threshold_config_refuses_nonsense(bad):
 
 
 @pytest.mark.parametrize("bad, message", [(dict(refine_metric="planar"), "refinement's ICP metric"),
-                                          (dict(refine=0), "refine >= 1"), (dict(sample=5), "at least 10")])
+                                          (dict(refine=0), "refine >= 1"), (dict(sample=5), "at least 10"),
+                                          (dict(normal_neighbours=2), "at least 3 neighbours")])
 def test_candidate_config_refuses_nonsense(bad, message):
     from core.candidates import CandidateConfig
 

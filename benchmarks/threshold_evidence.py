@@ -34,7 +34,7 @@ from core.noise import noise_floor  # noqa: E402
 from core.problem import ProblemConfig  # noqa: E402
 from core.simulate import SCENES, make_scene, true_transform  # noqa: E402
 from core.surface import Surface  # noqa: E402
-from core.threshold import FACTOR, MIN_TRUST_OVERLAP  # noqa: E402
+from core.threshold import FACTOR, MIN_TRUST_OVERLAP, pair_threshold  # noqa: E402
 from core.transforms import apply, invert, perturb, pose_error, random_perturbation  # noqa: E402
 
 
@@ -45,14 +45,6 @@ def cases(folder: Path):
     for i, name in enumerate(SCENES):
         t, s = make_scene(name, i)
         yield name, s, t, true_transform(s, t), 1.0, 0.01 * t.size
-
-
-def misfit(basis, T: np.ndarray, floor: float) -> tuple[float, float, float, float]:
-    """(misfit, d^2 ratio, angle ratio, matched share) of pose T, whatever its overlap."""
-    sc = basis.evaluate(T[None])
-    d = float(np.sqrt(sc.inlier_median[0] / floor))
-    a = basis.normal_angle(T) / basis.angle_floor
-    return d * a, d, a, float(sc.inliers[0])
 
 
 def starts_from(T_true: np.ndarray, s, rng: np.random.Generator, n: int, size: float):
@@ -75,23 +67,31 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: Candidate
     rng = np.random.default_rng(0)
     floor = float(np.mean([noise_floor(x, rng, 300) for x in (s, t)]))
     basis = make_basis(s, t, surface, floor, rng, config)
-    truth = misfit(basis, T_true, floor)
+    thr = pair_threshold(floor, basis.angle_floor, basis.min_overlap)
+
+    def misfit(T: np.ndarray) -> tuple[float, float, float, float]:
+        """(misfit, distance ratio, angle ratio, matched share) of pose T, whatever its overlap."""
+        sc = basis.evaluate(T[None])
+        return (thr.misfit(basis, T), float(np.sqrt(sc.inlier_median[0] / floor)),
+                basis.normal_angle(T) / basis.angle_floor, float(sc.inliers[0]))
+
+    truth = misfit(T_true)
     rng = np.random.default_rng(7)
     wrong = []
     pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * t.size)
     for T0 in starts_from(T_true, s, rng, starts, t.size):
         try:
-            T, _ = refine(s, t, surface, T0, pc, IcpConfig(metric=CandidateConfig().refine_metric))
+            T, _ = refine(s, t, surface, T0, pc, IcpConfig(metric=config.refine_metric))
         except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
             continue
         rot, trans = pose_error(T, T_true, s.centroid)
         if rot >= ok_rot or trans >= ok_trans:
-            m = misfit(basis, T, floor)
+            m = misfit(T)
             if m[3] >= basis.min_overlap and basis.valid(basis.evaluate(T[None]))[0]:
                 wrong.append((*m, rot, trans))
     near = min(wrong, default=(np.inf, np.nan, np.nan, 0.0, np.nan, np.nan))
     return {"case": name, "floor": floor, "angle_floor": basis.angle_floor, "truth": truth, "wrong": len(wrong),
-            "near": near, "near_trusted_share": min((w for w in wrong if w[3] >= MIN_TRUST_OVERLAP),
+            "near": near, "near_trusted": min((w for w in wrong if w[3] >= MIN_TRUST_OVERLAP),
                                                     default=(np.inf,))[0]}
 
 
@@ -119,7 +119,7 @@ def main() -> int:
         print(f"{r['case']:16s} floor {r['floor']:.3g}, angle floor {r['angle_floor']:.2f} deg | truth: misfit {m:.2f} "
               f"(distance {d2:.2f} x, angle {ang:.2f} x), {share:.2f} matched | {r['wrong']} wrong minima: nearest misfit "
               f"{w[0]:.2f} (distance {w[1]:.2f} x, angle {w[2]:.2f} x, {w[3]:.2f} matched, {w[4]:.1f} deg, {w[5]:.3g} off); "
-              f"nearest with >= {MIN_TRUST_OVERLAP:g} matched: {r['near_trusted_share']:.2f}", flush=True)
+              f"nearest with >= {MIN_TRUST_OVERLAP:g} matched: {r['near_trusted']:.2f}", flush=True)
     fit = [r for r in rows if r["case"] not in AMBIGUOUS]
     for name, why in AMBIGUOUS.items():
         print(f"{name}: left out of the fit ({why})")

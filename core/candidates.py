@@ -24,9 +24,9 @@ import numpy as np
 from .errors import InputError
 from .frustum import Frustum, frustum_of
 from .icp import METRICS
-from .noise import NORMAL_NEIGHBOURS, normal_angles, normal_floor
+from .noise import NORMAL_NEIGHBOURS, normal_floor
 from .scan import Scan
-from .surface import Surface, pca_normals
+from .surface import Surface, normal_angles, pca_normals
 from .transforms import apply, invert
 
 # The cap is (CAP_SPACINGS x the pair's point spacing)^2 + the pair's noise floor (core.noise). Measured
@@ -135,8 +135,8 @@ class Basis:
         moved = self.points @ T[:3, :3].T + T[:3, 3]
         closest, d2 = self.surface.closest(moved)
         close = self.target_frustum.contains(moved) & (d2 < self.cap)
-        k = self.neighbours
-        if close.sum() < 3 or len(self.target.points) < k:
+        k = min(self.neighbours, len(self.target.points))
+        if close.sum() < 3 or k < 3:
             return float("nan")
         _, idx = self.target.tree.query(closest[close], k)
         return float(np.median(normal_angles(self.normals[close] @ T[:3, :3].T, pca_normals(self.target.points, idx))))
@@ -176,7 +176,10 @@ def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: 
     cap = (CAP_SPACINGS * pair_spacing(source, target)) ** 2 + floor
     k = min(config.normal_neighbours, len(source.points))
     normals = pca_normals(source.points, source.tree.query(src, k)[1].reshape(len(src), k))
-    angle_floor = float(np.mean([normal_floor(s, at, config.normal_neighbours) for s, at in ((source, src), (target, tgt))]))
+    # a scan too small to measure on (fewer than 2 x neighbours points) gives no floor, not a zero one
+    floors = [f for f in (normal_floor(source, src, config.normal_neighbours),
+                          normal_floor(target, tgt, config.normal_neighbours)) if f > 0]
+    angle_floor = float(np.mean(floors)) if floors else 0.0
     return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
                  config.min_overlap, normals, config.normal_neighbours, target, angle_floor)
 

@@ -245,7 +245,9 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
                                                      translation_uncertainty=CONVERGED_TRANSLATION * target.size),
                        surface=surface, seed=config.seed)
     iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
-    details = {"threshold_derivation": threshold.to_json(), "score": best_s, "candidates": len(poses),
+    misfit = threshold.misfit(basis, best)
+    details = {"threshold_derivation": threshold.to_json(), "misfit": misfit if np.isfinite(misfit) else None,
+               "score": best_s, "candidates": len(poses),
                "candidate_sources": sources}
     return Result(best, last.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",
                   threshold.value, stop, cut=problem.cut, trusted=trusted, details=details)

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from .error import RobustError
 from .errors import InputError
 from .scan import Scan
-from .surface import Surface, pca_normals, triangulate, view_projection
+from .surface import Surface, normal_angles, pca_normals, triangulate, view_projection
 
 # Above this many points the floor is measured on one patch of this many neighbouring points: the
 # floor is a local property (noise and spacing), and triangulating half of a 2,000,000-point scan
@@ -36,7 +36,8 @@ WINDOW_SPACINGS = 5.0
 WINDOW_MARGIN = 0.8  # a face is kept when its circumcircle lies within this share of the window's radius
 # Normals are fitted to this many nearest points (as core.fuse does; CandidateConfig.normal_neighbours).
 # The pair threshold's separation (benchmarks/threshold_evidence.py --neighbours K, the five bunny pairs
-# and the bowl) hardly moves with it: see the README's Conventions for 8, 12 and 20.
+# and the bowl) hardly moves with it: the largest misfit at a truth / the nearest wrong minimum's are
+# 2.9 / 5.3 with 8, 3.2 / 6.3 with 12 and 2.6 / 8.1 with 20 (core.threshold.FACTOR = 4.5 between them).
 NORMAL_NEIGHBOURS = 12
 
 
@@ -64,17 +65,12 @@ def noise_floors(scans: list[Scan], rng: np.random.Generator, n_points: int = 50
 def normal_floor(scan: Scan, at: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> float:
     """How far apart, in degrees, the normals of two noisy samplings of one surface lie: the median
     angle between the normals fitted to the even- and the odd-ranked of the 2k points of ``scan``
-    nearest each of the (Q, 3) points ``at`` (the scan's frame). Deterministic; 0 for fewer than 2k
-    points."""
+    nearest each of the (Q, 3) points ``at`` (the scan's frame). Deterministic; 0 (not measured) for
+    fewer than 2k points."""
     if len(scan.points) < 2 * k or not len(at):
         return 0.0
     _, idx = scan.tree.query(at, 2 * k)
     return float(np.median(normal_angles(pca_normals(scan.points, idx[:, 0::2]), pca_normals(scan.points, idx[:, 1::2]))))
-
-
-def normal_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) angles in degrees, 0-90, between the unoriented unit normals (N, 3) ``a`` and ``b``."""
-    return np.degrees(np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", a, b)), 0.0, 1.0)))
 
 
 def _draw(scan: Scan, rng: np.random.Generator, n_points: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray | None]:

@@ -35,8 +35,10 @@ class Stop:
 @dataclass(frozen=True, eq=False)
 class Result:
     """transform: (4, 4) T_target_source; error: final robust E (squared units); threshold: the E
-    below which the pose is trusted (squared units); iterations: {"icp": n, "sa": n} (more keys may
-    follow); evaluations: of E over the run; seconds: wall time from the call to the result."""
+    below which the pose is trusted (squared units; method "global": the pair threshold's bound on the
+    median matched d^2 where the normals agree at their floor, core.threshold); iterations: {"icp": n,
+    "sa": n} (more keys may follow); evaluations: of E over the run; seconds: wall time from the call to
+    the result."""
 
     transform: np.ndarray
     error: float
@@ -65,6 +67,20 @@ class Result:
         """Trust this pose: E ended below the threshold (method "global": the pair threshold's test on
         the candidates' fixed basis held)."""
         return bool(self.trusted) if self.trusted is not None else bool(self.error < self.threshold)
+
+    @property
+    def trust_text(self) -> str:
+        """Why to trust this pose or not, in words."""
+        misfit, derivation = self.details.get("misfit"), self.details.get("threshold_derivation")
+        if self.trusted is None or derivation is None:
+            return f"E is {'below' if self.below_threshold else 'above'} the threshold ({self.threshold:.6g})"
+        if self.trusted:
+            return (f"where the scans overlap they agree at the noise level in distance and normals (misfit "
+                    f"{misfit:.3g} < {derivation['factor']:g})")
+        if misfit is None:
+            return "too little of the scans overlaps at this pose to judge it"
+        return (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
+                f"{misfit:.3g}, trusted below {derivation['factor']:g})")
 
     def __repr__(self) -> str:
         it = self.iterations

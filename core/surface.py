@@ -42,6 +42,11 @@ def pca_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     return vecs[:, :, 0]
 
 
+def normal_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) angles in degrees, 0-90, between the unoriented unit normals (N, 3) ``a`` and ``b``."""
+    return np.degrees(np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", a, b)), 0.0, 1.0)))
+
+
 def edge_bound(spacing: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(M, 3) longest allowed length of each triangle edge: EDGE_FACTOR x the smaller endpoint spacing.
 

@@ -134,7 +134,8 @@ def test_the_pair_threshold_does_not_trust_a_twin_of_the_bowl_that_fits_in_dista
     assert rot > 2.0 and trans > 10.0  # a wrong minimum (the scenes' success bound: 1 deg, 1 % of the size)
     s = basis.evaluate(T[None])
     assert s.inliers[0] > 0.6 and s.inlier_median[0] < 7 * floor  # distance alone would trust it
-    assert not thr.holds(basis, T)
+    assert basis.normal_angle(T) > 2 * basis.angle_floor  # the normals tell: the misfit rejects it
+    assert thr.factor < thr.misfit(basis, T) < np.inf and not thr.holds(basis, T)
 
 
 def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):

@@ -33,3 +33,17 @@ def test_json_keeps_its_keys_with_readable_text_and_adds_below_threshold():
                         "threshold", "stop_reason", "below_threshold", "cut"}
     assert out["stop_reason"] == "error below threshold" and out["below_threshold"] is True
     assert out["iterations"] == {"icp": 12, "sa": 30}
+
+
+def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided():
+    assert _result(error=0.5, threshold=1.0).trust_text == "E is below the threshold (1)"
+    derivation = {"factor": 4.5}
+
+    def global_(trusted, misfit):
+        return Result(np.eye(4), 0.5, {"icp": 3, "sa": 0}, 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
+                      trusted=trusted, details={"threshold_derivation": derivation, "misfit": misfit})
+
+    assert "agree at the noise level in distance and normals (misfit 2.1 < 4.5)" in global_(True, 2.1).trust_text
+    assert "(misfit 7.3, trusted below 4.5)" in global_(False, 7.3).trust_text
+    assert "too little" in global_(False, None).trust_text  # no misfit: fewer than 3 points matched
+    assert "E is" not in global_(True, 2.1).trust_text  # E on the cut is not what the pair threshold bounds

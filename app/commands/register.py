@@ -123,8 +123,7 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
           f"imports {seconds['import_seconds']:.2f} s apart)")
     if res.cut != "frustum":
         print(f"overlap     cut by {res.cut}: the frustum under the guess held too few points")
-    print(f"trust       {'yes' if res.below_threshold else 'no'}: E is "
-          f"{'below' if res.below_threshold else 'above'} the threshold derived from the pair")
+    print(f"trust       {'yes' if res.below_threshold else 'no'}: {res.trust_text}")
     print("transform (maps SOURCE into TARGET's frame):")
     for row in res.transform:
         print("  " + " ".join(f"{v: .8f}" for v in row))
@@ -135,7 +134,8 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
         print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
     if res.threshold > 0 and not res.below_threshold:
         t_unc = cfg.problem.translation_uncertainty_for(target.size)
-        print(f"note: E stayed above the threshold, so this is probably not the registration. The search covers "
+        why = "the pair threshold does not trust this pose" if res.trusted is not None else "E stayed above the threshold"
+        print(f"note: {why}, so this is probably not the registration. The search covers "
               f"about twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg, "
               f"{t_unc:.4g} {target.units}); if the guess may be farther off, give a better --init or a larger "
               "--rotation-uncertainty / --translation-uncertainty, or try --method basin-hopping.")

@@ -193,9 +193,8 @@ class RunPanel:
                 return
             r = run.result
             st.T, st.threshold = r.transform, r.threshold
-            below = "below" if r.below_threshold else "above"  # global: the pair threshold, core.threshold
-            st.finished_text = (f"**Finished**: E = {r.error:.6g} ({below} the threshold {r.threshold:.4g}); "
-                                f"stopped: {r.stop_text}; {r.seconds:.2f} s")
+            st.finished_text = (f"**Finished**: E = {r.error:.6g}; trust {'yes' if r.below_threshold else 'no'}: "
+                                f"{r.trust_text}; stopped: {r.stop_text}; {r.seconds:.2f} s")
 
         self.state.hand(apply)
 

@@ -25,16 +25,20 @@ def test_floors_side_by_side_are_the_floors_one_after_the_other(scene):
             assert all(f > 0 for f in one_by_one)
 
 
-def test_the_floor_grows_with_the_scanners_noise():
+def _corner_scans(noises: tuple[float, ...]) -> list:
+    """One view of the corner per range noise (mm), the same rays and seed."""
     from core.simulate import corner_mesh, look_at, scan_mesh
 
     vertices, faces = corner_mesh()
     eye = vertices.mean(0) + np.array([900.0, 700.0, 600.0])
-    floors = []
-    for noise in (0.2, 0.8, 3.2):
-        scanner = replace(Scanner(rows=80, cols=80, fov_deg=(40.0, 40.0), outliers=0.0), noise=noise)
-        scan = scan_mesh(vertices, faces, look_at(eye, vertices.mean(0)), scanner, np.random.default_rng(1))
-        floors.append(np.median([noise_floor(scan, np.random.default_rng(k), 300) for k in range(5)]))
+    return [scan_mesh(vertices, faces, look_at(eye, vertices.mean(0)),
+                      replace(Scanner(rows=80, cols=80, fov_deg=(40.0, 40.0), outliers=0.0), noise=noise),
+                      np.random.default_rng(1)) for noise in noises]
+
+
+def test_the_floor_grows_with_the_scanners_noise():
+    floors = [np.median([noise_floor(scan, np.random.default_rng(k), 300) for k in range(5)])
+              for scan in _corner_scans((0.2, 0.8, 3.2))]
     assert floors[0] < floors[1] < floors[2]
     # E is a mean squared distance: 4 x the noise gives ~16 x the floor (spacing adds a part that does not grow)
     assert floors[2] / floors[1] > 4
@@ -63,7 +67,6 @@ def test_a_stream_held_to_one_thread_measures_the_floors_one_after_the_other(sce
 def test_the_normals_floor_is_zero_on_a_clean_plane_and_follows_the_scanners_noise():
     from core.noise import normal_floor
     from core.scan import Scan
-    from core.simulate import corner_mesh, look_at, scan_mesh
 
     g = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0)), -1).reshape(-1, 2)
     tilt = np.c_[g, 0.3 * g[:, 0] - 0.2 * g[:, 1]]  # a tilted plane, 1 unit apart
@@ -73,11 +76,5 @@ def test_the_normals_floor_is_zero_on_a_clean_plane_and_follows_the_scanners_noi
     assert normal_floor(noisy, tilt[::37]) > 0.5  # degrees: a 5 % jitter of the spacing tilts the fits
     assert normal_floor(Scan(tilt[:23], plane.viewpoint), tilt[:3]) == 0.0  # fewer than 2 x 12 points: not measured
 
-    vertices, faces = corner_mesh()
-    eye = vertices.mean(0) + np.array([900.0, 700.0, 600.0])
-    floors = []
-    for noise in (0.2, 0.8, 3.2):
-        scanner = replace(Scanner(rows=80, cols=80, fov_deg=(40.0, 40.0), outliers=0.0), noise=noise)
-        scan = scan_mesh(vertices, faces, look_at(eye, vertices.mean(0)), scanner, np.random.default_rng(1))
-        floors.append(normal_floor(scan, scan.points[::40]))
+    floors = [normal_floor(scan, scan.points[::40]) for scan in _corner_scans((0.2, 0.8, 3.2))]
     assert 0 < floors[0] < floors[1] < floors[2] < 90

@@ -247,6 +247,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
     misfit = threshold.misfit(basis, best)
     details = {"threshold_derivation": threshold.to_json(), "misfit": misfit if np.isfinite(misfit) else None,
+               "within_region": within(best, T_init, source.centroid, REGION * r_unc, REGION * t_unc),
                "score": best_s, "candidates": len(poses),
                "candidate_sources": sources}
     return Result(best, last.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",

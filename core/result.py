@@ -77,6 +77,9 @@ class Result:
         if self.trusted:
             return (f"where the scans overlap they agree at the noise level in distance and normals (misfit "
                     f"{misfit:.3g} < {derivation['factor']:g})")
+        if self.details.get("within_region") is False:
+            return ("the pose lies farther from the guess than twice its stated uncertainty (a twin of a symmetric "
+                    "scene may fit as well there; state a larger uncertainty to accept it)")
         if misfit is None:
             return "too little of the scans overlaps at this pose to judge it"
         return (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "

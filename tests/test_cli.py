@@ -4,6 +4,7 @@ and bad input as exit status 2 with one line. (Real subprocesses: tests/test_cli
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -218,3 +219,17 @@ def test_register_with_a_lock_keeps_it_in_every_traced_event_and_slice_refuses_a
     assert code == 2 and err.count("\n") == 1 and "--lock rx leaves tx, ty, tz, ry, rz" in err
     code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--lock", "rx,qq")
     assert code == 2 and err.count("\n") == 1 and "--lock: cannot lock qq" in err
+
+
+def test_a_right_pose_beyond_the_stated_uncertainty_says_so_rather_than_calling_it_wrong(rangereg):
+    if not BUNNY.is_dir():
+        pytest.skip("the shared bunny scans are absent")
+    # no stored guess: identity, 45 degrees from the truth, beyond twice the default 15 degrees; the
+    # pipeline's hybrid still reaches the truth, which the pair threshold would trust but for the region
+    code, out, _ = rangereg("register", BUNNY / "bun045.ply", BUNNY / "bun000.ply")
+    assert code == 0
+    rot = float(re.search(r"vs ground truth: rotation ([0-9.]+) deg", out).group(1))
+    assert rot < 1.0, out
+    assert "trust       no: the pose lies farther from the guess than twice its stated uncertainty" in out
+    assert "note: the pose found lies beyond twice the guess's stated uncertainty (15 deg" in out
+    assert "probably not the registration" not in out

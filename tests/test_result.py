@@ -47,3 +47,6 @@ def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided():
     assert "(misfit 7.3, trusted below 4.5)" in global_(False, 7.3).trust_text
     assert "too little" in global_(False, None).trust_text  # no misfit: fewer than 3 points matched
     assert "E is" not in global_(True, 2.1).trust_text  # E on the cut is not what the pair threshold bounds
+    beyond = global_(False, 1.3)
+    beyond.details["within_region"] = False  # fits, but lies beyond twice the stated uncertainty
+    assert "farther from the guess than twice its stated uncertainty" in beyond.trust_text

@@ -132,8 +132,12 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
 
         rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
         print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
-    if res.threshold > 0 and not res.below_threshold:
-        t_unc = cfg.problem.translation_uncertainty_for(target.size)
+    t_unc = cfg.problem.translation_uncertainty_for(target.size)
+    if res.details.get("within_region") is False:
+        print(f"note: the pose found lies beyond twice the guess's stated uncertainty "
+              f"({cfg.problem.rotation_uncertainty_deg:g} deg, {t_unc:.4g} {target.units}); if the guess may be that "
+              "far off, say so with --rotation-uncertainty / --translation-uncertainty (180: no guess at all).")
+    elif res.threshold > 0 and not res.below_threshold:
         why = "the pair threshold does not trust this pose" if res.trusted is not None else "E stayed above the threshold"
         print(f"note: {why}, so this is probably not the registration. The search covers "
               f"about twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg, "

@@ -72,7 +72,7 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: Candidate
     def misfit(T: np.ndarray) -> tuple[float, float, float, float]:
         """(misfit, distance ratio, angle ratio, matched share) of pose T, whatever its overlap."""
         sc = basis.evaluate(T[None])
-        return (thr.misfit(basis, T), float(np.sqrt(sc.inlier_median[0] / floor)),
+        return (thr.misfit(basis, T, sc), float(np.sqrt(sc.inlier_median[0] / floor)),
                 basis.normal_angle(T) / basis.angle_floor, float(sc.inliers[0]))
 
     truth = misfit(T_true)

@@ -201,9 +201,12 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     sources: dict[str, int | str] = {}
     trusted, last = False, None
 
+    def in_region(T: np.ndarray) -> bool:
+        """Within REGION x the stated uncertainty (beyond it, a twin of a symmetric scene may fit as well)."""
+        return within(T, T_init, source.centroid, REGION * r_unc, REGION * t_unc)
+
     def accept(T: np.ndarray) -> bool:
-        """Trusted, and within REGION x the stated uncertainty (a twin of a symmetric scene may fit as well)."""
-        return within(T, T_init, source.centroid, REGION * r_unc, REGION * t_unc) and threshold.holds(basis, T)
+        return in_region(T) and threshold.holds(basis, T)
 
     try:
         # Stages, cheapest first; the first refined pose the pair threshold trusts ends the search (it
@@ -247,7 +250,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     iterations = {"icp": run.n["icp"], "sa": run.n["sa"], "candidates": run.n["candidates"]}
     misfit = threshold.misfit(basis, best)
     details = {"threshold_derivation": threshold.to_json(), "misfit": misfit if np.isfinite(misfit) else None,
-               "within_region": within(best, T_init, source.centroid, REGION * r_unc, REGION * t_unc),
+               "within_region": in_region(best),
                "score": best_s, "candidates": len(poses),
                "candidate_sources": sources}
     return Result(best, last.error(best), iterations, 0, run.total(), time.perf_counter() - t0, "global",

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .candidates import Basis
+from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
 from .noise import noise_floors
 from .problem import Problem
@@ -92,10 +92,11 @@ class PairThreshold:
         return {"value": self.value, "floor": self.floor, "angle_floor_deg": self.angle_floor, "factor": self.factor,
                 "min_overlap": self.min_overlap, "derivation": self.derivation}
 
-    def misfit(self, basis: Basis, T: np.ndarray) -> float:
+    def misfit(self, basis: Basis, T: np.ndarray, scores: Scores | None = None) -> float:
         """sqrt(median matched d^2 / floor) x (median normal angle / angle floor) at pose T (4, 4), whatever
-        its overlap (notes above); inf when fewer than 3 points match or a floor is 0."""
-        s = basis.evaluate(np.asarray(T)[None])
+        its overlap (notes above); inf when fewer than 3 points match or a floor is 0. ``scores``: T's
+        on ``basis``, when evaluated already."""
+        s = basis.evaluate(np.asarray(T)[None]) if scores is None else scores
         with np.errstate(divide="ignore", invalid="ignore"):
             m = np.sqrt(s.inlier_median[0] / self.floor) * (basis.normal_angle(T) / self.angle_floor)
         return float(m) if np.isfinite(m) else float("inf")
@@ -103,9 +104,7 @@ class PairThreshold:
     def holds(self, basis: Basis, T: np.ndarray) -> bool:
         """Whether pose T (4, 4) passes: it overlaps enough (notes above) and its misfit is below the factor."""
         s = basis.evaluate(np.asarray(T)[None])
-        if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP):
-            return False
-        return self.misfit(basis, T) < self.factor
+        return bool(basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor)
 
 
 def pair_threshold(floor: float, angle_floor: float, min_overlap: float, factor: float = FACTOR) -> PairThreshold:

@@ -15,7 +15,7 @@ from core.events import Event
 from core.landscape import Slice
 from core.scan import Scan
 
-MAX_PATH_POINTS = 512  # the drawn path is thinned to at most this many points, plus its phase ends and minima
+MAX_PATH_POINTS = 300  # the drawn path is thinned to at most this many points, plus its phase ends and minima
 # (the trace keeps them all). Each segment is a fat line of 6 triangles: in software WebGL (headless Chromium,
 # SwiftShader) a frame of the bunny SA run cost the GPU process 125-155 ms of CPU with 1500 segments, 85-90 ms
 # with 300, ~90 ms with the path hidden (load 4-6 on 2 cores); its thickness and its updates cost nothing seen

@@ -1,4 +1,5 @@
-"""The README's pictures of the workbench, taken in headless Chromium: docs/landscape.png, docs/residuals.png.
+"""The README's pictures of the workbench, taken in headless Chromium: docs/landscape.png, docs/residuals.png,
+docs/workbench.png.
 
     python scripts/screenshots.py [BUNNY_DIR]
 
@@ -8,7 +9,8 @@ as the 3-D terrain, runs the hybrid, hides the frustums, then points the camera 
 until the page's camera says it is there before taking the picture. Then it hides the terrain, ticks
 "Colour by residual" on the Model tab (the source coloured by its distance to the target at the
 hybrid's pose, the histogram with the cap), hides the gizmo and points the camera back at the scans
-for the second picture. The camera's position is set before
+for the second picture. The third is an annealing run from the same start, paused after 4 s, with the
+frustums shown. The camera's position is set before
 its look-at point: viser moves the look-at point along with a new position (keeping the orientation),
 which is why a camera set the other way round never looked at the terrain.
 """
@@ -114,6 +116,22 @@ def main() -> None:
         out = ROOT / "docs" / "residuals.png"
         page.screenshot(path=str(out))
         print(f"wrote {out}")
+        page.get_by_label("Colour by residual", exact=True).uncheck()
+        tab.scans.h.show.frustums.value = True
+        tab.apply_visibility()
+        page.get_by_role("tab", name="Run", exact=True).click()
+        page.get_by_role("button", name="Reset", exact=True).click()
+        page.get_by_role("button", name="Run SA", exact=True).click()
+        page.get_by_text("· running ·").wait_for(timeout=60_000)
+        time.sleep(4.0)
+        page.get_by_role("button", name="Pause", exact=True).click()
+        page.get_by_text("· paused ·").wait_for(timeout=30_000)
+        page.mouse.move(5, 5)
+        time.sleep(3.0)
+        out = ROOT / "docs" / "workbench.png"
+        page.screenshot(path=str(out))
+        print(f"wrote {out}")
+        page.get_by_role("button", name="Cancel", exact=True).click()
 
 
 if __name__ == "__main__":

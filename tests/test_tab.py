@@ -181,3 +181,40 @@ def test_a_reset_drops_the_outcome_of_the_run_it_cancelled():
     st.reset_run()  # what Reset does once the run has ended
     st.apply_handed()
     assert st.finished_text == "" and st.result is None
+
+
+def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points(tmp_path):
+    """While a run moves the scan, each cloud is drawn by RUN_POINTS of its points, as large as their spacing
+    (capped): software WebGL pays per point drawn, not per pixel of a point."""
+    import socket
+
+    import numpy as np
+    import viser
+
+    from app.tab import scene3d
+    from app.views import Display
+    from core.frustum import frustum_of
+    from core.io import load_scan
+    from core.surface import Surface
+    from tests.conftest import ASSETS
+
+    source, target = (load_scan(ASSETS / "corner" / f"scan{k}.ply") for k in (2, 1))
+    state = SimpleNamespace(display=Display(target, source), residual_rgb=None, source=source, target=target,
+                            problem=None, frusta={"convex": (frustum_of(source, "convex"), frustum_of(target, "convex"))},
+                            surfaces=(Surface.from_scan(source), Surface.from_scan(target)))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
+    try:
+        n = len(source.points)
+        assert n > scene3d.RUN_POINTS
+        cloud = scene3d._cloud(server.scene, state, "source", state.display.source_local(source.points), 0.01,
+                               "convex", False)
+        assert len(cloud.points.points) == n and len(cloud.light.points) == scene3d.RUN_POINTS
+        assert len(np.unique(cloud.light_index)) == scene3d.RUN_POINTS
+        grow = min(scene3d.LIGHT_SIZE_MAX, np.sqrt(n / scene3d.RUN_POINTS))
+        assert grow > 1 and cloud.light.point_size == pytest.approx(grow * cloud.points.point_size)
+        assert cloud.points.visible and not cloud.light.visible  # the subset is drawn only while a run moves the scan
+    finally:
+        server.stop()

@@ -20,7 +20,8 @@ log = logging.getLogger("rangereg.workbench")
 
 REFRESH = 0.07  # seconds between pushes of a run's progress: ~14 Hz, >= 10 Hz; a browser slower than that
 # takes the latest (viser keeps only the newest value of each property it has not sent yet)
-PLOT_REFRESH = 0.25  # seconds between redraws of the E chart during a run (uPlot redraws its 2000 points)
+PLOT_REFRESH = 0.5  # seconds between redraws of the E chart during a run (uPlot redraws its 2000 points on the
+# page's main thread, which also waits for every frame of a software-rendered canvas)
 TERRAIN_REFRESH = 0.25  # seconds between redraws of the path on the 3-D terrain during a run (its marker moves
 # on every push)
 SLICE_REFRESH = 2.0  # seconds between redraws of the contour during a run: rebuilding the Plotly figure took

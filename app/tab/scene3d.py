@@ -3,7 +3,7 @@
 The target sits still; the source is one frame node (``/source``) whose pose is the registration's:
 a run moves it by that node's pose, never by re-sending points. Each cloud is drawn twice: all its
 points, and a fixed subset shown while a run moves the scan (the page redraws on every pose push;
-software WebGL draws ~1.3 M points/s on 2 cores). The frustum wireframes and the surfaces are in the
+software WebGL draws ~0.4 M points/s on 2 cores: RUN_POINTS). The frustum wireframes and the surfaces are in the
 scene only while shown: a hidden node still cost the software-rendered page (bunny pair, Chromium with
 software WebGL, load ~9 on 2 cores: 350-500 ms of CPU a frame with them hidden in the scene, 110-180
 ms with them removed).
@@ -27,7 +27,13 @@ from app.figures import (
 )
 from app.tab.state import TabState
 
-RUN_POINTS = 6000  # while a run moves the scan, each cloud is drawn with at most this many points
+RUN_POINTS = 1500  # while a run moves the scan, each cloud is drawn with at most this many points: software
+# WebGL pays per point, hardly per pixel of a point (bunny pair, 1400 x 900 page, no run: 11-14 frames a second
+# with 2 x 6,000 points, 16-18 with 2 x 2,000, 19-21 with none; points drawn 2 x larger: no change). During a
+# run the page has one core: benchmarks/workbench_rate.py, docked panel: 2 x 2,000: 9.2-10.8 updates a second,
+# 2 x 1,500: 9.6-11.2 (median 11.2, three runs each, load 2-4)
+LIGHT_SIZE_MAX = 3.0  # the subset's points are drawn sqrt(N / RUN_POINTS) times larger (its spacing), at most this
+AMBIENT = 1.0  # the ambient light's intensity, in place of the environment map's fill (draw_pair)
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
 
@@ -117,7 +123,9 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
     light = index = None
     if len(pts) > RUN_POINTS:
         index = np.sort(np.random.default_rng(0).choice(len(pts), RUN_POINTS, replace=False))
-        light = scene.add_point_cloud(f"{root}/points_run", pts[index], rgb[index], point_size=size,
+        # drawn as large as the subset's spacing (up to LIGHT_SIZE_MAX x), so it still reads as a surface
+        grow = min(LIGHT_SIZE_MAX, float(np.sqrt(len(pts) / RUN_POINTS)))
+        light = scene.add_point_cloud(f"{root}/points_run", pts[index], rgb[index], point_size=grow * size,
                                       precision="float32", point_shading="flat", visible=False)
     f = state.frusta[frustum_kind][0 if src else 1]
     scan, surface = (state.source, state.surfaces[0]) if src else (state.target, state.surfaces[1])
@@ -128,13 +136,23 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
     return cloud
 
 
+def light(scene) -> None:
+    """The scene's lights: viser's two directional lights without shadow maps (they shade nothing a point cloud
+    shows, and each frame drew three of them in software WebGL), no environment map (its image lighting of every
+    lit pixel, the terrain, surfaces and model, held a software-rendered page with the 3-D terrain shown to ~6.6
+    updates a second, 8.7 without: bunny SA run, alternating, load 3-4; and it washed out the terrain's colour
+    scale), and an ambient light for the fill the map gave."""
+    scene.configure_default_lights(True, cast_shadow=False)
+    scene.configure_environment_map(hdri=None)
+    scene.add_light_ambient("/ambient", intensity=AMBIENT)
+
+
 def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, overlap: bool) -> SceneNodes:
     """Every node of the pair in ``state`` (call inside ``client.atomic()``)."""
     d, src, tgt, scene = state.display, state.source, state.target, client.scene
     size = 0.8 * min(src.spacing, tgt.spacing) / d.size
     scene.set_up_direction("+y")
-    # no shadow maps: they shade nothing a point cloud shows, and each frame drew three of them (software WebGL)
-    scene.configure_default_lights(True, cast_shadow=False)
+    light(scene)
     wxyz, pos = d.node_pose(state.T)
     frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)

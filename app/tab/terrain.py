@@ -22,7 +22,7 @@ TERRAIN_AT = (1.4, -0.4, 0.0)  # page units: right of the scans (the page scales
 TERRAIN_SIZE = 1.0  # width and depth of the box; its height is HEIGHT
 HEIGHT = 0.5
 LIFT = 0.01  # the path floats this far above the surface, so the surface never hides it
-MAX_TERRAIN_PATH = 512  # points drawn at most, plus phase ends and minima (the projection keeps every event; see
+MAX_TERRAIN_PATH = 300  # points drawn at most, plus phase ends and minima (the projection keeps every event; see
 # app/views.MAX_PATH_POINTS for what a segment costs a software-rendered page)
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from app.figures import MINIMUM_RGB, PHASE_TABLE, SOURCE_RGB, TARGET_RGB
-from app.tab.scene3d import light
+from app.tab.scene3d import set_lights
 from app.views import Display, Trail
 from core.errors import InputError
 
@@ -82,7 +82,7 @@ def _draw_pair(scene, run: RunToRecord):
     d = run.display
     size = 0.8 * min(run.source.spacing, run.target.spacing) / d.size
     scene.set_up_direction("+y")
-    light(scene)
+    set_lights(scene)
     scene.add_point_cloud("/target/points", _thin(d.points(run.target.points)), TARGET_RGB, point_size=size,
                           precision="float32")
     wxyz, pos = d.node_pose(run.T_start)

@@ -183,7 +183,7 @@ def test_a_reset_drops_the_outcome_of_the_run_it_cancelled():
     assert st.finished_text == "" and st.result is None
 
 
-def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points(tmp_path):
+def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
     """While a run moves the scan, each cloud is drawn by RUN_POINTS of its points, as large as their spacing
     (capped): software WebGL pays per point drawn, not per pixel of a point."""
     import socket

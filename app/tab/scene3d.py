@@ -136,7 +136,7 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
     return cloud
 
 
-def light(scene) -> None:
+def set_lights(scene) -> None:
     """The scene's lights: viser's two directional lights without shadow maps (they shade nothing a point cloud
     shows, and each frame drew three of them in software WebGL), no environment map (its image lighting of every
     lit pixel, the terrain, surfaces and model, held a software-rendered page with the 3-D terrain shown to ~6.6
@@ -152,7 +152,7 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     d, src, tgt, scene = state.display, state.source, state.target, client.scene
     size = 0.8 * min(src.spacing, tgt.spacing) / d.size
     scene.set_up_direction("+y")
-    light(scene)
+    set_lights(scene)
     wxyz, pos = d.node_pose(state.T)
     frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)

@@ -137,6 +137,10 @@ def test_step_next_phase_resume_walk_a_hybrid_run_to_its_end(server, browser):
     assert wait_paused(page, 1) == 1 and "Method hybrid" in page.locator("body").inner_text()
     time.sleep(0.5)
     assert icp_iterations(page) == 1  # a step is one iteration, and the run stays paused
+    from playwright.sync_api import expect
+
+    expect(page.get_by_role("button", name="Pause", exact=True)).to_be_disabled()  # paused: only Resume is offered
+    expect(page.get_by_role("button", name="Resume", exact=True)).to_be_enabled()
     page.get_by_role("button", name="Next phase", exact=True).click()
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and icp_iterations(page) == 1:

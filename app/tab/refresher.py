@@ -36,6 +36,7 @@ class Refresher:
         self.failures = 0
         self.terrain_at = self.plot_at = 0.0
         self.plotted = self.terrain_drawn = (None, 0)  # (trail, events) last drawn in the chart, on the terrain
+        self.paused_shown = None  # (run, paused) as Pause / Resume last showed it (None: no run)
         self.thread = threading.Thread(target=self._loop, daemon=True, name="rangereg-refresh")
 
     def start(self) -> None:
@@ -74,6 +75,10 @@ class Refresher:
         if light != tab.run_drawing:
             tab.run_drawing = light
             tab.apply_visibility()
+        shown = (st.run, st.run.paused) if running else None  # a new run is a new Run: its buttons are set afresh
+        if shown is not None and shown != self.paused_shown:
+            tab.run_panel.show_paused(shown[1])
+        self.paused_shown = shown
         trail = tab.trail()
         if running or self.was_running or trail.n != len(st.events):
             self.push(running)

@@ -235,3 +235,7 @@ class RunPanel:
         h.pause.disabled = h.resume.disabled = h.cancel.disabled = not running
         self.tab.run_drawing = running
         self.tab.lock_panels(running)
+
+    def show_paused(self, paused: bool) -> None:
+        """While a run holds the controls: Pause while it moves, Resume while it is paused."""
+        self.h.pause.disabled, self.h.resume.disabled = paused, not paused

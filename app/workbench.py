@@ -26,7 +26,8 @@ from core.simulate import SCENES
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".obj", ".stl", ".off")
 MAX_LISTED_FILES = 500
-PANEL_WIDTH = 480  # pixels of the page the docked panel takes: room for the E chart and the contour
+PANEL_WIDTH = 480  # pixels of the page the docked panel takes: room for the E chart and the contour (the floating
+# "large" panel was ~400; at 480 the contour's axes and colour bar fit, docs/landscape.png)
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,9 @@ RUN_POINTS = 1500  # while a run moves the scan, each cloud is drawn with at mos
 # run the page has one core: benchmarks/workbench_rate.py, docked panel: 2 x 2,000: 9.2-10.8 updates a second,
 # 2 x 1,500: 9.6-11.2 (median 11.2, three runs each, load 2-4)
 LIGHT_SIZE_MAX = 3.0  # the subset's points are drawn sqrt(N / RUN_POINTS) times larger (its spacing), at most this
-AMBIENT = 1.0  # the ambient light's intensity, in place of the environment map's fill (draw_pair)
+# (chosen by eye on screenshots of the bunny page: 2.5-3 x reads as the surface, larger as blobs; size costs nothing)
+AMBIENT = 1.0  # the ambient light's intensity, in place of the environment map's fill (set_lights; chosen by eye on
+# the terrain, the residual colours and the merged model: no face goes black)
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
 

@@ -25,6 +25,14 @@ LOOPBACK = ("localhost", "127.0.0.1", "::1")
 WILDCARDS = ("0.0.0.0", "::", "")
 
 
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now (for a server started next: tests, benchmarks,
+    the recording's static page)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def _host_of(netloc: str) -> str | None:
     """Lower-case host name of ``host[:port]`` (IPv6 without brackets), None when malformed."""
     try:

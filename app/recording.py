@@ -15,12 +15,12 @@ from __future__ import annotations
 import base64
 import contextlib
 import io
-import socket
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from app.access import free_port
 from app.figures import MINIMUM_RGB, PHASE_TABLE, SOURCE_RGB, TARGET_RGB
 from app.tab.scene3d import set_lights
 from app.views import Display, Trail
@@ -72,12 +72,6 @@ def _thin(points: np.ndarray, cap: int = MAX_POINTS) -> np.ndarray:
     return points[np.sort(np.random.default_rng(0).choice(len(points), cap, replace=False))]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _draw_pair(scene, run: RunToRecord):
     d = run.display
     size = 0.8 * min(run.source.spacing, run.target.spacing) / d.size
@@ -121,7 +115,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
     pos, phase = np.r_[start, trail.pos], np.r_[0, trail.phase].astype(np.int8)
     minimum = np.r_[False, trail.minimum]
     with guarded_viser(Guard("127.0.0.1")), contextlib.redirect_stdout(io.StringIO()):  # no banner on the console
-        server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+        server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         scene = server.scene
         frame, size = _draw_pair(scene, run)

@@ -24,7 +24,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.browser import free_port, launch  # noqa: E402
+from app.access import free_port  # noqa: E402
+from benchmarks.browser import launch  # noqa: E402
 
 PAUSE_JS = """() => new Promise(done => {
   const button = [...document.querySelectorAll('button')].find(b => b.innerText.trim() === 'Pause');

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ import time
 import numpy as np
 import pytest
 
+from app.access import free_port
 from core.errors import InputError
 from core.io import load_conf, load_scan
 from core.merge import merge
@@ -158,24 +158,18 @@ def test_an_explicit_thread_count_reaches_every_worker():
         assert all(got["open3d"] == 1 and got["MKL_NUM_THREADS"] == "1" for got in runner.threading().values())
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_a_scheduler_started_apart_gives_the_same_poses(serial):
     from app.distributed import TaskRunner
 
     scans, initial, rep = serial
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     dask = [sys.executable, "-m", "dask"]
     procs = []
     try:
         procs.append(subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--dashboard-address", f"127.0.0.1:{_free_port()}", "--no-show"],
+                                       "--dashboard-address", f"127.0.0.1:{free_port()}", "--no-show"],
                                       env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         procs.append(subprocess.Popen([*dask, "worker", address, "--nworkers", "2", "--nthreads", "1",
                                        "--no-dashboard", "--host", "127.0.0.1"],
@@ -218,7 +212,7 @@ def test_bad_runner_settings_are_one_clear_error():
                       ({"threads": 0}, "--threads"), ({"threads": 1.5}, "--threads")):
         with pytest.raises(InputError, match=words):
             TaskRunner(**kw)
-    port = _free_port()  # nobody listens there
+    port = free_port()  # nobody listens there
     with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
         with TaskRunner(scheduler=f"tcp://127.0.0.1:{port}", connect_timeout=1.0) as runner:
             runner.start()

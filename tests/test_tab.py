@@ -186,11 +186,10 @@ def test_a_reset_drops_the_outcome_of_the_run_it_cancelled():
 def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
     """While a run moves the scan, each cloud is drawn by RUN_POINTS of its points, as large as their spacing
     (capped): software WebGL pays per point drawn, not per pixel of a point."""
-    import socket
-
     import numpy as np
     import viser
 
+    from app.access import free_port
     from app.tab import scene3d
     from app.views import Display
     from core.frustum import frustum_of
@@ -202,10 +201,7 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
     state = SimpleNamespace(display=Display(target, source), residual_rgb=None, source=source, target=target,
                             problem=None, frusta={"convex": (frustum_of(source, "convex"), frustum_of(target, "convex"))},
                             surfaces=(Surface.from_scan(source), Surface.from_scan(target)))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
         n = len(source.points)
         assert n > scene3d.RUN_POINTS

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests.test_workbench import free_port, open_page, show_tab
+from app.access import free_port
+from tests.test_workbench import open_page, show_tab
 
 pytestmark = pytest.mark.browser
 

@@ -161,11 +161,11 @@ def panel():
     """A Replay panel on a real viser GUI (no browser) over a tab state holding the corner pair."""
     import viser
 
-    from app.recording import _free_port
+    from app.access import free_port
     from app.tab.replay import ReplayPanel
     from app.tab.state import TabState
 
-    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     st = TabState()
     st.source, st.target = (load_scan(p) for p in CORNER)
     st.T_init = relative_guess(st.source, st.target)

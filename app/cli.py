@@ -143,6 +143,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quick", action="store_true", help="fewer runs (under 3 minutes)")
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
+    s.add_argument("--modes", help="--sweep: how starts are made, comma-separated of origin, turntable, centroid, "
+                   "no-guess (default all)")
+    s.add_argument("--families", help="--sweep: which pairs, comma-separated of whole, crop-whole, crop-crop "
+                   "(default all)")
     s.add_argument("--json", help="write the rows as JSON to this file")
     s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
     s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "

@@ -59,6 +59,10 @@ class CandidateConfig:
     # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations
     # on the same robust E; "point" is the paper's Horn step
     refine_metric: str = "plane"
+    # a refinement leg stops when its best E has not fallen for this many iterations (core.icp's patience).
+    # Measured on the bunny sweep's starts (5 pairs, origin mode, 5-180 deg): right refinements reach their
+    # best within 2-6 iterations of a leg's start and then at most cycle
+    refine_patience: int = 8
     normal_neighbours: int = NORMAL_NEIGHBOURS  # points a normal is fitted to (the pair threshold's angle)
     # The guess is refined alone first when its rotation is stated within this; a wider guess is scored
     # with KISS-Matcher's hypothesis first. Measured on the bunny sweep's starts only (the scenes have no
@@ -89,6 +93,8 @@ class CandidateConfig:
         if self.refine_metric not in METRICS:
             raise InputError(f"the refinement's ICP metric must be one of {', '.join(METRICS)}, "
                              f"not {self.refine_metric!r}")
+        if self.refine_patience < 1:
+            raise InputError(f"the refinement's patience must be at least 1 iteration, got {self.refine_patience}")
         if self.normal_neighbours < 3:
             raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):

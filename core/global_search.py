@@ -236,7 +236,7 @@ def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: Prob
                    visibility=False)
     converged = replace(pc, rotation_uncertainty_deg=s.resegment_rotation_deg,
                         translation_uncertainty=s.resegment_translation * target.size)
-    icp_config = replace(config.icp, metric=cc.refine_metric)
+    icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience)
     for cfg in (near, converged):
         p = at_T if cfg is near and at_T is not None else prepare(source, target, T, cfg, surface=surface, seed=config.seed)
         T = icp(p.error, T, icp_config, on_step, frame=frame).T
@@ -261,12 +261,17 @@ class Found:
     inside: np.ndarray | None = None
     beyond: np.ndarray | None = None
     last_cut: Problem | None = None
+    by: dict | None = None  # id of a refined pose -> the stage that gave it
+
+    def stage_of(self, T: np.ndarray) -> str:
+        return (self.by or {}).get(id(T), "")
 
     def __post_init__(self):
         self.refined = [] if self.refined is None else self.refined
+        self.by = {} if self.by is None else self.by
 
 
-def run_stage(setup: Setup, run: _Counter, poses: list[np.ndarray], n: int, found: Found) -> None:
+def run_stage(setup: Setup, run: _Counter, poses: list[np.ndarray], n: int, found: Found, stage: str = "") -> None:
     """Score ``poses`` in one query (events of phase 'candidates'); refine the best ``n`` by score, those
     inside the region first (once each: near-duplicates are skipped), until one is trusted inside."""
     cc = setup.config.candidates
@@ -292,6 +297,7 @@ def run_stage(setup: Setup, run: _Counter, poses: list[np.ndarray], n: int, foun
         T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
                          lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
         found.refined.append(T)
+        found.by[id(T)] = stage
         if setup.trusted(T):
             if setup.region.inside(T):
                 found.inside, found.last_cut = T, last
@@ -347,14 +353,15 @@ def search_stages(setup: Setup, run: _Counter) -> tuple[Found, dict]:
             hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none)
         sources[stage.name] = hyp.source_note
         if hyp.poses:
-            run_stage(setup, run, hyp.poses, stage.refine, found)
+            run_stage(setup, run, hyp.poses, stage.refine, found, stage.name)
         if found.inside is not None:
             break
     return found, sources
 
 
 def fallback(setup: Setup, run: _Counter, found: Found) -> tuple[np.ndarray, float, Stop]:
-    """Nothing trusted: the paper's hybrid round the best refined pose within the bound; the lower score."""
+    """Nothing trusted: the paper's hybrid round the best refined pose within the bound; the lower score
+    (a pose the hybrid found is recorded in ``found.by`` as its)."""
     cc, pc = setup.config.candidates, setup.config.problem
     best, best_s = best_refined(setup, found.refined or [setup.T_guess])
     if cc.fallback_steps == 0 or setup.out_of_time():
@@ -374,6 +381,7 @@ def fallback(setup: Setup, run: _Counter, found: Found) -> tuple[np.ndarray, flo
     text = _bound_text(setup, where) if bounded else f"{where}: {res.stop_text}"
     if s_h < best_s:
         best, best_s = res.transform, s_h
+        found.by[id(best)] = "hybrid"
     else:
         text += "; the refined candidate scores lower on the fixed basis"
     return best, best_s, Stop(StopReason.TIME_BOUND if bounded else res.stop_reason, text)
@@ -405,11 +413,12 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         scored = found.scored
     except Cancelled:
         best, stop, sources, scored, found = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}, 1, Found()
-    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, scored, sources)
+    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, scored, sources,
+                   found.stage_of(best) or ("guess" if best is setup.T_guess else ""))
 
 
 def _result(setup: Setup, run: _Counter, T: np.ndarray, stop: Stop, last_cut: Problem | None, scored: int,
-            sources: dict) -> Result:
+            sources: dict, found_by: str) -> Result:
     """The Result of pose T: E on the overlap cut at T (a trusted refinement's last cut is that already)."""
     cfg = setup.config
     if last_cut is None:
@@ -420,6 +429,7 @@ def _result(setup: Setup, run: _Counter, T: np.ndarray, stop: Stop, last_cut: Pr
     misfit = setup.threshold.misfit(setup.basis, T, s)
     trusted = setup.trusted(T)
     details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
-                            setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]), scored, sources)
+                            setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]), scored, sources,
+                            found_by)
     return Result(T, last_cut.error(T), run.iterations(), 0, run.total(), time.perf_counter() - setup.t0, "global",
                   setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)

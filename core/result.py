@@ -58,7 +58,8 @@ class GlobalDetails:
     when too little matches to judge); region: the stated region (core.region.Region); within_region:
     the pose lies inside it; beyond: where it lies otherwise, in words ('' inside); score: the pose's
     score on the pair's fixed basis (squared units); candidates: poses scored; candidate_sources: per
-    stage, how many poses it gave or why it gave none."""
+    stage, how many poses it gave or why it gave none; found_by: the stage whose refined pose this is
+    ("guess", "kiss-matcher", "rotation samples", "fpfh-ransac 5 spacings", ..., "hybrid")."""
 
     threshold: object
     misfit: float | None
@@ -68,11 +69,13 @@ class GlobalDetails:
     score: float
     candidates: int
     candidate_sources: dict
+    found_by: str = ""
 
     def to_json(self) -> dict:
         return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
                 "within_region": self.within_region, "region": self.region.to_json(), "beyond": self.beyond,
-                "score": self.score, "candidates": self.candidates, "candidate_sources": dict(self.candidate_sources)}
+                "score": self.score, "candidates": self.candidates, "candidate_sources": dict(self.candidate_sources),
+                "found_by": self.found_by}
 
 
 @dataclass(frozen=True, eq=False)

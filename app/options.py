@@ -62,6 +62,7 @@ KNOBS: dict[str, Knob] = {
     "workers": Knob("--workers", int, 1, 1024),  # Dask worker processes (merge); more than the cores only queue
     "threads": Knob("--threads", int, 1, 1024),  # threads per task stream (merge): Open3D's, OpenMP's, BLAS's
     "port": Knob("--port", int, 1, 65535),  # TCP ports
+    "time_limit": Knob("--time-limit", float, 0, 86_400, low_open=True),  # seconds; a day is beyond any use here
     "upload_cap_mb": Knob("--upload-cap-mb", float, 0, 100_000, low_open=True),  # 100 GB: beyond any memory here
 }
 
@@ -142,6 +143,7 @@ class Settings:
     candidates: bool = True  # method global: candidate poses beyond the guess (False: the guess alone)
     rotation_samples: int | None = None  # method global: over all of SO(3)
     full_search: bool = False  # method global: no bound on the search (the paper's hybrid runs to its end)
+    time_limit: float | None = None  # method global: seconds after which no new stage starts (None: none)
     lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
@@ -193,7 +195,8 @@ def to_config(s: Settings):
                   polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
                   candidates=replace(base.candidates, enabled=s.candidates,
                                      **given(rotation_samples=s.rotation_samples),
-                                     **({"fallback_steps": None, "time_limit": None} if s.full_search else {})),
+                                     **given(time_limit=s.time_limit),
+                                     **({"fallback_steps": None} if s.full_search else {})),
                   **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg

@@ -208,19 +208,26 @@ class TraceFile:
 def library_prints_to_stderr(active: bool = True) -> Iterator[None]:
     """While active, what is written to file descriptor 1 (a C++ library's prints: Open3D's warnings)
     goes to stderr, so that stdout holds only what the command prints on purpose (``--json``)."""
-    try:
-        if not active:
-            raise ValueError
-        sys.stdout.flush()
-        fd = sys.stdout.fileno()
-        saved = os.dup(fd)
-    except (OSError, ValueError, AttributeError):  # inactive, or no file behind stdout (in-process callers)
+    if not active:
         yield
         return
-    os.dup2(sys.stderr.fileno(), fd)
+    sys.stdout.flush()
+    saved = os.dup(1)  # a library writes to the process's file descriptor 1, whatever sys.stdout is
+    os.dup2(2, 1)
     try:
         yield
     finally:
         sys.stdout.flush()
-        os.dup2(saved, fd)
+        _flush_c_streams()  # what the C library holds in its buffer for fd 1 belongs to stderr too
+        os.dup2(saved, 1)
         os.close(saved)
+
+
+def _flush_c_streams() -> None:
+    """fflush(NULL): the C library's buffered streams written out (a pipe or file is fully buffered)."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to ask (not a POSIX system): nothing is held there
+        pass

@@ -1,0 +1,130 @@
+"""The global method (core.global_search) and its stated region (core.region): what the user says about the
+guess means what a user means; no hypothesis is dropped; no guess is no guess; library prints stay off
+--json's stdout."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from core.problem import ProblemConfig
+from core.region import Region, no_guess
+from core.register import Config, register
+from core.transforms import invert, pose_error, rotation_matrix
+
+rng = np.random.default_rng(7)
+
+
+def _about_origin(T: np.ndarray, deg: float, axis: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """T rotated by ``deg`` about the source frame's origin (where a 4x4's rotation acts), then shifted."""
+    out = T.copy()
+    out[:3, :3] = T[:3, :3] @ rotation_matrix(axis / np.linalg.norm(axis) * np.radians(deg))
+    out[:3, 3] += shift
+    return out
+
+
+def test_a_rotation_about_the_frame_origin_within_the_stated_bound_is_inside_the_region(scene):
+    source, target = scene("corner")
+    T = np.eye(4)
+    T[:3, 3] = [300.0, -200.0, 50.0]  # the corner's centroid lies ~1 m from its frame's origin
+    region = Region.stated(T, ProblemConfig(rotation_uncertainty_deg=30.0), source, target)
+    for _ in range(50):
+        deg = rng.uniform(0, 30)
+        inside = _about_origin(T, deg, rng.normal(size=3), np.zeros(3))
+        assert region.inside(inside)
+    outside = _about_origin(T, 45.0, np.array([0.0, 0.0, 1.0]), np.zeros(3))
+    assert not region.inside(outside)
+    deg, move = region.beyond(outside)
+    assert 14.0 < deg < 16.0 and region.beyond_text(outside).startswith("found 15 deg")
+
+
+def test_from_ninety_degrees_the_translation_is_free_and_no_guess_takes_any_pose(scene):
+    source, target = scene("corner")
+    far = np.eye(4)
+    far[:3, 3] = [5 * target.size, 0, 0]
+    assert not Region.stated(np.eye(4), ProblemConfig(rotation_uncertainty_deg=60.0), source, target).inside(far)
+    ninety = Region.stated(np.eye(4), ProblemConfig(rotation_uncertainty_deg=90.0), source, target)
+    assert ninety.translation_free and ninety.inside(far)
+    stated = Region.stated(np.eye(4), ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=1.0),
+                           source, target)
+    assert not stated.translation_free and not stated.inside(far)
+    anything = Region.stated(np.eye(4), no_guess(ProblemConfig()), source, target)
+    flipped = _about_origin(far, 179.0, np.array([1.0, 0.0, 0.0]), np.zeros(3))
+    assert anything.no_guess and anything.inside(flipped) and anything.describe().startswith("no guess")
+
+
+def test_sixty_degrees_about_the_frame_origin_with_the_rotation_alone_told_registers(bunny):
+    source, target = bunny("bun045"), bunny("bun000")
+    T_true = invert(target.pose) @ source.pose
+    T0 = _about_origin(T_true, 60.0, np.array([0.3, 1.0, -0.2]), np.array([0.03, -0.02, 0.05]))
+    res = register(source, target, T0, Config(method="global", problem=ProblemConfig(rotation_uncertainty_deg=60.0)))
+    rot, trans = pose_error(res.transform, T_true, source.centroid)
+    assert rot < 2.0 and trans < 0.002
+    assert res.trusted and res.within_region  # the 60 deg about the origin moved the centroid ~0.1 m: inside
+
+
+def test_no_hypothesis_is_dropped_a_trusted_pose_beyond_the_region_comes_back_and_says_so(bunny):
+    source, target = bunny("bun090"), bunny("bun000")  # 90 deg apart; the identity stated as good to 15 deg
+    res = register(source, target, np.eye(4), Config(method="global", problem=ProblemConfig(rotation_uncertainty_deg=15.0)))
+    rot, trans = pose_error(res.transform, invert(target.pose) @ source.pose, source.centroid)
+    assert rot < 2.0 and trans < 0.002
+    assert res.trusted and res.within_region is False and res.details.beyond.startswith("found ")
+    assert res.details.found_by in ("kiss-matcher", "fpfh-ransac 5 spacings")  # start-free: not the region's samples
+
+
+def test_when_nothing_is_trusted_the_fallback_is_bounded_and_says_what_the_user_can_do(scene):
+    corner, _ = scene("corner")
+    _, bowl = scene("bowl")  # two different objects: no pose is right, none is trusted
+    res = register(corner, bowl, np.eye(4), Config(method="global", problem=no_guess(ProblemConfig())))
+    assert not res.trusted
+    assert res.iterations.sa <= Config().candidates.fallback_steps
+    assert res.stop_reason.name in ("TIME_BOUND", "NO_BETTER_POINT", "BELOW_THRESHOLD")
+    if res.stop_reason.name == "TIME_BOUND":
+        assert "--full-search" in res.stop_text
+
+
+WARNS = """
+import sys
+import numpy as np
+import open3d as o3d
+import core.global_search as gs
+from app.cli import main
+
+real = gs.make_basis
+
+
+def warns_then_makes_the_basis(*args, **kw):  # every global run makes its basis once
+    reg, r = o3d.pipelines.registration, np.random.default_rng(0)
+
+    def cloud(scale):
+        p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(r.normal(size=(50, 3)) * scale))
+        p.estimate_normals()
+        return p, reg.compute_fpfh_feature(p, o3d.geometry.KDTreeSearchParamHybrid(radius=1, max_nn=5))
+
+    (a, fa), (b, fb) = cloud(1.0), cloud(100.0)  # nothing matches: "Too few correspondences after mutual filter"
+    reg.registration_ransac_based_on_feature_matching(a, b, fa, fb, True, 0.01,
+                                                      reg.TransformationEstimationPointToPoint(False), 3, [],
+                                                      reg.RANSACConvergenceCriteria(100, 0.9))
+    return real(*args, **kw)
+
+
+gs.make_basis = warns_then_makes_the_basis
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_json_stays_json_when_open3d_warns_on_stdout():
+    """Open3D prints its warnings on the process's stdout (buffered by the C library when it is a pipe):
+    with --json they go to stderr, and stdout holds one JSON object."""
+    import subprocess
+    import sys
+
+    from tests.conftest import ASSETS, ROOT
+
+    r = subprocess.run([sys.executable, "-c", WARNS, "register", str(ASSETS / "corner" / "scan2.ply"),
+                        str(ASSETS / "corner" / "scan1.ply"), "--no-candidates", "--json"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "Too few correspondences" in r.stderr  # the warning was printed, and not on stdout
+    assert json.loads(r.stdout)["method"] == "global"

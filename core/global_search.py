@@ -39,7 +39,7 @@ from .candidates import (
 from .config import Config
 from .events import Cancelled, Event, Listener
 from .icp import icp
-from .kiss import kiss_available, kiss_candidates
+from .kiss_matcher_candidates import kiss_available, kiss_candidates
 from .lock import LockFrame
 from .noise import noise_floors
 from .problem import Problem, ProblemConfig, prepare
@@ -146,7 +146,7 @@ def matched(source: Scan, target: Scan, T_init: np.ndarray, pc: ProblemConfig, c
 def kiss_ahead(source: Scan, target: Scan, pc: ProblemConfig, cc: CandidateConfig) -> Future | None:
     """KISS-Matcher's hypotheses, started on a thread of their own when the first stage scores them (a
     guess stated wider than GUESS_FIRST_DEG); else None. The thread makes the voxel clouds and waits on
-    core.kiss's child process, which runs on the other core while this one cuts the overlap, takes the
+    core.kiss_matcher_candidates' child process, which runs on the other core while this one cuts the overlap, takes the
     noise floor and the basis (the same inputs, so the same hypotheses)."""
     if not (cc.enabled and cc.kiss_matcher and pc.rotation_uncertainty_deg > GUESS_FIRST_DEG and kiss_available()):
         return None

@@ -70,7 +70,7 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     assert g.below_threshold
     # the guess, 90 degrees off, is not what was refined into the answer: a stage beyond it was scored
     assert g.iterations["candidates"] >= 2 and set(g.details["candidate_sources"]) - {"guess"}
-    # the same run again gives the same bits (KISS-Matcher's hypothesis included: core.kiss)
+    # the same run again gives the same bits (KISS-Matcher's hypothesis included: core.kiss_matcher_candidates)
     again = register(source, target, T0, Config(method="global", problem=pc))
     assert np.array_equal(again.transform, g.transform) and again.error == g.error
 
@@ -157,7 +157,7 @@ def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
 def test_kiss_matcher_started_ahead_gives_the_hypotheses_it_gives_in_line(bunny):
     from core.candidates import pair_spacing
     from core.global_search import kiss_ahead
-    from core.kiss import kiss_available, kiss_candidates
+    from core.kiss_matcher_candidates import kiss_available, kiss_candidates
 
     if not kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
@@ -180,29 +180,29 @@ def test_kiss_matcher_gives_the_same_bits_every_run_in_its_own_process_or_in_thi
     import os
     from pathlib import Path
 
-    from core import kiss
+    from core import kiss_matcher_candidates as kmc
     from core.candidates import pair_spacing
 
-    if not kiss.kiss_available():
+    if not kmc.kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
     source, target = bunny("bun045"), bunny("bun000")
     spacing = pair_spacing(source, target)
-    first = kiss.kiss_candidates(source, target, spacing, 5.0)
+    first = kmc.kiss_candidates(source, target, spacing, 5.0)
     assert len(first) == 1
-    a, b, k = kiss.voxel_clouds(source, target, spacing, 5.0)
-    runs = [kiss._CHILD.estimate(a, b) for _ in range(4)]
+    a, b, k = kmc.voxel_clouds(source, target, spacing, 5.0)
+    runs = [kmc._CHILD.estimate(a, b) for _ in range(4)]
     assert all(np.array_equal(T, runs[0]) for T in runs)
     assert np.allclose(first[0][:3, 3] * k, runs[0][:3, 3], rtol=1e-12) and np.array_equal(first[0][:3, :3], runs[0][:3, :3])
     # the fallback in this process: the same bits, and the CPU mask it narrows for a moment is as it was
     mask = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
-    assert all(np.array_equal(kiss._estimate_here(a, b), runs[0]) for _ in range(3))
+    assert all(np.array_equal(kmc._estimate_here(a, b), runs[0]) for _ in range(3))
     if mask is not None:
         assert os.sched_getaffinity(0) == mask
     # a child that died is started again; one that cannot start leaves the work to this process
-    kiss._CHILD._proc.kill()
-    kiss._CHILD._proc.wait()
-    assert np.array_equal(kiss.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
-    kiss._CHILD.close()
-    monkeypatch.setattr(kiss, "CHILD", Path(kiss.CHILD.parent / "no_such_child.py"))
-    assert np.array_equal(kiss.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
-    kiss._CHILD.close()
+    kmc._CHILD._proc.kill()
+    kmc._CHILD._proc.wait()
+    assert np.array_equal(kmc.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
+    kmc._CHILD.close()
+    monkeypatch.setattr(kmc, "CHILD", Path(kmc.CHILD.parent / "no_such_child.py"))
+    assert np.array_equal(kmc.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
+    kmc._CHILD.close()

@@ -51,9 +51,9 @@ def run(a: Namespace) -> int:
     check_distinct({"--out": out, "--trace": trace_path})
     t_imports = time.perf_counter()
     if cfg.method == "global" and cfg.candidates.enabled and cfg.candidates.kiss_matcher:
-        from core import kiss
+        from core import kiss_matcher_candidates
 
-        kiss.start()  # its process starts while Open3D is imported and the files are read
+        kiss_matcher_candidates.start()  # its process starts while Open3D is imported and the files are read
     import open3d  # noqa: F401  (imported here so that its 1-2 s are counted apart from the registration)
 
     import core.global_search  # noqa: F401

@@ -41,8 +41,6 @@ class Progress:
 def run(a: Namespace) -> int:
     from core.register import register
 
-    if a.method is None:
-        a.method = "global"
     cfg = pair.config(a)
     files = pair.inputs(a)
     scans = [a.source, a.target]

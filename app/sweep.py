@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.bench import Case
+from app.cases import Case
 from app.distributed import map_tasks, stderr_lines
 from core.errors import InputError
 from core.problem import ProblemConfig

@@ -381,7 +381,7 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
 
     T = np.array(json.loads(download("Transform (JSON)"))["transform"])
     assert T.shape == (4, 4) and np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
-    from core.events import read_trace
+    from core.trace import read_trace
 
     trace = read_trace(download("Trace (JSON lines)").decode(), "trace.jsonl")  # header, events, result
     assert trace.header.source.name == "right" and trace.result is not None

@@ -1,6 +1,6 @@
 """``rangereg register``: register SOURCE onto TARGET and print T_target_source.
 
-The trace (JSON lines) opens with a header line (core.events.TraceHeader: both scans by content, the
+The trace (JSON lines) opens with a header line (core.trace.TraceHeader: both scans by content, the
 guess used, the config, the seed, the version) that ``slice --trace`` and the page check against
 their scans, and closes with the result (the pose returned).
 
@@ -61,7 +61,7 @@ def run(a: Namespace) -> int:
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
     if trace is not None:  # the header first: which scans (by content), the guess, every knob, the seed
-        from core.events import TraceHeader
+        from core.trace import TraceHeader
 
         trace.write(json.dumps(TraceHeader.of(source, target, T_init, cfg, a.source, a.target).to_json()))
 

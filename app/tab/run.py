@@ -14,10 +14,10 @@ from app.runner import Run
 from app.tab.settings import FRUSTUM, LOCK_LABEL, NUMBERS, SettingsHandles, page_config, read_number, read_settings
 from app.tab.state import TabState
 from core.errors import InputError
-from core.events import TraceHeader
 from core.frustum import KINDS
 from core.problem import prepare
 from core.register import register
+from core.trace import TraceHeader
 
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
                "Basin hopping": "basin-hopping", "Run global": "global"}

@@ -12,8 +12,7 @@ from core import Config, prepare, register
 from core.anneal import AnnealConfig
 from core.errors import InputError
 from core.transforms import apply, from_params, perturb, pose_error
-
-ESCAPE = ("corner", 10.0, 400.0, 4)
+from tests.conftest import ESCAPE
 
 
 def _same(r1, r2):

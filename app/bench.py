@@ -5,18 +5,18 @@ Every method starts from the same seeded poses: the truth perturbed by a random 
 for the 4 ft corner, scaled to each scene's size (the paper's spread); 15 degrees and 25 mm on the
 bunny pairs. A run succeeds when its pose is within 1 degree and 1 % of the scene's size of the
 truth (bunny: 2 degrees and 2 mm, the issue's target), measured at the source's centroid.
-``--sweep``: app/sweep.py.
+``--sweep``: app/sweep.py (app/commands/bench.py dispatches).
 """
 
 from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from app.cases import Case
 from core.errors import InputError
 from core.problem import ProblemConfig, prepare
 from core.register import METHODS, Config, register
@@ -27,19 +27,6 @@ BUNNY_PAIRS = (("bun045", "bun000"), ("bun315", "bun000"), ("bun090", "bun045"),
 SCENE_START = {"corner": 250.0, "wing": 250.0 * 3 / 4, "bowl": 250.0 * 600 / 1219.2}  # mm, 5 deg rotation
 EXTRAS = {"hybrid+polish": dict(method="hybrid", polish=True),
           "hybrid+coarse-to-fine": dict(method="hybrid", coarse_to_fine=True)}
-
-
-@dataclass(frozen=True, eq=False)
-class Case:
-    name: str
-    source: object
-    target: object
-    T_true: np.ndarray
-    rot_deg: float
-    trans: float
-    ok_rot: float
-    ok_trans: float
-    problem: ProblemConfig
 
 
 def scene_cases() -> list[Case]:
@@ -126,10 +113,6 @@ def table(rows: list[dict]) -> str:
 def main(a) -> int:
     if a.runs is not None and a.runs < 1:
         raise InputError(f"--runs must be at least 1, got {a.runs}")
-    if a.sweep:
-        from app.sweep import sweep
-
-        return sweep(a)
     runs = a.runs or (2 if a.quick else 10)
     methods = ("hybrid", "icp", "basin-hopping") if a.quick else METHODS + tuple(EXTRAS)
     rows, notes = [], []

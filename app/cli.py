@@ -99,11 +99,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("register", help="register SOURCE onto TARGET", description="Register SOURCE onto TARGET; "
                        "prints the transform that maps SOURCE into TARGET's frame.")
     pair(s)
-    s.add_argument("--method", choices=METHODS, help="global (default): candidate poses in stages, cheapest "
+    s.add_argument("--method", choices=METHODS, default=cfg.method, help="global: candidate poses in stages, cheapest "
                    "first (the guess, rotation samples within the uncertainty, KISS-Matcher, FPFH+RANSAC), scored by "
                    "the robust E and refined by ICP until one is trusted, else the paper's hybrid from the best; "
                    "hybrid: the paper's Fig. 6 alone; icp, sa, icp-restarts: the paper's baselines; basin-hopping: "
-                   "hops from ICP's minima")
+                   f"hops from ICP's minima (default {cfg.method})")
     s.add_argument("--no-candidates", dest="candidates", action="store_false", help="global: try the guess alone "
                    "(no rotation samples, no feature matching)")
     s.add_argument("--rotation-samples", type=_knob("rotation_samples"), metavar="N", help="global: rotations "

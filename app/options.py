@@ -123,7 +123,7 @@ class Settings:
     """Checked plain values for one registration. ``None``: the core's own default. Values may be
     given as text (the page's fields): ``Settings(seed="3", threshold="auto")``."""
 
-    method: str = "hybrid"
+    method: str | None = None  # None: core.config.Config's default
     seed: int = 0
     threshold: float | None = None  # None: estimated from the scans' noise; 0: until annealing gives up
     max_points: int | None = None
@@ -160,7 +160,7 @@ class Settings:
                 object.__setattr__(self, f.name, v)
         if self.seed is None:
             raise InputError("--seed: expected a whole number >= 0, got nothing")
-        if self.method not in METHODS:
+        if self.method is not None and self.method not in METHODS:
             raise InputError(f"--method: unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
         if self.frustum is not None and self.frustum not in KINDS:
             raise InputError(f"--frustum: choose one of {', '.join(KINDS)}, got {self.frustum!r}")
@@ -189,7 +189,7 @@ def to_config(s: Settings):
         max_points=s.max_points, frustum=s.frustum, rotation_uncertainty_deg=s.rotation_uncertainty,
         translation_uncertainty=s.translation_uncertainty))
     anneal = given(t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling, max_evaluations=s.sa_max_evaluations)
-    cfg = replace(base, method=s.method, threshold=s.threshold, seed=s.seed, problem=problem,
+    cfg = replace(base, threshold=s.threshold, seed=s.seed, problem=problem,
                   icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),
                   anneal=replace(base.anneal, **anneal), sa_alone=replace(base.sa_alone, **anneal),
                   polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
@@ -197,29 +197,30 @@ def to_config(s: Settings):
                                      **given(rotation_samples=s.rotation_samples),
                                      **given(time_limit=s.time_limit),
                                      **({"fallback_steps": None} if s.full_search else {})),
-                  **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
+                  **given(method=s.method, hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg
 
 
-def parse_lock(value):
+def parse_lock(value, label: str = "--lock"):
     """``--lock`` as a core ``Lock``: text (``rx,ry,tz``: those parameters locked; ``rotation`` or
     ``translation``: three at once; ``turntable:px,py,pz,dx,dy,dz``: rotation about that line in the
-    target's frame only; ``turntable+translation:...``: and free translation; ``none``), a Lock, or None."""
+    target's frame only; ``turntable+translation:...``: and free translation; ``none``), a Lock, or None.
+    A refusal names ``label`` (the page names its field)."""
     from core.lock import Lock
 
     if isinstance(value, Lock):
         try:
             value.validate()
         except InputError as exc:
-            raise InputError(f"--lock: {exc}") from None
+            raise InputError(f"{label}: {exc}") from None
         return value
     if value is not None and not isinstance(value, str):
-        raise InputError(f"--lock: expected text such as rx,ry,tz or turntable:px,py,pz,dx,dy,dz, got {value!r}")
+        raise InputError(f"{label}: expected text such as rx,ry,tz or turntable:px,py,pz,dx,dy,dz, got {value!r}")
     try:
         return Lock.parse(value)
     except InputError as exc:
-        raise InputError(f"--lock: {exc}") from None
+        raise InputError(f"{label}: {exc}") from None
 
 
 def read_text_file(path: str | Path, what: str, limit: int = 1 << 30) -> str:

@@ -1,4 +1,4 @@
-"""``rangereg serve``: the viser workbench. One server, one :class:`app.tab.tab.Tab` per browser tab.
+"""``rangereg serve``: the viser workbench. One server, one :class:`app.tab.page.Tab` per browser tab.
 
 It listens on 127.0.0.1 unless told otherwise (viser's own default is every interface), serves
 only its own page (Host and Origin checked, app/access.py), refuses a taken port instead of moving
@@ -191,7 +191,7 @@ class Workbench:
         iface.register_handler(_messages.FileTransferStartUpload, on_start)
 
     def _connect(self, client) -> None:
-        from app.tab.tab import Tab
+        from app.tab.page import Tab
 
         tab = Tab(self, client)
         self.tabs[client.client_id] = tab

@@ -344,8 +344,8 @@ def write_trace_fixtures(f: Path, event: str) -> None:
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
     from core.config import Config
-    from core.events import TraceHeader
     from core.io import load_scan
+    from core.trace import TraceHeader
 
     src, tgt = load_scan(f / "src.ply"), load_scan(f / "tgt.ply")
     wing = [load_scan(WING / f"{n}.ply") for n in ("scan2", "scan1")]

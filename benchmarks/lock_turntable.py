@@ -51,7 +51,7 @@ def main(bunny: Path) -> None:
         for angle in ANGLES_DEG:
             T0 = perturb(Tt, np.r_[0, 0, 0, np.radians(angle) * axis], point)
             row = [f"  start {angle:+5.0f} deg:"]
-            for label, cfg in (("locked", Config(lock=lock)), ("free", Config())):
+            for label, cfg in (("locked", Config(method="hybrid", lock=lock)), ("free", Config(method="hybrid"))):
                 t0 = time.perf_counter()
                 res = register(source, target, T0, cfg)
                 rot, tr = pose_error(res.transform, Tt, c)

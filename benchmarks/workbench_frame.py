@@ -63,7 +63,7 @@ def main() -> None:
     print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     with bunny_page(folder, (1400, 900)) as (wb, _, page):
         tab = next(iter(wb.tabs.values()))
-        tab.run_panel.h.settings.sa_max.value = "10000000"  # a run that outlasts the count
+        tab.run_panel.h.settings.numbers["sa_max_evaluations"].value = "10000000"  # a run that outlasts the count
         tab.run_panel.start("sa")
         page.wait_for_function("() => document.body.innerText.includes('· running ·')", timeout=60_000)
         print(f"{'':22s} {'frames/s':>9s} {'GPU process ms/frame':>21s} {'renderer ms/frame':>18s}")

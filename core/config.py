@@ -1,6 +1,6 @@
 """What a registration run can be told, one frozen config per concern, each checking its own knobs.
 
-    Config             the run: method, threshold, the one seed, and the configs below
+    Config             the run: method (the one default: "global"), threshold, the one seed, and the configs below
     ProblemConfig      the overlap cut and the sample (core.problem)
     IcpConfig          ICP's legs (core.icp)
     AnnealConfig       annealing's legs (core.anneal): ``anneal`` in the hybrid, ``sa_alone`` alone
@@ -86,7 +86,9 @@ def _sa_alone() -> AnnealConfig:
 
 @dataclass(frozen=True)
 class Config:
-    method: str = "hybrid"
+    # the one home of the default method: the CLI's register and the API start here; the paper's methods
+    # ("hybrid", "icp", "sa") and the baselines are asked for by name (the page's buttons name theirs)
+    method: str = "global"
     threshold: float | None = None  # None: estimated from the scans' noise; 0: search until SA gives up
     seed: int = 0  # the one seed: the overlap sample and every random move
     problem: ProblemConfig = field(default_factory=ProblemConfig)

@@ -33,18 +33,21 @@ class Cut:
     target_mask: np.ndarray
 
 
-def _widened(f: Frustum, points: np.ndarray, angle: float) -> np.ndarray:
-    """(N,) bool: points inside frustum ``f`` opened by ``angle`` radians on every side."""
+def _widened(f: Frustum, points: np.ndarray, angle: float, chunk: int = 65536) -> np.ndarray:
+    """(N,) bool: points inside frustum ``f`` opened by ``angle`` radians on every side: each point's ray from
+    the apex within ``angle`` of every side plane (through the apex and an edge of the convex outline)."""
     if angle <= 0:
         return f.contains(points)
     if angle >= np.pi / 2:
         return np.ones(len(points), dtype=bool)
-    uv, depth = f.project(np.asarray(points, dtype=np.float64))
-    front = depth > 0
+    # an edge a u + b v + c = 0 on the image plane (z = 1) is the side plane a x + b y + c z = 0
+    sides = f.equations / np.linalg.norm(f.equations, axis=1, keepdims=True)
     out = np.zeros(len(points), dtype=bool)
-    # distance outside the outline on the image plane one unit in front: tan(angle) about the axis
-    margin = np.tan(angle) * (1.0 + np.einsum("ij,ij->i", uv[front], uv[front]))
-    out[front] = np.all(uv[front] @ f.equations[:, :2].T + f.equations[:, 2] <= margin[:, None], axis=1)
+    for start in range(0, len(points), chunk):  # (chunk, K) at a time: a 2M-point scan in bounded memory
+        local = (np.asarray(points[start:start + chunk], dtype=np.float64) - f.apex) @ f.basis.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rays = local / np.linalg.norm(local, axis=1, keepdims=True)  # a point at the apex: NaN, outside
+        out[start:start + chunk] = np.all(rays @ sides.T <= np.sin(angle), axis=1)
     return out
 
 

@@ -34,7 +34,7 @@ from .candidates import Basis, CandidateConfig, fpfh_candidates, make_basis, pai
 from .config import Config
 from .events import Cancelled, Event, Listener
 from .icp import icp
-from .kiss import kiss_available, kiss_candidates
+from .kiss_matcher_candidates import kiss_available, kiss_candidates
 from .lock import LockFrame
 from .noise import noise_floors
 from .problem import Problem, ProblemConfig, prepare
@@ -179,8 +179,8 @@ def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None) 
 def kiss_ahead(source: Scan, target: Scan, pc: ProblemConfig, cc: CandidateConfig) -> Future | None:
     """KISS-Matcher's hypotheses, started on a thread of their own when the first stage scores them (a
     rotation stated wider than ``guess_first_deg``); else None. The thread makes the voxel clouds and
-    waits on core.kiss's child process, which runs on the other core while this one cuts the overlap,
-    takes the noise floor and the basis (the same inputs, so the same hypotheses)."""
+    waits on core.kiss_matcher_candidates' child process, which runs on the other core while this one cuts
+    the overlap, takes the noise floor and the basis (the same inputs, so the same hypotheses)."""
     if not (cc.enabled and cc.kiss_matcher and pc.rotation_uncertainty_deg > cc.guess_first_deg and kiss_available()):
         return None
     pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")

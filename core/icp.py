@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .error import ErrorFunction
 from .errors import InputError
 from .horn import constrained_horn, weighted_horn
 from .lock import LockFrame
+from .robust_error import ErrorFunction
 from .transforms import apply, invert
 
 METRICS = ("point", "plane")

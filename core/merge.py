@@ -231,7 +231,7 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
     t0 = time.perf_counter()
     say = progress or (lambda _msg: None)
     run = map_tasks or serial_map
-    config = config or Config(problem=ProblemConfig(rotation_uncertainty_deg=25.0))
+    config = config or Config(method="hybrid", problem=ProblemConfig(rotation_uncertainty_deg=25.0))
     config.validate()
     have_init = initial is not None or all(s.guess is not None for s in scans)
     if initial is None:

@@ -15,8 +15,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .error import RobustError
 from .errors import InputError
+from .robust_error import RobustError
 from .scan import Scan
 from .surface import Surface, normal_angles, pca_normals, triangulate, view_projection
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .cut import overlap_cut
-from .error import RobustError
 from .errors import InputError
 from .frustum import KINDS, Overlap
+from .robust_error import RobustError
 from .scan import Scan
 from .surface import Surface
 from .transforms import apply, check_rigid, delta_between, invert, perturb

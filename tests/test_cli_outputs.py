@@ -84,8 +84,27 @@ def test_a_symlinked_output_stays_a_link(tmp_path):
     assert link.is_symlink() and real.read_text() == "new"
 
 
-def test_a_device_gets_a_plain_write():
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
+def test_a_pipe_or_a_device_gets_a_plain_write_and_stays_what_it_is(tmp_path, monkeypatch):
+    import stat
+    import tempfile
+    import threading
+
+    spare = tmp_path / "tmp"  # where the temporary copy is made (no folder of its own beside a device)
+    spare.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(spare))
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    write_output(fifo, "--out", lambda p: p.write_text("the result"))
+    reader.join(10)
+    assert got == [b"the result"]  # written through the pipe ...
+    assert stat.S_ISFIFO(fifo.stat().st_mode)  # ... not replaced by a regular file (an atomic rename would)
     write_output(Path("/dev/null"), "--out", lambda p: p.write_text("x"))
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert os.listdir(spare) == []  # the temporary copies are gone
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")

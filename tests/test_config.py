@@ -11,7 +11,6 @@ from core import prepare
 from core.config import Config, IcpConfig, SearchConfig, ThresholdConfig
 from core.errors import InputError
 from core.search import SearchState
-from core.threshold import estimate_threshold, threshold_for
 
 
 def test_the_defaults_are_the_measured_constants():
@@ -61,15 +60,6 @@ def test_candidate_config_refuses_nonsense(bad, message):
 def test_run_config_refuses_nonsense(bad):
     with pytest.raises(InputError):
         Config(**bad).validate()
-
-
-def test_the_threshold_factor_scales_the_estimate(scene):
-    a, b = scene("corner")
-    p = prepare(b, a)
-    six = estimate_threshold(p, 3)
-    assert estimate_threshold(p, 3, ThresholdConfig(factor=3.0)) == pytest.approx(six / 2)
-    assert threshold_for(p, Config(seed=3)) == six
-    assert threshold_for(p, Config(seed=3, threshold=1.5)) == 1.5
 
 
 def test_the_search_bound_sets_the_region(scene):

@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import ESCAPE
+
 GOLDEN = Path(__file__).resolve().parent / "golden"
 SCENE_START_MM = {"corner": 250.0, "bowl": 250.0 * 600 / 1219.2}  # app.bench's 5-degree starts
 EDGE = 3  # events kept verbatim at each end of a trace
@@ -39,7 +41,6 @@ class Run:
     options: dict = field(default_factory=dict)  # Config fields; "anneal"/"sa_alone" as AnnealConfig kwargs
 
 
-ESCAPE = ("corner", 10.0, 400.0, 4)  # ICP ends ~15 deg off in a local minimum (see test_optimiser)
 RUNS = (
     Run("corner-hybrid", "corner", 5.0, SCENE_START_MM["corner"], 0, dict(method="hybrid", seed=0)),
     Run("corner-icp", "corner", 5.0, SCENE_START_MM["corner"], 0, dict(method="icp", seed=0)),

@@ -119,7 +119,7 @@ def test_project_puts_any_pose_on_the_allowed_set_and_keeps_one_already_there():
 def test_a_turntable_pair_registers_and_every_event_turns_about_the_axis_only():
     source, target, Tt, T0, point = _turntable_case(12.0)
     events = []
-    res = register(source, target, T0, Config(lock=_table(point)),
+    res = register(source, target, T0, Config(method="hybrid", lock=_table(point)),
                    events.append)
     rot, tr = pose_error(res.transform, Tt, source.points.mean(0))
     assert res.below_threshold and rot < 0.5 and tr < 1.0, (rot, tr)
@@ -138,7 +138,7 @@ def test_a_translation_only_lock_recovers_a_pure_shift_and_never_turns():
     c = apply(Tt, source.points.mean(0)[None])[0]
     T0 = perturb(Tt, np.r_[60.0, -40.0, 30.0, 0, 0, 0], c)
     events = []
-    res = register(source, target, T0, Config(lock=Lock.parse("rotation")), events.append)
+    res = register(source, target, T0, Config(method="hybrid", lock=Lock.parse("rotation")), events.append)
     rot, tr = pose_error(res.transform, Tt, source.points.mean(0))
     assert rot == 0.0 and tr < 0.5, (rot, tr)
     assert np.array_equal(res.transform[:3, :3], T0[:3, :3])

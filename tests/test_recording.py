@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import ASSETS
+from tests.conftest import ASSETS, wait_for
 from tests.test_workbench import CHROMIUM, FLAGS
 
 pytestmark = pytest.mark.browser
@@ -63,10 +63,12 @@ def test_the_recording_plays_from_disk_and_the_scan_moves(tmp_path):
             early = orange_centre(page.screenshot())
         assert early is not None, "the moving scan never appeared"
         moved = []
-        for _ in range(12):  # over the run (the start is held 4 s; the run plays in 4 s)
-            time.sleep(0.8)
+
+        def has_moved() -> bool:
             late = orange_centre(page.screenshot())
             moved.append(0.0 if late is None else float(np.linalg.norm(late - early)))
+            return moved[-1] > 5.0  # pixels: the scan moved along the run
+
+        wait_for(has_moved, 12.0, what="the scan")  # the start is held 4 s; the run plays in 4 s
         browser.close()
     assert schemes <= {"file", "data", "blob"}  # nothing from a server or the network
-    assert max(moved) > 5.0, moved  # pixels: the scan moved along the run

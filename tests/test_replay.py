@@ -62,8 +62,8 @@ def test_a_loaded_traces_path_on_the_slice_starts_at_its_own_guess_not_the_pages
     from app.tab.landscape import picture
     from app.tab.state import SliceView, TabState
     from core.config import Config
-    from core.events import TraceHeader
     from core.landscape import Slice, project
+    from core.trace import TraceHeader
 
     problem, source, target = corner_problem()
     T_page = relative_guess(source, target)

@@ -9,9 +9,7 @@ from core.icp import icp
 from core.register import recut
 from core.search import METHODS as SEARCHES
 from core.transforms import pose_error
-
-# A start where ICP ends 15 degrees off in a local minimum; found by trying seeds 0-11 at 10 deg / 400 mm.
-ESCAPE = ("corner", 10.0, 400.0, 4)
+from tests.conftest import ESCAPE
 
 
 def test_hybrid_escapes_a_local_minimum_where_icp_stays(scene_start):

@@ -85,43 +85,63 @@ def test_the_refresher_logs_a_failing_tick_and_keeps_going(monkeypatch, caplog):
 
 
 def settings_handles(**typed):
-    from app.tab.run import SettingsHandles
+    """The page's settings widgets as first drawn, with ``typed`` (by app.options.Settings field) typed over them."""
+    from app.tab.settings import FRUSTUM, NUMBERS, SettingsHandles
 
-    values = dict(threshold="auto", t_start="auto", t_min="auto", cooling="0.9", seed="0", icp_max="100",
-                  sa_max="20000", frustum="convex", max_points="300", coarse_to_fine=False, polish=False, lock="") | typed
-    return SettingsHandles(**{k: SimpleNamespace(value=v) for k, v in values.items()})
+    numbers = {name: f.initial for name, f in NUMBERS.items()} | {k: v for k, v in typed.items() if k in NUMBERS}
+    rest = dict(frustum=FRUSTUM, coarse_to_fine=False, polish=False, lock="") | {k: v for k, v in typed.items()
+                                                                                 if k not in NUMBERS}
+    return SettingsHandles(numbers={k: SimpleNamespace(value=v) for k, v in numbers.items()},
+                           **{k: SimpleNamespace(value=v) for k, v in rest.items()})
 
 
-def test_the_minimum_temperature_ratio_reaches_annealing_alone():
-    from app.tab.run import read_settings
-    from app.tab.settings import page_config
-    from core.register import Config
+def test_the_annealing_settings_reach_annealing_alone():
+    from app.tab.settings import page_config, read_settings
 
     for method in ("sa", "hybrid"):
-        cfg = page_config(read_settings(settings_handles(t_min="0.05")), method)
+        cfg = page_config(read_settings(settings_handles(t_min_ratio="0.05", cooling="0.8")), method)
         assert cfg.sa_alone.t_min_ratio == cfg.anneal.t_min_ratio == 0.05
-    auto = page_config(read_settings(settings_handles()), "sa")  # auto: each method keeps its own
-    assert auto.sa_alone.t_min_ratio == Config().sa_alone.t_min_ratio and auto.anneal.t_min_ratio == 0.01
+        assert cfg.sa_alone.cooling == cfg.anneal.cooling == 0.8
+
+
+@pytest.mark.parametrize("method", ["sa", "hybrid", "icp", "icp-restarts", "basin-hopping", "global"])
+def test_a_run_button_on_the_pages_first_settings_runs_what_register_runs(method):
+    # as first drawn, the page's settings and register's defaults make one config: the same method from the same
+    # settings (annealing alone keeps its own cooling and stop, not the hybrid's)
+    from app.cli import build_parser
+    from app.commands.pair import config
+    from app.tab.settings import page_config, read_settings
+
+    page = page_config(read_settings(settings_handles()), method)
+    cli = config(build_parser().parse_args(["register", "a.ply", "b.ply", "--method", method]))
+    assert page == cli
+    if method == "sa":
+        assert page.sa_alone.cooling != page.anneal.cooling  # each keeps its own: the page does not copy one over
 
 
 @pytest.mark.parametrize("field, typed, says", [
-    ("t_start", "inf", "start temperature"), ("t_start", "0", "start temperature"),
-    ("t_min", "1", "minimum temperature ratio"), ("cooling", "12,5", "comma"), ("cooling", "1.5", "cooling"),
-    ("seed", "1e30", "seed"), ("seed", "-1", "seed"), ("seed", "2.5", "seed"), ("icp_max", "0", "ICP iteration cap"),
-    ("sa_max", "6", "SA evaluation cap"), ("max_points", "2", "overlap sample size"), ("threshold", "-1", "threshold"),
-    ("threshold", "banana", "threshold"),
+    ("t_start", "inf", "^Start temperature: "), ("t_start", "0", "^Start temperature: "),
+    ("t_min_ratio", "1", "^Minimum temperature ratio: "), ("cooling", "12,5", "^Cooling: .*comma"),
+    ("cooling", "1.5", "^Cooling: must be > 0 and < 1"), ("seed", "1e30", "^Seed: "), ("seed", "-1", "^Seed: "),
+    ("seed", "2.5", "^Seed: "), ("seed", str(2**40), "^Seed: must be .*<= 4294967295"),
+    ("icp_max_iterations", "0", "^ICP iteration cap: "), ("icp_max_iterations", "200000", "^ICP iteration cap: "),
+    ("sa_max_evaluations", "6", "^SA evaluation cap: "), ("sa_max_evaluations", "100000000", "^SA evaluation cap: "),
+    ("max_points", "2", "^Overlap sample size: "), ("max_points", "1000000", "^Overlap sample size: "),
+    ("threshold", "-1", "^Threshold: "), ("threshold", "banana", "^Threshold: "),
+    ("lock", "rx,rq", "^Locked parameters: .*rq"),
 ])
-def test_a_bad_setting_is_refused_with_its_name_not_clamped(field, typed, says):
-    from app.tab.run import read_settings
+def test_a_bad_setting_is_refused_with_the_pages_name_for_it_not_clamped(field, typed, says):
+    # the bounds are app.options.KNOBS', the CLI's: a value the page takes, to_config takes too
+    from app.tab.settings import read_settings
 
     with pytest.raises(InputError, match=says):
         read_settings(settings_handles(**{field: typed}))
 
 
 def test_settings_are_read_as_typed():
-    from app.tab.run import read_settings
+    from app.tab.settings import read_settings
 
-    s = read_settings(settings_handles(t_start="2.5e-3", t_min="1e-3", seed="12"))
+    s = read_settings(settings_handles(t_start="2.5e-3", t_min_ratio="1e-3", seed="12"))
     assert (s.t_start, s.t_min_ratio, s.seed) == (2.5e-3, 1e-3, 12)
 
 

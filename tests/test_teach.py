@@ -6,13 +6,14 @@ Debian's Chromium driven by Playwright, as in tests/test_workbench.py.
 
 from __future__ import annotations
 
-import time
+import contextlib
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from app.access import free_port
+from tests.conftest import wait_for
 from tests.test_workbench import open_page, show_tab
 
 pytestmark = pytest.mark.browser
@@ -35,15 +36,6 @@ def open_tab(bench, browser):
     page = open_page(browser, url)
     (new,) = set(wb.tabs) - before
     return page, wb.tabs[new]
-
-
-def wait_for(predicate, timeout=30.0, what="the page"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"{what} did not change in {timeout} s")
 
 
 def angle_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
@@ -92,7 +84,8 @@ def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
     box = page.locator("canvas").first.bounding_box()
     for _ in range(10):  # the page turns on click reporting when its message arrives: click until it has
         page.mouse.click(box["x"] + 0.4 * box["width"], box["y"] + 0.5 * box["height"])
-        time.sleep(1.0)
+        with contextlib.suppress(AssertionError):
+            wait_for(lambda: calls, 1.0, what="the click's handler")
         if calls:
             break
     assert calls, "a click in the scene never reached the handler"

@@ -1,6 +1,6 @@
 """A trace file's header: what the run was (both scans by content, the guess, every knob, the seed, the
 version), read back, and a trace of other scans refused by ``slice --trace``, ``serve --trace`` and the
-page's replay, while an old trace without a header is still drawn."""
+page's replay, while a trace without a header is still drawn."""
 
 from __future__ import annotations
 
@@ -14,9 +14,10 @@ import pytest
 from app.cli import main
 from core.config import Config
 from core.errors import InputError
-from core.events import NO_HEADER, TRACE_VERSION, Event, ScanPrint, TraceHeader, read_trace
+from core.events import Event
 from core.io import load_scan
 from core.problem import prepare, relative_guess
+from core.trace import NO_HEADER, TRACE_VERSION, ScanPrint, TraceHeader, read_trace
 from tests.conftest import ASSETS, run_cli
 
 CORNER = ASSETS / "corner" / "scan2.ply", ASSETS / "corner" / "scan1.ply"

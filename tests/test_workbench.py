@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.access import free_port
-from tests.conftest import ROOT
+from tests.conftest import ROOT, holds_for, serving, wait_for
 
 pytestmark = pytest.mark.browser
 CHROMIUM = Path("/usr/bin/chromium")
@@ -25,19 +24,8 @@ ARTIFACTS = ROOT / "artifacts"
 
 @pytest.fixture(scope="module")
 def server():
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if "rangereg workbench:" in line:
-            break
-        if proc.poll() is not None:
-            pytest.fail(f"the server did not start: {proc.stdout.read()}")
-    yield f"http://127.0.0.1:{port}", port
-    proc.terminate()
-    proc.wait(10)
+    with serving() as (url, port, _):
+        yield url, port
 
 
 def open_page(browser, url):
@@ -88,9 +76,7 @@ def wait_finished(page, timeout=120.0) -> str:
 
 def test_scene_renders_and_hybrid_finishes_below_threshold(server, browser):
     page = open_page(browser, server[0])
-    time.sleep(2.0)  # let the points arrive and draw
-    px = canvas_pixels(page)
-    assert len(np.unique(px.reshape(-1, 3), axis=0)) > 50, "blank canvas"
+    wait_for(lambda: len(np.unique(canvas_pixels(page).reshape(-1, 3), axis=0)) > 50, what="the blank canvas")
     for button, method in (("Run hybrid", "hybrid"), ("Basin hopping", "basin-hopping"), ("Run global", "global")):
         page.get_by_role("button", name="Reset", exact=True).click()
         page.get_by_role("button", name=button, exact=True).click()
@@ -130,16 +116,13 @@ def test_step_next_phase_resume_walk_a_hybrid_run_to_its_end(server, browser):
     page = open_page(browser, server[0])
     page.get_by_role("button", name="Step", exact=True).click()
     assert wait_paused(page, 1) == 1 and "Method hybrid" in page.locator("body").inner_text()
-    time.sleep(0.5)
-    assert icp_iterations(page) == 1  # a step is one iteration, and the run stays paused
+    holds_for(lambda: icp_iterations(page) == 1, 0.5, what="the paused run")  # a step is one iteration; it stays paused
     from playwright.sync_api import expect
 
     expect(page.get_by_role("button", name="Pause", exact=True)).to_be_disabled()  # paused: only Resume is offered
     expect(page.get_by_role("button", name="Resume", exact=True)).to_be_enabled()
     page.get_by_role("button", name="Next phase", exact=True).click()
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and icp_iterations(page) == 1:
-        time.sleep(0.1)
+    wait_for(lambda: icp_iterations(page) != 1, 60, what="the ICP count")
     n = wait_paused(page)
     assert n > 2 and "Finished" not in page.locator("body").inner_text()  # paused where the first leg ended
     page.get_by_role("button", name="Resume", exact=True).click()
@@ -167,12 +150,11 @@ def test_dragging_the_gizmo_changes_the_initial_error(server, browser):
     for box in ("Frustums", "Overlap points", "Path"):
         page.get_by_label(box, exact=True).first.uncheck()
     show_tab(page, "Pose")
-    time.sleep(1.5)
+    wait_for(lambda: _gizmo_pixel(canvas_pixels(page)) is not None, what="the gizmo (not on screen)")
     E_before = initial_E(page)
     pose_before = pose_fields(page)
     box = page.locator("canvas").first.bounding_box()
     hit = _gizmo_pixel(canvas_pixels(page))
-    assert hit is not None, "the gizmo is not on screen"
     x, y = box["x"] + hit[0], box["y"] + hit[1]
     page.mouse.move(x, y)
     page.mouse.down()
@@ -180,10 +162,7 @@ def test_dragging_the_gizmo_changes_the_initial_error(server, browser):
         page.mouse.move(x + 8 * k, y + 3 * k)
         time.sleep(0.05)
     page.mouse.up()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and initial_E(page) == E_before:
-        time.sleep(0.2)
-    assert initial_E(page) != E_before
+    wait_for(lambda: initial_E(page) != E_before, 10, what="the initial E")
     assert not np.allclose(pose_fields(page), pose_before)  # the typed parameters follow the gizmo
     page.close()
 
@@ -196,13 +175,10 @@ def test_two_tabs_are_independent(server, browser):
     tx = text_input(a, "tx (mm)")
     tx.fill(str(float(tx.input_value()) + 40.0))
     a.get_by_role("button", name="Apply pose", exact=True).click()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and initial_E(a) == E_a:
-        time.sleep(0.2)
-    assert initial_E(a) != E_a
+    wait_for(lambda: initial_E(a) != E_a, 10, what="tab A's initial E")
     show_tab(a, "Run")
     a.get_by_role("button", name="Run SA", exact=True).click()  # a long run in tab A ...
-    time.sleep(1.0)
+    wait_for(lambda: "running" in a.locator("body").inner_text(), what="tab A's run")
     assert initial_E(b) == pytest.approx(E_b)  # ... moves nothing in tab B, whose page still answers
     b.get_by_role("button", name="Run ICP", exact=True).click()
     assert "below" in wait_finished(b, 60)
@@ -220,7 +196,7 @@ def test_bad_setting_is_a_notification_and_the_session_lives_on(server, browser)
     thr.fill("banana")
     thr.press("Enter")
     page.get_by_role("button", name="Run ICP", exact=True).click()
-    page.get_by_text("threshold must be a number").first.wait_for(timeout=10_000)
+    page.get_by_text("Threshold: expected a number").first.wait_for(timeout=10_000)
     thr.fill("auto")
     thr.press("Enter")
     page.get_by_role("button", name="Run ICP", exact=True).click()
@@ -271,18 +247,8 @@ def test_a_page_request_under_a_foreign_host_is_refused(server):
 
 
 def test_every_interface_is_said_aloud_with_the_real_addresses():
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--host", "0.0.0.0", "--port", str(port)],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        seen = []
-        while not seen or "rangereg workbench:" not in seen[-1]:
-            seen.append(proc.stdout.readline())
-            assert proc.poll() is None, "".join(seen)
-    finally:
-        proc.terminate()
-        proc.wait(10)
-    text = "".join(seen)
+    with serving(host="0.0.0.0") as (_, port, seen):
+        text = "".join(seen)
     assert "warning: --host 0.0.0.0 listens on every network interface" in text
     urls = re.findall(r"http://\S+", seen[-1])
     assert urls and f"http://127.0.0.1:{port}" in urls and not any("0.0.0.0" in u for u in urls)
@@ -299,15 +265,13 @@ def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, br
     assert initial_E(page) == E0  # nothing applied
     tx.fill(f"{before + 2.5e-3:.12e}")  # exponent notation, as a user may type it (viser's number field mangled it)
     page.get_by_role("button", name="Apply pose", exact=True).click()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and initial_E(page) == E0:
-        time.sleep(0.2)
+    wait_for(lambda: initial_E(page) != E0, 10, what="the initial E")
     assert float(text_input(page, "tx (mm)").input_value()) == pytest.approx(before + 2.5e-3, abs=1e-9)
     # out of range is a notification, not a silent clamp
     show_tab(page, "Landscape")
     text_input(page, "Steps").fill("1000000")
     page.get_by_role("button", name="Compute slice", exact=True).click()
-    page.get_by_text("steps must be a whole number from 2 to 201").first.wait_for(timeout=10_000)
+    page.get_by_text("Steps: must be >= 2 and <= 201").first.wait_for(timeout=10_000)
     # a big slice can be cancelled
     text_input(page, "Steps").fill("201")
     page.get_by_role("button", name="Compute slice", exact=True).click()
@@ -333,16 +297,8 @@ def data_server(tmp_path_factory):
         for ext in (".ply", ".json"):
             shutil.copy(ROOT / "assets" / "corner" / f"{src}{ext}", folder / f"{dst}{ext}")
     (folder.parent / "outside.ply").write_bytes((ROOT / "assets" / "corner" / "scan1.ply").read_bytes())
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--data-dir", str(folder),
-                             "--upload-cap-mb", "0.05"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    while "rangereg workbench:" not in proc.stdout.readline():
-        if proc.poll() is not None:
-            pytest.fail(f"the server did not start: {proc.stdout.read()}")
-    yield f"http://127.0.0.1:{port}", folder
-    proc.terminate()
-    proc.wait(10)
+    with serving("--data-dir", folder, "--upload-cap-mb", "0.05") as (url, _, _):
+        yield url, folder
 
 
 def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
@@ -381,7 +337,7 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
 
     T = np.array(json.loads(download("Transform (JSON)"))["transform"])
     assert T.shape == (4, 4) and np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
-    from core.events import read_trace
+    from core.trace import read_trace
 
     trace = read_trace(download("Trace (JSON lines)").decode(), "trace.jsonl")  # header, events, result
     assert trace.header.source.name == "right" and trace.result is not None

@@ -1,4 +1,4 @@
-"""``rangereg bench``: the paper's tables (app.bench); only the output file is checked here."""
+"""``rangereg bench``: the paper's tables (app.bench), or ``--sweep`` (app.sweep); only the output file is checked here."""
 
 from __future__ import annotations
 
@@ -8,8 +8,12 @@ from app.outputs import check_output
 
 
 def run(a: Namespace) -> int:
-    from app.bench import main
-
     if a.json is not None:
         check_output(a.json, "--json", (".json",))
+    if a.sweep:
+        from app.sweep import sweep
+
+        return sweep(a)
+    from app.bench import main
+
     return main(a)

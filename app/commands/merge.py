@@ -76,7 +76,7 @@ def run(a) -> int:
     truth = _poses_for(load_conf(a.truth), scans, a.truth) if a.truth else None
     if truth is None and all(s.pose is not None for s in scans):
         truth = [s.pose for s in scans]  # ground truth stored with the scans (sidecar or .conf beside them)
-    config = to_config(Settings(seed=a.seed, rotation_uncertainty=25.0))
+    config = to_config(Settings(method="hybrid", seed=a.seed, rotation_uncertainty=25.0))
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
     with TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
         res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map)

@@ -1,6 +1,6 @@
 """``rangereg register``: register SOURCE onto TARGET and print T_target_source.
 
-The trace (JSON lines) opens with a header line (core.events.TraceHeader: both scans by content, the
+The trace (JSON lines) opens with a header line (core.trace.TraceHeader: both scans by content, the
 guess used, the config, the seed, the version) that ``slice --trace`` and the page check against
 their scans, and closes with the result (the pose returned).
 
@@ -64,7 +64,7 @@ def _register(a: Namespace):
     """Check, read, register: (result, source, target, config, seconds, trace file or None, --out path or None)."""
     from core.register import register
 
-    cfg = pair.config(a, method=a.method or "global")
+    cfg = pair.config(a)
     files = pair.inputs(a)
     scans = [a.source, a.target]
     out = check_output(a.out, "--out", (".json",), files, scans) if a.out is not None else None
@@ -72,9 +72,9 @@ def _register(a: Namespace):
     check_distinct({"--out": out, "--trace": trace_path})
     t_imports = time.perf_counter()
     if cfg.method == "global" and cfg.candidates.enabled and cfg.candidates.kiss_matcher:
-        from core import kiss
+        from core import kiss_matcher_candidates
 
-        kiss.start()  # its process starts while Open3D is imported and the files are read
+        kiss_matcher_candidates.start()  # its process starts while Open3D is imported and the files are read
     import open3d  # noqa: F401  (imported here so that its 1-2 s are counted apart from the registration)
 
     import core.global_search  # noqa: F401
@@ -89,7 +89,7 @@ def _register(a: Namespace):
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
     if trace is not None:  # the header first: which scans (by content), the guess, every knob, the seed
-        from core.events import TraceHeader
+        from core.trace import TraceHeader
 
         trace.write(json.dumps(TraceHeader.of(source, target, T_init, cfg, a.source, a.target).to_json()))
 

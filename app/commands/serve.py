@@ -9,7 +9,7 @@ from pathlib import Path
 
 from app.options import read_text_file
 from core.errors import InputError
-from core.events import read_trace
+from core.trace import read_trace
 
 
 def run(a: Namespace) -> int:

@@ -17,8 +17,8 @@ from core.errors import InputError
 
 
 def read_trace(path: str):
-    """A ``register --trace`` file as a core.events.Trace; anything else is one InputError naming the line."""
-    from core.events import read_trace as read
+    """A ``register --trace`` file as a core.trace.Trace; anything else is one InputError naming the line."""
+    from core.trace import read_trace as read
 
     return read(read_text_file(path, "--trace"), f"--trace {path}")
 
@@ -29,7 +29,7 @@ SLICE_KNOBS = ("problem.", "seed", "lock.")  # what the slice itself depends on:
 def trace_notes(trace, T_init, cfg, units: str = "units") -> list[str]:
     """What to say about a trace of these scans (checked before): how its run differs from this slice's
     settings (drawn all the same), or that an old trace without a header could not be checked."""
-    from core.events import NO_HEADER
+    from core.trace import NO_HEADER
 
     if trace.header is None:
         return [f"note: {trace.name}: {NO_HEADER}"]

@@ -1,1 +1,1 @@
-"""One browser tab of the workbench (:class:`app.tab.tab.Tab`), split by concern: state, scene, panels, refresher."""
+"""One browser tab of the workbench (:class:`app.tab.page.Tab`), split by concern: state, scene, panels, refresher."""

@@ -64,14 +64,20 @@ def parse_number(text, what: str, allowed: Range = Range()) -> float | int:
     return v
 
 
-def parse_optional(text, what: str, allowed: Range = Range()) -> float | int | None:
-    """'auto' or empty -> None; otherwise :func:`parse_number`."""
-    if str(text).strip().lower() in ("", "auto"):
+def parse_setting(text, name: str, label: str, auto: bool = False) -> float | int | None:
+    """A setting typed on the page -> its value, checked against ``app.options.KNOBS[name]`` (the table the
+    CLI checks too); a refusal names the page's ``label``. ``auto``: 'auto' or empty -> None (the core's default)."""
+    from app.options import parse_value
+
+    t = str(text).strip()
+    if auto and t.lower() in ("", "auto"):
         return None
+    if "," in t and _NUMBER.fullmatch(t.replace(",", ".")):
+        raise InputError(f"{label}: {t!r} has a comma; write decimals with a point ({t.replace(',', '.')})")
     try:
-        return parse_number(text, what, allowed)
+        return parse_value(name, t, label)
     except InputError as exc:
-        raise InputError(f"{exc} (or 'auto')") from None
+        raise InputError(f"{exc} (or 'auto')" if auto else str(exc)) from None
 
 
 def parse_vector(text, what: str, n: int = 3) -> tuple[float, ...]:

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
-from app.tab.fields import Range, parse_number
+from app.options import KNOBS
+from app.tab.fields import Range, parse_number, parse_setting
 from app.tab.state import SliceView, TabState
 from app.tab.terrain import PathOnSlice, Terrain
 from app.views import slice_figure
@@ -24,7 +25,6 @@ from core.landscape import Slice, compute_slice, default_span, project
 from core.problem import Problem
 from core.transforms import PARAM_NAMES
 
-STEPS = Range(2, 201, integer=True)
 MAX_FIGURE_PATH = 600  # the contour's path is thinned to this many points: its figure is sent as JSON (2000 points
 # made 168 kB) and redrawn by Plotly in the browser; a 360-pixel plot shows no more
 
@@ -69,7 +69,7 @@ def build(gui: viser.GuiApi) -> LandscapeHandles:
             param_b=gui.add_dropdown("Parameter B", PARAM_NAMES, initial_value="ry"),
             span_a=gui.add_text("Span A (0: auto)", "0", hint="+- this much around the pose (scan units or deg)"),
             span_b=gui.add_text("Span B (0: auto)", "0", hint="+- this much around the pose (scan units or deg)"),
-            steps=gui.add_text("Steps", "41", hint=f"grid points per axis, {STEPS.lo:g} to {STEPS.hi:g}"),
+            steps=gui.add_text("Steps", "41", hint=f"grid points per axis, {KNOBS['steps'].describe()}"),
             compute=gui.add_button("Compute slice"),
             cancel=gui.add_button("Cancel slice", disabled=True),
             progress=gui.add_progress_bar(0.0, visible=False),
@@ -116,7 +116,7 @@ class LandscapePanel:
         params = (h.param_a.value, h.param_b.value)
         if params[0] == params[1]:
             raise InputError("choose two different parameters for the slice")
-        steps = parse_number(h.steps.value, "steps", STEPS)
+        steps = parse_setting(h.steps.value, "steps", "Steps")
         typed = [parse_number(s.value, f"span {k}", Range(0)) for s, k in ((h.span_a, "A"), (h.span_b, "B"))]
         with st.lock:
             if st.slice_busy:

@@ -6,8 +6,8 @@ local minima ICP stopped in. Play's thread only hands each step to the refresher
 
 A loaded trace must be of the scans on the page: its header names both by content (point count and
 SHA-256 of the points), so another pair, the same pair swapped, or an edited file is refused with a
-notification and the page stays as it was. A trace without a header (written before headers) is
-checked the old way, by E at its best pose, and the panel says it could not be checked by content.
+notification and the page stays as it was. A trace without a header is
+checked by E at its best pose, and the panel says it could not be checked by content.
 The trace's method, seed and guess are shown; another guess or other settings are not a mismatch.
 """
 
@@ -21,7 +21,8 @@ import numpy as np
 from app.figures import squared_unit
 from app.tab import scene3d
 from core.errors import InputError
-from core.events import NO_HEADER, Event, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
+from core.events import Event
+from core.trace import NO_HEADER, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
 
 SPEEDS = ("10", "30", "100", "300", "1000")  # events per second
 TICK = 0.1  # seconds between steps of Play

@@ -2,7 +2,7 @@
 of those distances with the robust cap marked, the operator's evidence that a registration is right.
 
 The cap is the error's own: a point is an inlier when d^2 < t = 2 median(d^2) over the overlap
-sample at the shown pose (paper eq. 2, core.error.robust_weights); the colours run from 0 to 2 sqrt(t).
+sample at the shown pose (paper eq. 2, core.robust_error.robust_weights); the colours run from 0 to 2 sqrt(t).
 """
 
 from __future__ import annotations

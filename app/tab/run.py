@@ -9,37 +9,18 @@ import viser
 import viser.uplot as uplot
 
 from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, hex_colour
+from app.options import Settings
 from app.runner import Run
-from app.tab.fields import Range, parse_number, parse_optional
-from app.tab.settings import PageSettings, page_config
+from app.tab.settings import FRUSTUM, LOCK_LABEL, NUMBERS, SettingsHandles, page_config, read_number, read_settings
 from app.tab.state import TabState
 from core.errors import InputError
-from core.events import TraceHeader
 from core.frustum import KINDS
 from core.problem import prepare
 from core.register import register
+from core.trace import TraceHeader
 
-ANNEALS = "applies to Run hybrid and Run SA (the methods that anneal)"
-SEED = Range(0, 2**63 - 1, integer=True)
-RATIO = Range(0, 1, lo_open=True, hi_open=True)
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
                "Basin hopping": "basin-hopping", "Run global": "global"}
-
-
-@dataclass(eq=False)
-class SettingsHandles:
-    threshold: viser.GuiTextHandle
-    t_start: viser.GuiTextHandle
-    t_min: viser.GuiTextHandle
-    cooling: viser.GuiTextHandle
-    seed: viser.GuiTextHandle
-    icp_max: viser.GuiTextHandle
-    sa_max: viser.GuiTextHandle
-    frustum: viser.GuiDropdownHandle
-    max_points: viser.GuiTextHandle
-    coarse_to_fine: viser.GuiCheckboxHandle
-    polish: viser.GuiCheckboxHandle
-    lock: viser.GuiTextHandle
 
 
 @dataclass(eq=False)
@@ -75,7 +56,7 @@ def build(gui: viser.GuiApi) -> RunHandles:
     resume = gui.add_button("Resume", disabled=True)
     cancel = gui.add_button("Cancel", disabled=True)
     reset = gui.add_button("Reset", hint="back to the initial pose; clear the path")
-    lock = gui.add_text("Locked parameters", "", hint="what the search may not move, e.g. rx,ry,tz (a turntable about "
+    lock = gui.add_text(LOCK_LABEL, "", hint="what the search may not move, e.g. rx,ry,tz (a turntable about "
                         "y: rx,rz,tx,ty,tz), rotation, translation, or turntable:px,py,pz,dx,dy,dz (an axis in the "
                         "target's frame, its units); empty: all six free")
     plot = gui.add_uplot(
@@ -85,48 +66,12 @@ def build(gui: viser.GuiApi) -> RunHandles:
                                                    for p in PHASE_NAMES)),
         scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=1.6)
     with gui.add_folder("Settings", expand_by_default=False):
+        numbers = {name: gui.add_text(f.label, f.initial, hint=f.full_hint(name)) for name, f in NUMBERS.items()}
         settings = SettingsHandles(
-            threshold=gui.add_text("Threshold", "auto", hint="stop below this E; auto: from the scans' noise; "
-                                   "0: search until annealing gives up"),
-            t_start=gui.add_text("Start temperature", "auto",
-                                 hint=f"auto: from the spread of E over the first simplex; {ANNEALS}"),
-            t_min=gui.add_text("Minimum temperature ratio", "auto",
-                               hint=f"annealing stops below this fraction of its start temperature, between 0 and 1; "
-                                    f"auto: 0.01 for the hybrid, 1e-5 for annealing alone; {ANNEALS}"),
-            cooling=gui.add_text("Cooling", "0.9", hint=f"temperature factor per block of moves, between 0 and 1; "
-                                 f"{ANNEALS}"),
-            seed=gui.add_text("Seed", "0", hint="a whole number >= 0: the same seed, the same run"),
-            icp_max=gui.add_text("ICP iteration cap", "100", hint="iterations per ICP leg, >= 1"),
-            sa_max=gui.add_text("SA evaluation cap", "20000", hint=f"evaluations of E per annealing leg, >= 7; {ANNEALS}"),
-            frustum=gui.add_dropdown("Frustum", KINDS, initial_value="convex"),
-            max_points=gui.add_text("Overlap sample size", "300", hint="source points in E, >= 3"),
-            coarse_to_fine=gui.add_checkbox("Coarse to fine", False),
-            polish=gui.add_checkbox("Unweighted polish", False),
+            numbers=numbers, frustum=gui.add_dropdown("Frustum", KINDS, initial_value=FRUSTUM),
+            coarse_to_fine=gui.add_checkbox("Coarse to fine", False), polish=gui.add_checkbox("Unweighted polish", False),
             lock=lock)
     return RunHandles(run, step, next_phase, pause, resume, cancel, reset, plot, settings)
-
-
-def read_settings(h: SettingsHandles) -> PageSettings:
-    """The settings as typed on the page; a bad one raises InputError (never a clamped or rewritten value)."""
-    return PageSettings(
-        threshold=parse_optional(h.threshold.value, "threshold", Range(0)),
-        t_start=parse_optional(h.t_start.value, "start temperature", Range(0, lo_open=True)),
-        t_min_ratio=parse_optional(h.t_min.value, "minimum temperature ratio", RATIO),
-        cooling=parse_number(h.cooling.value, "cooling", RATIO),
-        seed=parse_number(h.seed.value, "seed", SEED),
-        icp_max=parse_number(h.icp_max.value, "ICP iteration cap", Range(1, 10**6, integer=True)),
-        sa_max=parse_number(h.sa_max.value, "SA evaluation cap", Range(7, 10**8, integer=True)),
-        frustum=h.frustum.value,
-        max_points=parse_number(h.max_points.value, "overlap sample size", Range(3, 10**7, integer=True)),
-        coarse_to_fine=bool(h.coarse_to_fine.value), polish=bool(h.polish.value), lock=checked_lock(h.lock.value))
-
-
-def checked_lock(text: str) -> str:
-    """The lock as typed, once core takes it (a bad one raises InputError naming what is wrong)."""
-    from app.options import parse_lock
-
-    parse_lock(text.strip() or None)
-    return text.strip()
 
 
 class RunPanel:
@@ -143,17 +88,18 @@ class RunPanel:
         h.cancel.on_click(lambda e: self.control(Run.cancel))
         h.reset.on_click(lambda e: guarded(self.reset))
         h.settings.frustum.on_update(lambda e: guarded(tab.reprepare))
-        h.settings.max_points.on_update(lambda e: self._sample_size_typed())
+        h.settings.numbers["max_points"].on_update(lambda e: self._sample_size_typed())
 
     def _sample_size_typed(self) -> None:
         """A new sample size re-cuts the overlap once it is a valid number (half-typed ones wait for the run)."""
         try:
-            parse_number(self.h.settings.max_points.value, "overlap sample size", Range(3, 10**7, integer=True))
+            read_number(self.h.settings, "max_points")
         except InputError:
             return
         self.tab.guarded(self.tab.reprepare)
 
-    def settings(self) -> PageSettings:
+    def settings(self) -> Settings:
+        """The settings as typed (InputError naming a bad field); each Run button adds its method."""
         return read_settings(self.h.settings)
 
     def start(self, method: str, mode: str = "run") -> None:
@@ -230,7 +176,7 @@ class RunPanel:
     def set_controls(self, running: bool) -> None:
         """Lock what a run holds; the tab's other panels follow."""
         h = self.h
-        for b in [*h.run.values(), h.settings.frustum, h.settings.max_points, h.settings.lock]:
+        for b in [*h.run.values(), h.settings.frustum, h.settings.numbers["max_points"], h.settings.lock]:
             b.disabled = running
         h.pause.disabled = h.resume.disabled = h.cancel.disabled = not running
         self.tab.run_drawing = running

@@ -1,45 +1,100 @@
-"""The page's settings as plain values, and the one mapping from them to a core ``Config``.
+"""The page's settings: one entry per field, read into ``app.options.Settings`` and turned into a core
+``Config`` by ``app.options.to_config``, the path the CLI takes too. Each number's kind and range is
+``app.options.KNOBS`` under the same name (the one table); a refusal names the page's field.
 
-``page_config`` is the only place the page turns settings into a config; it goes through
-app/options.py, the settings path shared by the CLI, the page and merge.
+So the page and the CLI run the same method from the same settings: a field left at ``auto`` keeps the
+core's own default for each method (annealing alone cools and stops otherwise than the hybrid's legs).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from app.options import Settings, to_config
+import viser
+
+from app.options import KNOBS, Settings, parse_lock, to_config
+from app.tab.fields import parse_setting
 from core.problem import ProblemConfig
 from core.register import Config
 
+ANNEALS = "applies to Run hybrid and Run SA (the methods that anneal)"
+_CORE = Config()
+
 
 @dataclass(frozen=True)
-class PageSettings:
-    threshold: float | None = None  # None: auto (from the scans' noise)
-    t_start: float | None = None  # None: auto (from the first simplex)
-    t_min_ratio: float | None = None  # None: each method's own (hybrid 1e-2, annealing alone 1e-5)
-    cooling: float = 0.9
-    seed: int = 0
-    icp_max: int = 100
-    sa_max: int = 20000
-    frustum: str = "convex"
-    max_points: int = 300
-    coarse_to_fine: bool = False
-    polish: bool = False
-    lock: str = ""  # locked degrees of freedom as --lock takes them ("rx,ry,tz", "rotation", "turntable:..."); "": none
+class NumberField:
+    """A number typed on the page: its label (what a refusal names), the text it starts with, its hint.
+    ``auto``: 'auto' (or empty) leaves the core's default."""
+
+    label: str
+    initial: str
+    hint: str
+    auto: bool = False
+
+    def full_hint(self, name: str) -> str:
+        return f"{self.hint}; {KNOBS[name].describe()}{' or auto' if self.auto else ''}"
 
 
-def problem_config(s: PageSettings) -> ProblemConfig:
-    return ProblemConfig(max_points=s.max_points, frustum=s.frustum)
+def _per_method(anneal: float, alone: float) -> str:
+    return f"auto: {anneal:g} for the hybrid, {alone:g} for annealing alone"
 
 
-def page_config(s: PageSettings, method: str) -> Config:
-    """The core Config for ``method`` from the page's settings (validated: bad values raise InputError),
-    through app.options, the one settings path the CLI, the page and merge share.
+# app.options.Settings field -> its field on the page, in the order drawn
+NUMBERS: dict[str, NumberField] = {
+    "threshold": NumberField("Threshold", "auto", "stop below this E; auto: from the scans' noise; 0: search until "
+                             "annealing gives up", auto=True),
+    "t_start": NumberField("Start temperature", "auto", f"auto: from the spread of E over the first simplex; {ANNEALS}",
+                           auto=True),
+    "t_min_ratio": NumberField("Minimum temperature ratio", "auto", "annealing stops below this fraction of its start "
+                               f"temperature; {_per_method(_CORE.anneal.t_min_ratio, _CORE.sa_alone.t_min_ratio)}; "
+                               f"{ANNEALS}", auto=True),
+    "cooling": NumberField("Cooling", "auto", "temperature factor per block of moves; "
+                           f"{_per_method(_CORE.anneal.cooling, _CORE.sa_alone.cooling)}; {ANNEALS}", auto=True),
+    "seed": NumberField("Seed", str(_CORE.seed), "the same seed, the same run"),
+    "icp_max_iterations": NumberField("ICP iteration cap", str(_CORE.icp.max_iterations), "iterations per ICP leg"),
+    "sa_max_evaluations": NumberField("SA evaluation cap", "auto", "evaluations of E per annealing leg; "
+                                      f"{_per_method(_CORE.anneal.max_evaluations, _CORE.sa_alone.max_evaluations)}; "
+                                      f"{ANNEALS}", auto=True),
+    "max_points": NumberField("Overlap sample size", str(_CORE.problem.max_points), "source points in E"),
+}
+LOCK_LABEL = "Locked parameters"
 
-    The annealing settings reach both methods that anneal: the hybrid's legs and annealing alone.
-    """
-    return to_config(Settings(method=method, seed=s.seed, threshold=s.threshold, max_points=s.max_points,
-                              frustum=s.frustum, t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling,
-                              icp_max_iterations=s.icp_max, sa_max_evaluations=s.sa_max, polish=s.polish,
-                              coarse_to_fine=s.coarse_to_fine, lock=s.lock.strip() or None))
+
+FRUSTUM = _CORE.problem.frustum  # the dropdown starts at the core's default
+
+
+@dataclass(eq=False)
+class SettingsHandles:
+    numbers: dict[str, viser.GuiTextHandle]  # by app.options.Settings field, as NUMBERS
+    frustum: viser.GuiDropdownHandle
+    coarse_to_fine: viser.GuiCheckboxHandle
+    polish: viser.GuiCheckboxHandle
+    lock: viser.GuiTextHandle
+
+
+def read_number(h: SettingsHandles, name: str) -> float | int | None:
+    """One number field as typed, checked (InputError naming the field; never a clamped or rewritten value)."""
+    f = NUMBERS[name]
+    return parse_setting(h.numbers[name].value, name, f.label, f.auto)
+
+
+def read_settings(h: SettingsHandles) -> Settings:
+    """The settings as typed on the page, method left to the button that runs them."""
+    return Settings(**{name: read_number(h, name) for name in NUMBERS}, frustum=h.frustum.value,
+                    coarse_to_fine=bool(h.coarse_to_fine.value), polish=bool(h.polish.value),
+                    lock=checked_lock(str(h.lock.value)))
+
+
+def checked_lock(text: str) -> str | None:
+    """The lock as typed, once core takes it (a bad one raises InputError naming the field); None: none."""
+    parse_lock(text.strip() or None, LOCK_LABEL)
+    return text.strip() or None
+
+
+def problem_config(s: Settings) -> ProblemConfig:
+    return to_config(s).problem
+
+
+def page_config(s: Settings, method: str) -> Config:
+    """The core Config for ``method`` from the page's settings (validated: bad values raise InputError)."""
+    return to_config(replace(s, method=method))

@@ -67,7 +67,7 @@ class TabState:
     threshold: float | None = None
     run: Run | None = None
     run_method: str = ""
-    run_header: object | None = None  # core.events.TraceHeader of the run (or loaded trace) the events belong to
+    run_header: object | None = None  # core.trace.TraceHeader of the run (or loaded trace) the events belong to
     events: list = field(default_factory=list)
     result: Result | None = None
     finished_text: str = ""

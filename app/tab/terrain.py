@@ -145,7 +145,7 @@ class Terrain:
         vertices, faces, rgba = surface(sl)
         self.frame = scene.add_frame("/terrain", show_axes=False, position=TERRAIN_AT)
         mesh = trimesh.Trimesh(vertices, faces, vertex_colors=rgba, process=False)
-        # no shadows: the page's lights cast none (app/tab/tab.py), and the surface is sent once per slice
+        # no shadows: the page's lights cast none (app/tab/page.py), and the surface is sent once per slice
         self.surface = scene.add_mesh_trimesh("/terrain/surface", mesh, cast_shadow=False, receive_shadow=False)
         half = 0.5 * TERRAIN_SIZE
         scene.add_label("/terrain/label_a", axis_label(sl.params[0], units), position=(0.0, 0.0, half + 0.08))

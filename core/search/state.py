@@ -16,11 +16,11 @@ import numpy as np
 
 from ..anneal import AnnealConfig, anneal
 from ..config import Config
-from ..error import ErrorTerms, RobustError
 from ..events import Event, Listener
 from ..icp import IcpConfig, icp
 from ..lock import LockFrame
 from ..problem import Problem
+from ..robust_error import ErrorTerms, RobustError
 from ..transforms import random_perturbation, rotation_angle
 
 

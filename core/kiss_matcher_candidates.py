@@ -5,7 +5,7 @@ Two facts about the library, measured here, shape this module:
 
 - Its Python binding holds the GIL for the whole estimate (0.15-0.25 s on a bunny pair): on a thread
   of ours it stalls the cut, the noise floor and the basis it was meant to overlap. In a child
-  process (core/kiss_child.py, started once and kept) it runs on the other core while they run here.
+  process (core/kiss_matcher_child.py, started once and kept) it runs on the other core while they run here.
 - Its parallel feature matching gives a slightly different hypothesis from run to run (ten runs on
   bun045->bun000: up to 0.12 deg and 0.2 mm apart; upstream MIT-SPARK/KISS-Matcher issue 89, open),
   and a global run refined from them ended up to 0.08 deg apart. On one thread every run gives the
@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .kiss_child import HEAD, _read
+from .kiss_matcher_child import HEAD, _read
 from .scan import Scan
 
 KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size; it refuses small ones (it is made for metres)
-CHILD = Path(__file__).with_name("kiss_child.py")
+CHILD = Path(__file__).with_name("kiss_matcher_child.py")
 
 
 @cache

@@ -1,11 +1,11 @@
-"""The robust error (core.error, paper eq. 1-2), read-only so that one prepared problem is shared."""
+"""The robust error (core.robust_error, paper eq. 1-2), read-only so that one prepared problem is shared."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from core.error import RobustError, robust_weights
+from core.robust_error import RobustError, robust_weights
 from core.surface import Surface
 
 

@@ -1,8 +1,9 @@
-"""KISS-Matcher in a process of its own: the child side of core.kiss.
+"""KISS-Matcher in a process of its own: the child side of core.kiss_matcher_candidates.
 
-Run by path (``python core/kiss_child.py``), so it imports neither the ``core`` package nor Open3D:
-numpy and kiss_matcher only (~0.15 s). KISS-Matcher's first use is made on one CPU, so its TBB runs
-one thread from then on and the same clouds give the same bits (core.kiss explains why).
+Run by path (``python core/kiss_matcher_child.py``), so it imports neither the ``core`` package nor Open3D:
+numpy and kiss_matcher only (~0.15 s). Its directory, core/, is then first on sys.path: no module there may be
+named ``kiss_matcher`` (it would hide the library). KISS-Matcher's first use is made on one CPU, so its TBB runs
+one thread from then on and the same clouds give the same bits (core.kiss_matcher_candidates explains why).
 
 Protocol, little-endian, on stdin/stdout (stdout is moved off fd 1 first, so that anything the
 library prints goes to stderr instead of into the replies):

@@ -143,6 +143,7 @@ class Settings:
     candidates: bool = True  # method global: candidate poses beyond the guess (False: the guess alone)
     rotation_samples: int | None = None  # method global: over all of SO(3)
     full_search: bool = False  # method global: no bound on the search (the paper's hybrid runs to its end)
+    no_guess: bool = False  # method global: the guess says nothing (any rotation, any translation; core.region)
     time_limit: float | None = None  # method global: seconds after which no new stage starts (None: none)
     lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
@@ -188,6 +189,10 @@ def to_config(s: Settings):
     problem = replace(base.problem, **given(
         max_points=s.max_points, frustum=s.frustum, rotation_uncertainty_deg=s.rotation_uncertainty,
         translation_uncertainty=s.translation_uncertainty))
+    if s.no_guess and (s.method or base.method) == "global":
+        from core.region import no_guess
+
+        problem = no_guess(problem)
     anneal = given(t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling, max_evaluations=s.sa_max_evaluations)
     cfg = replace(base, threshold=s.threshold, seed=s.seed, problem=problem,
                   icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),

@@ -89,7 +89,7 @@ def settings_handles(**typed):
     from app.tab.settings import FRUSTUM, NUMBERS, SettingsHandles
 
     numbers = {name: f.initial for name, f in NUMBERS.items()} | {k: v for k, v in typed.items() if k in NUMBERS}
-    rest = dict(frustum=FRUSTUM, coarse_to_fine=False, polish=False, lock="") | {k: v for k, v in typed.items()
+    rest = dict(frustum=FRUSTUM, coarse_to_fine=False, polish=False, lock="", no_guess=False) | {k: v for k, v in typed.items()
                                                                                  if k not in NUMBERS}
     return SettingsHandles(numbers={k: SimpleNamespace(value=v) for k, v in numbers.items()},
                            **{k: SimpleNamespace(value=v) for k, v in rest.items()})
@@ -102,6 +102,26 @@ def test_the_annealing_settings_reach_annealing_alone():
         cfg = page_config(read_settings(settings_handles(t_min_ratio="0.05", cooling="0.8")), method)
         assert cfg.sa_alone.t_min_ratio == cfg.anneal.t_min_ratio == 0.05
         assert cfg.sa_alone.cooling == cfg.anneal.cooling == 0.8
+
+
+def test_the_pages_uncertainty_fields_and_no_guess_reach_the_run(scene):
+    from app.tab.settings import guess_text, page_config, read_settings
+
+    typed = read_settings(settings_handles(rotation_uncertainty="60", translation_uncertainty="25"))
+    for method in ("global", "hybrid"):
+        pc = page_config(typed, method).problem
+        assert (pc.rotation_uncertainty_deg, pc.translation_uncertainty) == (60.0, 25.0)
+    nothing = read_settings(settings_handles(rotation_uncertainty="60", no_guess=True))
+    pc = page_config(nothing, "global").problem
+    assert (pc.rotation_uncertainty_deg, pc.translation_uncertainty) == (180.0, None)  # Run global: no guess
+    assert page_config(nothing, "hybrid").problem.rotation_uncertainty_deg == 60.0  # the paper's keep their region
+    source, target = scene("corner")
+    import numpy as np
+
+    assert guess_text(nothing, np.eye(4), source, target).startswith("no guess")
+    assert guess_text(typed, np.eye(4), source, target).startswith("60 deg, ")
+    with pytest.raises(InputError, match="^Rotation uncertainty"):
+        read_settings(settings_handles(rotation_uncertainty="200"))
 
 
 @pytest.mark.parametrize("method", ["sa", "hybrid", "icp", "icp-restarts", "basin-hopping", "global"])

@@ -207,7 +207,8 @@ class Tab:
                      f"E = {last.error:.6g} {e_unit}" if last else f"E = {E0:.6g} {e_unit} (initial)",
                      f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
                      else "Temperature -",
-                     f"Threshold {thr} {e_unit}"]
+                     f"Threshold {thr} {e_unit}",
+                     self.run_panel.guess_line()]
             if st.finished_text and not running:
                 lines.append(st.finished_text)
         self.status.content = "  \n".join(lines)

@@ -11,7 +11,17 @@ import viser.uplot as uplot
 from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, hex_colour
 from app.options import Settings
 from app.runner import Run
-from app.tab.settings import FRUSTUM, LOCK_LABEL, NUMBERS, SettingsHandles, page_config, read_number, read_settings
+from app.tab.settings import (
+    FRUSTUM,
+    LOCK_LABEL,
+    NO_GUESS_LABEL,
+    NUMBERS,
+    SettingsHandles,
+    guess_text,
+    page_config,
+    read_number,
+    read_settings,
+)
 from app.tab.state import TabState
 from core.errors import InputError
 from core.frustum import KINDS
@@ -70,7 +80,9 @@ def build(gui: viser.GuiApi) -> RunHandles:
         settings = SettingsHandles(
             numbers=numbers, frustum=gui.add_dropdown("Frustum", KINDS, initial_value=FRUSTUM),
             coarse_to_fine=gui.add_checkbox("Coarse to fine", False), polish=gui.add_checkbox("Unweighted polish", False),
-            lock=lock)
+            lock=lock, no_guess=gui.add_checkbox(NO_GUESS_LABEL, False, hint="Run global takes the initial pose as "
+                                                 "saying nothing: any rotation, any translation that makes the scans "
+                                                 "overlap (the paper's methods keep their search round the pose)"))
     return RunHandles(run, step, next_phase, pause, resume, cancel, reset, plot, settings)
 
 
@@ -101,6 +113,16 @@ class RunPanel:
     def settings(self) -> Settings:
         """The settings as typed (InputError naming a bad field); each Run button adds its method."""
         return read_settings(self.h.settings)
+
+    def guess_line(self) -> str:
+        """The status line's word on the initial pose: its stated region as Run global takes it."""
+        st = self.state
+        if st.source is None or st.target is None:
+            return "Guess -"
+        try:
+            return f"Guess (Run global): {guess_text(self.settings(), st.T_init, st.source, st.target)}"
+        except InputError:
+            return "Guess: a setting is not a valid number yet"
 
     def start(self, method: str, mode: str = "run") -> None:
         st = self.state

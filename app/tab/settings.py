@@ -56,7 +56,15 @@ NUMBERS: dict[str, NumberField] = {
                                       f"{_per_method(_CORE.anneal.max_evaluations, _CORE.sa_alone.max_evaluations)}; "
                                       f"{ANNEALS}", auto=True),
     "max_points": NumberField("Overlap sample size", str(_CORE.problem.max_points), "source points in E"),
+    "rotation_uncertainty": NumberField("Rotation uncertainty (deg)", f"{_CORE.problem.rotation_uncertainty_deg:g}",
+                                        "how far off the initial pose may be in rotation, about the source frame's "
+                                        "origin; the paper's methods search twice this round the pose, Run global adds "
+                                        "the move it implies at the centroid; 180: any rotation"),
+    "translation_uncertainty": NumberField("Translation uncertainty", "auto", "how far off the initial pose may be in "
+                                           "translation, in the scans' units; auto: 15 % of the target's size (Run "
+                                           "global: free from a rotation of 90 deg up)", auto=True),
 }
+NO_GUESS_LABEL = "No guess (Run global)"
 LOCK_LABEL = "Locked parameters"
 
 
@@ -70,6 +78,7 @@ class SettingsHandles:
     coarse_to_fine: viser.GuiCheckboxHandle
     polish: viser.GuiCheckboxHandle
     lock: viser.GuiTextHandle
+    no_guess: viser.GuiCheckboxHandle
 
 
 def read_number(h: SettingsHandles, name: str) -> float | int | None:
@@ -82,13 +91,20 @@ def read_settings(h: SettingsHandles) -> Settings:
     """The settings as typed on the page, method left to the button that runs them."""
     return Settings(**{name: read_number(h, name) for name in NUMBERS}, frustum=h.frustum.value,
                     coarse_to_fine=bool(h.coarse_to_fine.value), polish=bool(h.polish.value),
-                    lock=checked_lock(str(h.lock.value)))
+                    lock=checked_lock(str(h.lock.value)), no_guess=bool(h.no_guess.value))
 
 
 def checked_lock(text: str) -> str | None:
     """The lock as typed, once core takes it (a bad one raises InputError naming the field); None: none."""
     parse_lock(text.strip() or None, LOCK_LABEL)
     return text.strip() or None
+
+
+def guess_text(s: Settings, T_init, source, target) -> str:
+    """The initial pose's stated region as Run global takes it (core.region), in the user's words."""
+    from core.region import Region
+
+    return Region.stated(T_init, page_config(s, "global").problem, source, target).describe()
 
 
 def problem_config(s: Settings) -> ProblemConfig:

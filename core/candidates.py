@@ -154,8 +154,8 @@ class Basis:
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
         P, M = len(poses), len(self.points)
         moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
-        _, d2 = self.surface.closest(moved.reshape(-1, 3))
-        d2 = d2.reshape(P, M)
+        # every distance beyond the cap pays the cap: only those within it need the exact query
+        d2 = self.surface.squared_distances_within(moved.reshape(-1, 3), float(np.sqrt(self.cap))).reshape(P, M)
         inside = self.target_frustum.contains(moved.reshape(-1, 3)).reshape(P, M)
         inv = np.array([invert(T) for T in poses])
         back = np.einsum("pij,mj->pmi", inv[:, :3, :3], self.target_points) + inv[:, None, :3, 3]

@@ -176,12 +176,12 @@ def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None) 
     return Hypotheses(kiss_candidates(source, target, spacing, max(cc.fpfh_voxels)))
 
 
-def kiss_ahead(source: Scan, target: Scan, pc: ProblemConfig, cc: CandidateConfig) -> Future | None:
-    """KISS-Matcher's hypotheses, started on a thread of their own when the first stage scores them (a
-    rotation stated wider than ``guess_first_deg``); else None. The thread makes the voxel clouds and
-    waits on core.kiss_matcher_candidates' child process, which runs on the other core while this one cuts
-    the overlap, takes the noise floor and the basis (the same inputs, so the same hypotheses)."""
-    if not (cc.enabled and cc.kiss_matcher and pc.rotation_uncertainty_deg > cc.guess_first_deg and kiss_available()):
+def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None:
+    """KISS-Matcher's hypotheses, started on a thread of their own (None when it is off or not installed).
+    The thread makes the voxel clouds and waits on core.kiss_matcher_candidates' child process, which runs
+    on the other core while this one cuts the overlap, takes the noise floor and the basis (the same inputs,
+    so the same hypotheses); a run trusted before its stage leaves them unread."""
+    if not (cc.enabled and cc.kiss_matcher and kiss_available()):
         return None
     pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
     future = pool.submit(kiss_candidates, source, target, pair_spacing(source, target), max(cc.fpfh_voxels))
@@ -202,24 +202,22 @@ class Stage:
 
 
 def stages(setup: Setup) -> Iterator[Stage]:
-    """The stages, cheapest first. A rotation stated within ``guess_first_deg``: the guess alone, then the
-    rotation samples, then KISS-Matcher's one hypothesis (~0.1 s). A wider one: the guess and
-    KISS-Matcher's hypothesis scored together (the lower refined first), then the samples. FPFH + RANSAC
-    last: it costs about what the whole Open3D pipeline does."""
+    """The stages, cheapest first. A rotation stated within ``guess_first_deg``: the guess alone, then
+    KISS-Matcher's one hypothesis (computed ahead, in its own process), then the rotation samples. A wider
+    one: the guess and KISS-Matcher's hypothesis scored together (the lower refined first), then the
+    samples. FPFH + RANSAC last: it costs about what the whole Open3D pipeline does."""
     cc = setup.config.candidates
     kiss = cc.enabled and cc.kiss_matcher
     guess = Hypotheses([setup.T_guess])
-    samples = Stage("rotation samples", lambda: sampled(setup), cc.refine)
     if setup.region.stated_rotation_deg > cc.guess_first_deg and kiss:
         yield Stage("guess, kiss-matcher", lambda: Hypotheses(guess.poses + matched(setup, "kiss-matcher").poses), 2, True)
-        yield samples
     else:
         yield Stage("guess", lambda: guess, 1)
-        if not cc.enabled:
-            return
-        yield samples
         if kiss:
             yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1, True)
+    if not cc.enabled:
+        return
+    yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
     for v in sorted(cc.fpfh_voxels, reverse=True):  # coarse first: 5 spacings costs ~1/5 of 2 spacings
         yield Stage(f"fpfh-ransac {v:g} spacings", lambda v=v: matched(setup, "fpfh-ransac", (v,)), cc.fpfh_seeds, True)
 
@@ -324,7 +322,7 @@ def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config:
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
-    ahead = kiss_ahead(source, target, pc, cc)
+    ahead = kiss_ahead(source, target, cc)
     problem = prepare(source, target, T_init, pc, seed=config.seed)
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.

@@ -179,3 +179,20 @@ def test_nonconvex_frustum_drops_what_the_convex_one_keeps():
     probe = np.array([[0.3, 0.3, -5.0], [-0.5, -0.5, -5.0]])
     assert frustum_of(scan, "convex").contains(probe).tolist() == [True, True]
     assert frustum_of(scan, "nonconvex").contains(probe).tolist() == [False, True]
+
+
+def test_distances_within_a_radius_are_exact_there_and_inf_only_beyond_it(scene):
+    from core.surface import Surface
+
+    target, _ = scene("corner")
+    surface = Surface.from_scan(target)
+    rng = np.random.default_rng(3)
+    on = target.points[rng.choice(len(target.points), 400)]
+    query = on + rng.normal(size=on.shape) * rng.choice([0.1, 5.0, 50.0, 500.0], size=(len(on), 1))
+    _, exact = surface.closest(query)
+    for radius in (1.0, 20.0, 200.0):
+        d2 = surface.squared_distances_within(query, radius)
+        within = exact <= radius**2
+        assert np.array_equal(d2[within], exact[within])  # exact (the same query) wherever it matters
+        assert np.all(exact[np.isinf(d2)] > radius**2)  # inf only where the surface is surely farther
+        assert np.all(np.isinf(d2) | (d2 == exact))

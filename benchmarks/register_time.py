@@ -1,13 +1,14 @@
-"""How long `rangereg register --json` takes, one process a run, on the sweep's starts (issue 13's
-"median wall time <= 1 s on a 40k-point pair").
+"""How long `rangereg register --json` takes, one process a run, on the sweep's starts: its own `seconds`
+(reading both files to the result; `import_seconds`, the imports before, reported apart), median, p90 and
+max per mode and offset, and whether the pose lies within 2 degrees and 2 mm of the truth.
 
-    python benchmarks/register_time.py [--starts 2] [--passes 2] [BUNNY_DIR]
+    python benchmarks/register_time.py [--starts 2] [--passes 1] [--modes origin,no-guess] [BUNNY_DIR]
+    python benchmarks/register_time.py --smallest        # one pair, one start, one offset: a check it runs
 
-For every shared bunny pair and every sweep offset (app.sweep: the same seeded starts and the same
-stated uncertainty as `rangereg bench --sweep`), runs the CLI once per start and reads its own
-`seconds` (reading both files to the result; `import_seconds`, the imports before, are reported
-apart) and whether the pose lies within 2 degrees and 2 mm of the truth. Prints a row per run, then
-per offset the median and range of each pass. Run it on a quiet machine: one run at a time.
+For every shared bunny pair (app.sweep's whole family) and every sweep offset, each mode's start (app.sweep:
+the same seeded starts) is given to the CLI as a user would give it: the start as `--init` and the stated
+rotation (`--rotation-uncertainty`, plus `--translation-uncertainty` in the centroid mode); in the no-guess
+mode no `--init` and no flag at all. Run it on a quiet machine: one run at a time.
 """
 
 from __future__ import annotations
@@ -24,64 +25,78 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from app.sweep import SWEEP_LEVELS, SweepTask, _load_pair, _sweep_start, shared_pairs, told  # noqa: E402
+from app.sweep import MODES, SWEEP_LEVELS, SweepTask, start_pose, sweep_pairs, sweep_tasks, told  # noqa: E402
 from core.transforms import invert, pose_error  # noqa: E402
 
 
-def one_run(s_path: Path, t_path: Path, rot: float, trans: float, k: int) -> tuple[float, float, bool]:
-    """(seconds, import seconds, right) of one `rangereg register --json` from start ``k``."""
-    task = SweepTask(str(s_path), str(t_path), rot, trans, k)
-    s, t, _ = _load_pair(task)
-    T0 = _sweep_start(task, s, t)
-    r_unc, t_unc = told(rot, trans)
-    cmd = [sys.executable, "-m", "app.cli", "register", str(s_path), str(t_path),
-           "--init=" + " ".join(repr(float(v)) for v in T0.ravel()), "--rotation-uncertainty", str(r_unc),
-           "--translation-uncertainty", str(t_unc), "--seed", str(k), "--json"]
+def flags(task: SweepTask, T0: np.ndarray) -> list[str]:
+    """What a user tells the CLI in ``task``'s mode (app.sweep.told, in flags)."""
+    if task.mode == "no-guess":
+        return []
+    pc = told(task)
+    out = ["--init=" + " ".join(repr(float(v)) for v in T0.ravel()), "--rotation-uncertainty",
+           repr(pc.rotation_uncertainty_deg)]
+    return out + (["--translation-uncertainty", repr(pc.translation_uncertainty)]
+                  if pc.translation_uncertainty is not None else [])
+
+
+def one_run(task: SweepTask) -> dict:
+    """One `rangereg register --json` of ``task``: seconds, import seconds, right or not, trusted or not."""
+    s, t = task.source.load(), task.target.load()
+    T0 = start_pose(task, s, t)
+    cmd = [sys.executable, "-m", "app.cli", "register", task.source.path, task.target.path, *flags(task, T0),
+           "--seed", str(task.start), "--json"]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     if out.returncode != 0:
         raise SystemExit(f"rangereg register failed: {out.stderr.strip()}")
     d = json.loads(out.stdout)
     rot_err, trans_err = pose_error(np.array(d["transform"]), invert(t.pose) @ s.pose, s.centroid)
-    return d["seconds"], d["import_seconds"], bool(rot_err < 2.0 and trans_err < 0.002)
+    return {"mode": task.mode, "offset": task.rot, "pair": task.pair, "start": task.start, "seconds": d["seconds"],
+            "import_seconds": d["import_seconds"], "right": bool(rot_err < 2.0 and trans_err < 0.002),
+            "trusted": bool(d["below_threshold"])}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("bunny", nargs="?", default=str(ROOT.parent / "shared" / "data" / "bunny"))
-    ap.add_argument("--starts", type=int, default=2, help="starts per pair and offset (the sweep's first ones)")
-    ap.add_argument("--passes", type=int, default=2, help="passes over every run, one after the other")
+    ap.add_argument("--starts", type=int, default=2, help="starts per pair, mode and offset (the sweep's first ones)")
+    ap.add_argument("--passes", type=int, default=1, help="passes over every run, one after the other")
+    ap.add_argument("--modes", default="origin,no-guess", help=f"comma-separated of {', '.join(MODES)}")
+    ap.add_argument("--smallest", action="store_true", help="one pair, one start, one offset, one mode")
     a = ap.parse_args()
     if a.starts < 1 or a.passes < 1:
         ap.error("--starts and --passes must be >= 1")
+    modes = tuple(m for m in a.modes.split(",") if m)
+    if not modes or any(m not in MODES for m in modes):
+        ap.error(f"--modes: choose from {', '.join(MODES)}")
     folder = Path(a.bunny)
     if not folder.is_dir():
         raise SystemExit(f"no bunny scans in {folder} (give the folder of bun*.ply and bun.conf)")
-    pairs = shared_pairs(folder)
-    passes = []
+    pairs = sweep_pairs(folder, ("whole",))
+    tasks = sweep_tasks(pairs, modes, SWEEP_LEVELS, a.starts)
+    if a.smallest:
+        tasks = tasks[:1]
+    rows = []
     for p in range(a.passes):
         print(f"pass {p + 1}: load average {os.getloadavg()[0]:.1f}", flush=True)
-        rows = []
-        for k in range(a.starts):
-            for rot, trans in SWEEP_LEVELS:
-                for s_path, t_path, _ in pairs:
-                    sec, imp, ok = one_run(s_path, t_path, rot, trans, k)
-                    rows.append((rot, sec, imp, ok))
-                    print(f"  {rot:5g} deg {s_path.stem}->{t_path.stem} start {k}: {sec:.3f} s "
-                          f"(imports {imp:.2f} s apart) {'ok' if ok else 'WRONG'}", flush=True)
-        passes.append(rows)
+        for task in tasks:
+            r = one_run(task)
+            rows.append(r)
+            print(f"  {task.mode:9s} {task.rot:5g} deg {task.pair:16s} start {task.start}: {r['seconds']:.3f} s "
+                  f"(imports {r['import_seconds']:.2f} s apart) {'ok' if r['right'] else 'WRONG'}"
+                  f"{'' if r['trusted'] else ' (not trusted)'}", flush=True)
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
-    print("\n| offset | runs a pass | right | median s, each pass (files -> result) | range |")
-    print("|---|---|---|---|---|")
-    for rot, trans in SWEEP_LEVELS:
-        sel = [[r for r in rows if r[0] == rot] for rows in passes]
-        right = sum(r[3] for rows in sel for r in rows)
-        med = " / ".join(f"{np.median([r[1] for r in rows]):.2f}" for rows in sel)
-        lo, hi = min(r[1] for rows in sel for r in rows), max(r[1] for rows in sel for r in rows)
-        print(f"| {rot:g} deg / {trans * 1000:g} mm | {len(sel[0])} | {right}/{sum(map(len, sel))} | {med} | "
-              f"{lo:.2f}-{hi:.2f} |")
-    every = [r for rows in passes for r in rows]
-    print(f"\nall: median {np.median([r[1] for r in every]):.2f} s; imports (apart) median "
-          f"{np.median([r[2] for r in every]):.2f} s")
+    print("\n| mode | offset | runs | right | trusted | seconds median / p90 / max (files -> result) |")
+    print("|---|---|---|---|---|---|")
+    for key in dict.fromkeys((r["mode"], r["offset"]) for r in rows):
+        sel = [r for r in rows if (r["mode"], r["offset"]) == key]
+        sec = [r["seconds"] for r in sel]
+        print(f"| {key[0]} | {'-' if key[0] == 'no-guess' else f'{key[1]:g} deg'} | {len(sel)} | "
+              f"{sum(r['right'] for r in sel)} | {sum(r['trusted'] for r in sel)} | "
+              f"{np.median(sec):.2f} / {np.percentile(sec, 90):.2f} / {max(sec):.2f} |")
+    sec = [r["seconds"] for r in rows]
+    print(f"\nall {len(rows)}: median {np.median(sec):.2f} s, p90 {np.percentile(sec, 90):.2f}, max {max(sec):.2f}; "
+          f"imports (apart) median {np.median([r['import_seconds'] for r in rows]):.2f} s")
     return 0
 
 

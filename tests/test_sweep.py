@@ -1,0 +1,56 @@
+"""The sweep's proxy for unseen guesses (app.sweep): starts made the way users' guesses are wrong, the
+method told only what a user would know, crops as families of their own, every family reported."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.sweep import FAMILIES, MODES, PEERS, SweepTask, View, start_pose, sweep_table, sweep_tasks, told
+from core.transforms import invert, pose_error, rotation_angle
+
+
+def _task(mode, rot=60.0, trans=0.05):
+    return SweepTask("whole", View("s.ply"), View("t.ply"), mode, rot, trans, 3)
+
+
+def test_each_mode_rotates_about_its_own_point_and_tells_only_what_a_user_knows(bunny):
+    s, t = bunny("bun045"), bunny("bun000")
+    T_true = invert(t.pose) @ s.pose
+    c = s.centroid
+    for mode in ("origin", "turntable", "centroid"):
+        T0 = start_pose(_task(mode), s, t)
+        assert abs(np.degrees(rotation_angle(T0[:3, :3] @ T_true[:3, :3].T)) - 60.0) < 1e-6
+        moved = pose_error(T0, T_true, c)[1]
+        if mode == "origin":  # rotated about the frame's origin, 0.1 m away: the centroid moves by more than the shift
+            assert moved > 0.05
+        else:  # about the centroid, or a vertical axis through it (the object on a turntable): the shift alone
+            assert abs(moved - 0.05) < 1e-9
+    # the turntable turns about the world's vertical: the relative rotation's axis is the target's y
+    D = start_pose(_task("turntable", trans=0.0), s, t) @ invert(T_true)
+    axis = np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
+    assert abs(abs(axis / np.linalg.norm(axis) @ (t.pose[:3, :3].T @ [0, 1, 0])) - 1) < 1e-9
+    assert np.array_equal(start_pose(_task("no-guess"), s, t), np.eye(4))
+    assert told(_task("origin")).translation_uncertainty is None  # the rotation only
+    assert told(_task("origin", rot=5.0)).rotation_uncertainty_deg == 15.0
+    assert told(_task("no-guess")).rotation_uncertainty_deg == 180.0
+    assert told(_task("centroid")).translation_uncertainty == 0.05
+
+
+def test_the_tasks_cover_every_family_mode_and_level_and_the_table_reports_each():
+    pairs = [(f, View(f"{f}-s.ply"), View(f"{f}-t.ply"), 0.5) for f in FAMILIES]
+    levels = ((5.0, 0.01), (90.0, 0.075))
+    tasks = sweep_tasks(pairs, MODES, levels, 2)
+    assert len(tasks) == 2 * len(pairs) * (3 * len(levels) + 1)  # no guess: one level
+    rows = []
+    for k, task in enumerate(tasks):
+        ok = k % 7 != 0
+        rows.append({"family": task.family, "mode": task.mode, "offset": task.rot, "pair": task.pair, "method": "global",
+                     "ok": ok, "trusted": ok and k % 5 != 0, "within_region": True, "seconds": 0.1 * (k % 9 + 1),
+                     "load_seconds": 0.1})
+        rows += [{"family": task.family, "mode": task.mode, "offset": task.rot, "pair": task.pair, "method": p,
+                  "ok": k % 2 == 0} for p in PEERS]
+    table = sweep_table(rows)
+    for f in FAMILIES:
+        for m in MODES:
+            assert f"| {f} | {m} |" in table
+    assert "trusted -> right" in table and f"all {len(tasks)} runs" in table

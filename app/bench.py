@@ -4,7 +4,7 @@ Every method starts from the same seeded poses: the truth perturbed by a random 
 5 degrees (about a random axis, about the source's centroid) and a random translation of 250 mm
 for the 4 ft corner, scaled to each scene's size (the paper's spread); 15 degrees and 25 mm on the
 bunny pairs. A run succeeds when its pose is within 1 degree and 1 % of the scene's size of the
-truth (bunny: 2 degrees and 2 mm, the issue's target), measured at the source's centroid.
+truth (bunny: 2 degrees and 2 mm), measured at the source's centroid.
 ``--sweep``: app/sweep.py (app/commands/bench.py dispatches).
 """
 

@@ -2,7 +2,7 @@
 the CLI's contract: exit status 2, exactly one line on stderr holding the expected fragment, no
 traceback, no file in its folder created, changed or removed, within a time bound.
 
-    python benchmarks/bad_inputs.py [--jobs 2] [--timeout 60] [-k FRAGMENT] [--list]
+    python benchmarks/bad_inputs.py [--jobs 2] [--timeout 60] [-k FRAGMENT] [--list] [--smallest]
 
 Prints each case that fails and "N of M meet the contract". The fixtures (corrupt, empty, lying
 files, bad sidecars, side files) are written into a temporary folder; each case runs in its own copy
@@ -443,8 +443,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds per case (default 60)")
     ap.add_argument("-k", dest="only", help="only cases whose name holds this")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
+    ap.add_argument("--smallest", action="store_true", help="one case of the fast subset: a check that it runs")
     a = ap.parse_args(argv)
     cases = [c for c in CASES if not a.only or a.only in c.name]
+    if a.smallest:
+        cases = [c for c in CASES if c.name == FAST[0]]
     if a.list:
         for c in cases:
             print(f"{c.name:36s} rangereg {' '.join(c.args)}  ->  {c.expect}")

@@ -22,16 +22,17 @@ def launch(playwright):
 
 
 @contextmanager
-def bunny_page(folder: Path, viewport: tuple[int, int]) -> Iterator[tuple[object, object, object]]:
-    """(workbench, browser, page): bun045 -> bun000 of ``folder`` served by a workbench in this process
-    on a free port, opened in Chromium at ``viewport`` (width, height) pixels, once the page shows the
-    initial E. The tabs and the server are closed afterwards."""
+def bunny_page(folder: Path, viewport: tuple[int, int], pair: tuple[str, str] = ("bun045.ply", "bun000.ply"),
+               ) -> Iterator[tuple[object, object, object]]:
+    """(workbench, browser, page): ``pair`` (source, target files; bun045 -> bun000) of ``folder`` served by a
+    workbench in this process on a free port, opened in Chromium at ``viewport`` (width, height) pixels, once
+    the page shows the initial E. The tabs and the server are closed afterwards."""
     from playwright.sync_api import sync_playwright
 
     from app.workbench import ServeOptions, Workbench
 
     port = free_port()
-    wb = Workbench(ServeOptions(source=str(folder / "bun045.ply"), target=str(folder / "bun000.ply"), port=port))
+    wb = Workbench(ServeOptions(source=str(folder / pair[0]), target=str(folder / pair[1]), port=port))
     try:
         with sync_playwright() as p:
             browser = launch(p)

@@ -3,6 +3,7 @@
     python benchmarks/campaign.py                      # 24 scans, seed 0: 1 vs 2 workers, 3 runs each
     python benchmarks/campaign.py --scans 36 --workers 4 --pairs overlap
     python benchmarks/campaign.py --write DIR          # only write the campaign (PLY + .conf) into DIR
+    python benchmarks/campaign.py --smallest           # 6 scans, ICP pairs, one run each: it runs
 
 Two threadings, each the same in both modes: "equal" (``threads=1``: every task stream, i.e. the
 serial process or each worker, one thread: the fair comparison, the speed-up the target is about)
@@ -32,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from app.distributed import TaskRunner, stderr_lines  # noqa: E402
+from core.config import Config, ProblemConfig  # noqa: E402
 from core.merge import PAIR_MODES, clear_geometry_cache, merge  # noqa: E402
 from core.transforms import invert, pose_error  # noqa: E402
 from core.turntable import TurntableConfig, make_campaign, write_campaign  # noqa: E402
@@ -39,7 +41,7 @@ from core.turntable import TurntableConfig, make_campaign, write_campaign  # noq
 ROT_TARGET, TRANS_TARGET = 1.0, 0.005  # degrees; fraction of the object's size
 
 
-def run(camp, initial, workers: int, threads: int | None, pairs: str, quiet: bool) -> tuple:
+def run(camp, initial, workers: int, threads: int | None, pairs: str, quiet: bool, config=None) -> tuple:
     """One merge: (MergeResult, end-to-end seconds, cluster start seconds, CPU seconds of the merge in
     (this process, each worker)); CPU time, unlike wall time, barely depends on the machine's load."""
     clear_geometry_cache()
@@ -48,7 +50,7 @@ def run(camp, initial, workers: int, threads: int | None, pairs: str, quiet: boo
         runner.start()  # the cluster's start counts end to end, not in the pairwise stage
         started = time.perf_counter() - t0
         cpu0, w0 = time.process_time(), runner.client.run(time.process_time) if runner.client else {}
-        res = merge(camp.scans, initial, build_model=False, pairs=pairs, map_tasks=runner.map,
+        res = merge(camp.scans, initial, config, build_model=False, pairs=pairs, map_tasks=runner.map,
                     progress=None if quiet else stderr_lines)
         cpu1, w1 = time.process_time(), runner.client.run(time.process_time) if runner.client else {}
     cpu = (cpu1 - cpu0, tuple(w1[k] - w0[k] for k in sorted(w1)))
@@ -71,7 +73,12 @@ def main() -> int:
     p.add_argument("--write", metavar="DIR", help="write the campaign into DIR and stop")
     p.add_argument("--repeat", type=int, default=3, help="runs per setting, interleaved; medians compared")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--smallest", action="store_true", help="6 scans, ICP pairs, one run per setting, one threading")
     a = p.parse_args()
+    config = None  # merge's own
+    if a.smallest:
+        a.scans, a.repeat = 6, 1
+        config = Config(method="icp", problem=ProblemConfig(rotation_uncertainty_deg=25.0))
     cfg = TurntableConfig(scans=a.scans)
     if a.write:
         camp = write_campaign(a.write, a.seed, cfg)
@@ -82,12 +89,12 @@ def main() -> int:
     initial = getattr(camp, a.initial)
     print(f"{camp!r}; initial poses: {a.initial}; pairs: {a.pairs}; {os.cpu_count()} cores, "
           f"load average before {os.getloadavg()[0]:.1f}")
-    threadings = {"equal": 1, "default": None}  # threads per task stream (TaskRunner's threads)
+    threadings = {"equal": 1} if a.smallest else {"equal": 1, "default": None}  # threads per task stream
     rows: dict[tuple, list] = {(t, w): [] for t in threadings for w in (1, a.workers)}
     for _ in range(a.repeat):
         for t, threads in threadings.items():
             for workers in (1, a.workers):
-                res, wall, started, cpu = run(camp, initial, workers, threads, a.pairs, a.quiet)
+                res, wall, started, cpu = run(camp, initial, workers, threads, a.pairs, a.quiet, config)
                 rows[t, workers].append((res, wall, started, os.getloadavg()[0], cpu))
     for (t, workers), runs in rows.items():
         print(f"{t} threading, {workers} worker(s), each run: pairwise stage "

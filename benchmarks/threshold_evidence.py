@@ -11,12 +11,15 @@ Printed: the truth's misfit, the nearest wrong minimum's, the leave-one-out fact
 the largest truth misfit and the smallest wrong one over the OTHER cases) and its spread, and per case
 whether the threshold (with the factor left out for that case) lies between the two.
 
-    python benchmarks/threshold_evidence.py [--starts 40] [--folder ../shared/data/bunny]
+    python benchmarks/threshold_evidence.py [--starts 40] [--folder ../shared/data/bunny] [--smallest]
+
+``--smallest``: the bowl alone, one random start and one turned truth (a check that the script runs).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from pathlib import Path
 
@@ -38,8 +41,8 @@ from core.threshold import FACTOR, MIN_TRUST_OVERLAP, pair_threshold  # noqa: E4
 from core.transforms import apply, invert, perturb, pose_error, random_perturbation  # noqa: E402
 
 
-def cases(folder: Path):
-    for s_path, t_path, _ in shared_pairs(folder) if folder.is_dir() else []:
+def cases(folder: Path | None):
+    for s_path, t_path, _ in shared_pairs(folder) if folder is not None and folder.is_dir() else []:
         s, t = load_scan(s_path), load_scan(t_path)
         yield f"{s_path.stem}->{t_path.stem}", s, t, invert(t.pose) @ s.pose, 2.0, 0.002
     for i, name in enumerate(SCENES):
@@ -62,7 +65,9 @@ def starts_from(T_true: np.ndarray, s, rng: np.random.Generator, n: int, size: f
                 yield perturb(T_true, np.r_[0, 0, 0, np.radians(sign * deg) * axis], c_t)
 
 
-def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: CandidateConfig = CandidateConfig()) -> dict:
+def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: CandidateConfig = CandidateConfig(),
+            turned: int | None = None) -> dict:
+    """``turned``: how many of the turned truths to try (None: all)."""
     surface = Surface.from_scan(t)
     rng = np.random.default_rng(0)
     floor = float(np.mean([noise_floor(x, rng, 300) for x in (s, t)]))
@@ -79,7 +84,8 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: Candidate
     rng = np.random.default_rng(7)
     wrong = []
     pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * t.size)
-    for T0 in starts_from(T_true, s, rng, starts, t.size):
+    every = starts_from(T_true, s, rng, starts, t.size)
+    for T0 in every if turned is None else itertools.islice(every, starts + turned):
         try:
             T, _ = refine(s, t, surface, T0, pc, Config(candidates=config))
         except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
@@ -107,12 +113,16 @@ def main() -> int:
     ap.add_argument("--cases", help="only these cases, comma-separated (e.g. corner,bowl)")
     ap.add_argument("--neighbours", type=int, default=CandidateConfig().normal_neighbours,
                     help="points a normal is fitted to (core.noise.NORMAL_NEIGHBOURS by default)")
+    ap.add_argument("--smallest", action="store_true", help="the bowl, one start and one turned truth")
     a = ap.parse_args()
+    if a.smallest:
+        a.cases, a.starts = "bowl", 1
     rows = []
-    for c in cases(Path(a.folder)):
+    for c in cases(None if a.smallest else Path(a.folder)):
         if a.cases and c[0] not in a.cases.split(","):
             continue
-        rows.append(measure(*c, starts=a.starts, config=CandidateConfig(normal_neighbours=a.neighbours)))
+        rows.append(measure(*c, starts=a.starts, config=CandidateConfig(normal_neighbours=a.neighbours),
+                            turned=1 if a.smallest else None))
         r = rows[-1]
         m, d2, ang, share = r["truth"]
         w = r["near"]

@@ -206,15 +206,16 @@ def terrain_mesh(half: float = 1000.0, n: int = 601, seed: int = 11) -> tuple[np
 
 
 def make_large_pair(n_points: int = 2_000_000, seed: int = 0, spread_deg: float = 5.0,
-                    spread: float = 60.0) -> tuple[Scan, Scan]:
+                    spread: float = 60.0, mesh_n: int = 601) -> tuple[Scan, Scan]:
     """Two dense scans (target, source) of :func:`terrain_mesh` from above, about ``n_points`` each
     (a square grid of rays, every one hitting), ~70 % overlap, with true ``pose`` and a rough
-    ``guess`` for the source (perturbed by ``spread_deg`` and ``spread`` mm): the large-input benchmark."""
+    ``guess`` for the source (perturbed by ``spread_deg`` and ``spread`` mm): the large-input benchmark.
+    ``mesh_n``: the terrain's vertices per side (a few thousand points need far fewer than 601)."""
     rng = np.random.default_rng(seed)
     rows = max(2, int(round(np.sqrt(n_points))))
     cols = max(2, int(np.ceil(n_points / rows)))
     scanner = Scanner(rows=rows, cols=cols, fov_deg=(30.0, 30.0), noise=0.3, outliers=0.01)
-    verts, faces = terrain_mesh()
+    verts, faces = terrain_mesh(n=mesh_n)
     eyes, targets = ((-150.0, -60.0, 1500.0), (150.0, 60.0, 1480.0)), ((-100.0, 0.0, 0.0), (100.0, 20.0, 0.0))
     a, b = (scan_mesh(verts, faces, look_at(eye, tgt, up=(0.0, 1.0, 0.0)), scanner, rng, name=f"large-scan{i}")
             for i, (eye, tgt) in enumerate(zip(eyes, targets), 1))

@@ -34,8 +34,8 @@ def threshold_for(problem: Problem, config: Config) -> float:
     return estimate_threshold(problem, config.seed, config.threshold_estimate)
 
 
-# ---- the pair threshold (method "global", issue 13) --------------------------------------------------
-# A stop threshold from the pair itself, on the candidates' fixed basis (beyond the paper; issue 13).
+# ---- the pair threshold (method "global") ---------------------------------------------------------------
+# A stop threshold from the pair itself, on the candidates' fixed basis (beyond the paper).
 #
 # "Trust this pose" means: the source overlaps the target by at least the basis's minimum both ways,
 # at least MIN_TRUST_OVERLAP of the source sample matches (inside the target's frustum, within the
@@ -70,7 +70,7 @@ def threshold_for(problem: Problem, config: Config) -> float:
 FACTOR = 4.5  # see the notes above and benchmarks/threshold_evidence.py
 # A pose is trusted only when this share of the source sample matches (notes above): a wrong pose
 # where ICP fitted a small patch well can fit it at the noise level (bun090->bun000 from 165 deg, 5 %
-# matched, passed the distance test of the version before the misfit)
+# matched, passes a test of the distance alone)
 MIN_TRUST_OVERLAP = 0.3
 
 

@@ -1,4 +1,5 @@
-"""The global pipeline (issue 13): candidates on one fixed basis, a widened cut, a pair threshold."""
+"""Candidate poses on one fixed basis (core.candidates) and the global pipeline that scores them: a widened cut,
+the pair threshold."""
 
 from __future__ import annotations
 

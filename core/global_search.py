@@ -389,8 +389,7 @@ def _bound_text(setup: Setup, where: str) -> str:
     cc = setup.config.candidates
     bound = " and ".join(([f"{cc.fallback_steps} steps"] if cc.fallback_steps is not None else [])
                          + ([f"{cc.time_limit:g} s"] if cc.time_limit is not None else []))
-    return (f"nothing trusted within the search's bound ({bound}; {where}): the best scored pose; for the "
-            "paper's full search from it run --method hybrid with this pose as --init, or --full-search")
+    return f"nothing trusted within the search's bound ({bound}; {where}): the best scored pose"
 
 
 def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,

@@ -254,3 +254,26 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
         assert cloud.points.visible and not cloud.light.visible  # the subset is drawn only while a run moves the scan
     finally:
         server.stop()
+
+
+def test_the_finished_line_advises_in_the_pages_words(scene):
+    import numpy as np
+
+    from app.tab.run import page_advice
+    from core.problem import ProblemConfig
+    from core.region import Region
+    from core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+    from core.threshold import pair_threshold
+
+    source, target = scene("corner")
+    region = Region.stated(np.eye(4), ProblemConfig(), source, target)
+
+    def result(trusted, beyond=""):
+        d = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 1.0, region, not beyond, beyond, 0.1, 3, {}, "guess")
+        return Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "global", 1.0, Stop(StopReason.TRUSTED),
+                      trusted=trusted, details=d)
+
+    assert page_advice(result(True)) == ""
+    assert "Settings" in page_advice(result(True, "found 40 deg beyond")) and "--" not in page_advice(result(False))
+    assert "Run hybrid" in page_advice(result(False))
+    assert page_advice(Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "hybrid", 1.0, Stop(StopReason.BELOW_THRESHOLD))) == ""

@@ -163,7 +163,8 @@ def advice(res, cfg) -> str:
     if res.details is not None:
         return ("not trusted, so this is probably not the registration. Give a better --init, state how far off the "
                 "guess may be (--rotation-uncertainty, --translation-uncertainty; no --init and neither flag: no "
-                "guess at all), or search longer from this pose (--full-search, or --method hybrid with it as --init).")
+                "guess at all), or search on from this pose (--full-search; or --out pose.json, then --method "
+                "hybrid --init pose.json).")
     return ("E stayed above the threshold, so this is probably not the registration. The search covers about "
             f"twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg); if the guess may "
             "be farther off, give a better --init or a larger --rotation-uncertainty / --translation-uncertainty, "

@@ -86,6 +86,20 @@ def build(gui: viser.GuiApi) -> RunHandles:
     return RunHandles(run, step, next_phase, pause, resume, cancel, reset, plot, settings)
 
 
+def page_advice(r) -> str:
+    """What the user can do on the page about a global run's result, in the page's words ('' when nothing)."""
+    if r.details is None:
+        return ""
+    if r.below_threshold and not r.within_region:
+        return (". If the initial pose may be that far off, say so in Settings (Rotation / Translation "
+                "uncertainty, or No guess)")
+    if not r.below_threshold:
+        return (". Not trusted: state how far off the initial pose may be in Settings (Rotation / Translation "
+                "uncertainty, or No guess), move it closer with the gizmo or point pairs, or search on from "
+                "this pose with Run hybrid")
+    return ""
+
+
 class RunPanel:
     def __init__(self, tab):
         self.tab, self.state = tab, tab.state
@@ -162,7 +176,7 @@ class RunPanel:
             r = run.result
             st.T, st.threshold = r.transform, r.threshold
             st.finished_text = (f"**Finished**: E = {r.error:.6g}; trust {'yes' if r.below_threshold else 'no'}: "
-                                f"{r.trust_text}; stopped: {r.stop_text}; {r.seconds:.2f} s")
+                                f"{r.trust_text}; stopped: {r.stop_text}; {r.seconds:.2f} s{page_advice(r)}")
 
         self.state.hand(apply)
 

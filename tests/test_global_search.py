@@ -88,10 +88,11 @@ WARNS = """
 import sys
 import numpy as np
 import open3d as o3d
+import core.global_search.setup  # noqa: F401
 import core.global_search as gs
 from app.cli import main
 
-real = gs.make_basis
+real = gs.setup.make_basis
 
 
 def warns_then_makes_the_basis(*args, **kw):  # every global run makes its basis once
@@ -109,7 +110,7 @@ def warns_then_makes_the_basis(*args, **kw):  # every global run makes its basis
     return real(*args, **kw)
 
 
-gs.make_basis = warns_then_makes_the_basis
+gs.setup.make_basis = warns_then_makes_the_basis
 sys.exit(main(sys.argv[1:]))
 """
 

@@ -1,0 +1,83 @@
+"""The ``global`` method (beyond the paper): candidates in stages, cheapest first -> each refined by ICP
+until one is trusted -> else the paper's hybrid from the best, within a bound -> the lowest score on the
+pair's fixed basis.
+
+    setup      (setup.py) cut the overlap under the guess (widened when empty, core.cut), triangulate
+               the target; the pair's noise floor, its fixed scoring basis, its pair threshold
+               (core.threshold); the stated region (core.region: what the user said about the guess)
+    stages     (stages.py) the guess; KISS-Matcher's hypothesis (beside the guess when the rotation is
+               stated wider than ``CandidateConfig.guess_first_deg``); the rotation samples within the
+               region (core.candidates), shifted to fit; FPFH + RANSAC
+    refine     (refine.py) no hypothesis is dropped: each stage is scored in one batched query and its
+               best few refined by ICP on the paper's robust E (on the overlap cut at the candidate,
+               then on the cut at the pose found), those inside the region first
+    verdict    the first refined pose the pair threshold trusts inside the region ends the search; one
+               trusted beyond it is kept, and returned (``within_region`` False) when no stage finds one
+               inside (a symmetric scene's twin inside wins)
+    fallback   (fallback.py) nothing trusted: the paper's hybrid (``--method hybrid``, unchanged) round
+               the best refined pose, for at most ``CandidateConfig.fallback_steps`` steps; the lower
+    events     (stream.py) every stage's events in one numbered stream; the bounds raised from it
+
+No new stage or leg starts once ``CandidateConfig.time_limit`` seconds have passed. With candidates off
+(``CandidateConfig.enabled=False``) only the guess is a candidate.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import Config
+from ..events import Cancelled, Listener
+from ..problem import Problem, prepare
+from ..result import GlobalDetails, Result, Stop, StopReason
+from ..scan import Scan
+from .fallback import fallback
+from .refine import Found, refine, search_stages
+from .setup import Setup, kiss_ahead, prepare_setup
+from .stages import Hypotheses, Stage, stages
+from .stream import EventStream, TimeBound
+
+__all__ = ["EventStream", "Hypotheses", "Stage", "TimeBound", "kiss_ahead", "refine", "register_global", "stages"]
+
+
+def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
+                    config: Config = Config(method="global"), listener: Listener | None = None) -> Result:
+    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes);
+    ``config.candidates`` holds its own knobs, ``config.problem`` the stated region (core.region)."""
+    config.validate()
+    setup = prepare_setup(source, target, T_init, config)
+    run = EventStream(listener, setup.frame, setup.t0, config.candidates.time_limit)
+    try:
+        found, sources = search_stages(setup, run)
+        if found.inside is not None:
+            best, stop = found.inside, Stop(StopReason.TRUSTED)
+        elif found.beyond is not None:
+            best, stop = found.beyond, Stop(StopReason.TRUSTED, f"{StopReason.TRUSTED.value}, beyond the stated region")
+        else:
+            best, _, stop = fallback(setup, run, found)
+        scored = found.scored
+    except Cancelled:
+        best, stop, sources, scored, found = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}, 1, Found()
+    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, scored, sources,
+                   found.stage_of(best) or ("guess" if best is setup.T_guess else ""))
+
+
+def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut: Problem | None, scored: int,
+            sources: dict, found_by: str) -> Result:
+    """The Result of pose T: E on the overlap cut at T (a trusted refinement's last cut is that already)."""
+    cfg = setup.config
+    if last_cut is None:
+        converged = replace(cfg.problem, rotation_uncertainty_deg=cfg.search.resegment_rotation_deg,
+                            translation_uncertainty=cfg.search.resegment_translation * setup.target.size)
+        last_cut = prepare(setup.source, setup.target, T, converged, surface=setup.surface, seed=cfg.seed)
+    s = setup.basis.evaluate(T[None])
+    misfit = setup.threshold.misfit(setup.basis, T, s)
+    trusted = setup.trusted(T)
+    details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
+                            setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]), scored, sources,
+                            found_by)
+    return Result(T, last_cut.error(T), run.iterations(), 0, run.total(), time.perf_counter() - setup.t0, "global",
+                  setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)

@@ -1,0 +1,137 @@
+"""Refining candidates: ICP on the robust E from each (the overlap cut at the candidate, then at the pose
+found), inside the stated region first, until the pair threshold trusts one; and the search through the
+stages."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..config import Config
+from ..icp import icp
+from ..lock import LockFrame
+from ..problem import Problem, ProblemConfig, prepare
+from ..region import offsets
+from ..scan import Scan
+from ..surface import Surface
+from .setup import Setup
+from .stages import Hypotheses, stages
+from .stream import EventStream
+
+
+def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, config: Config,
+           on_step=None, frame: LockFrame | None = None, at_T: Problem | None = None) -> tuple[np.ndarray, Problem]:
+    """ICP (``config.candidates.refine_metric``) on the robust E from T: on the overlap cut at T (``at_T``,
+    when one was cut there already), then on the cut at the pose found (under ``frame``'s lock, when
+    given: core.lock). Returns the pose and that last cut."""
+    cc, s = config.candidates, config.search
+    # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
+    near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, cc.refine_rotation_deg),
+                   visibility=False)
+    converged = replace(pc, rotation_uncertainty_deg=s.resegment_rotation_deg,
+                        translation_uncertainty=s.resegment_translation * target.size)
+    icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience)
+    for cfg in (near, converged):
+        p = at_T if cfg is near and at_T is not None else prepare(source, target, T, cfg, surface=surface, seed=config.seed)
+        T = icp(p.error, T, icp_config, on_step, frame=frame).T
+    return T, p
+
+
+def _near(Ts: list[np.ndarray], T: np.ndarray, center: np.ndarray, rot: float, trans: float) -> bool:
+    """Whether T lies within ``rot`` radians and ``trans`` (the move of ``center``) of any of ``Ts``."""
+    if not Ts:
+        return False
+    r, t = offsets(np.stack(Ts), T, center)
+    return bool(np.any((r <= rot) & (t <= trans)))
+
+
+@dataclass
+class Found:
+    """What the stages found so far: every pose scored, every pose refined, the trusted pose inside the
+    region (ends the search) and the first trusted beyond it, and the last cut of a trusted refinement."""
+
+    scored: int = 0
+    refined: list | None = None
+    inside: np.ndarray | None = None
+    beyond: np.ndarray | None = None
+    last_cut: Problem | None = None
+    by: dict | None = None  # id of a refined pose -> the stage that gave it
+
+    def stage_of(self, T: np.ndarray) -> str:
+        return (self.by or {}).get(id(T), "")
+
+    def __post_init__(self):
+        self.refined = [] if self.refined is None else self.refined
+        self.by = {} if self.by is None else self.by
+
+
+def run_stage(setup: Setup, run: EventStream, poses: list[np.ndarray], n: int, found: Found, stage: str = "") -> None:
+    """Score ``poses`` in one query (events of phase 'candidates'); refine the best ``n`` by score, those
+    inside the region first (once each: near-duplicates are skipped), until one is trusted inside."""
+    cc = setup.config.candidates
+    scores = setup.basis.evaluate(np.stack(poses)).score
+    found.scored += len(poses)
+    run.leg("candidates")
+    for T, s in zip(poses, scores):
+        run.emit("candidates", T, float(s))
+    inside = setup.region.contains(np.stack(poses))
+    order = sorted(range(len(poses)), key=lambda k: (not inside[k], scores[k]))
+    done: list[np.ndarray] = []
+    trans = cc.distinct_translation * setup.target.size
+    for k in order:
+        if len(done) >= n or setup.out_of_time():
+            return
+        if found.beyond is not None and not inside[k]:
+            continue  # a pose beyond the region is trusted already: only one inside can say more
+        if _near(done, poses[k], setup.source.centroid, np.radians(cc.distinct_rotation_deg), trans):
+            continue
+        done.append(poses[k])
+        run.leg("icp")
+        at_guess = setup.problem if poses[k] is setup.T_guess else None
+        T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
+                         lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
+        found.refined.append(T)
+        found.by[id(T)] = stage
+        if setup.trusted(T):
+            if setup.region.inside(T):
+                found.inside, found.last_cut = T, last
+                return
+            if found.beyond is None:
+                found.beyond = T
+
+
+def best_refined(setup: Setup, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:
+    """The lowest score among ``poses`` that overlap both ways, those inside the region first."""
+    s = setup.basis.evaluate(np.stack(poses))
+    valid = setup.basis.valid(s)
+    inside = setup.region.contains(np.stack(poses))
+    for ok in (valid & inside, valid, np.ones(len(poses), dtype=bool)):
+        if ok.any():
+            k = int(np.argmin(np.where(ok, s.score, np.inf)))
+            return poses[k], float(s.score[k])
+    raise AssertionError("unreachable: the last mask holds every pose")
+
+
+def search_stages(setup: Setup, run: EventStream) -> tuple[Found, dict]:
+    """Every stage in turn until one refines a pose the pair threshold trusts inside the region (module
+    notes: stages, verdict). Returns what was found and, per stage, how many poses it gave or why none."""
+    found, sources = Found(), {}
+    for stage in stages(setup):
+        if setup.out_of_time():
+            sources[stage.name] = "not reached within the time limit"
+            continue
+        if found.beyond is not None and stage.features:
+            sources[stage.name] = "not needed (a trusted pose was found; feature matching does not use the guess)"
+            continue
+        hyp = stage.make()
+        if setup.frame is not None:
+            hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none)
+        sources[stage.name] = hyp.source_note
+        if hyp.poses:
+            run_stage(setup, run, hyp.poses, stage.refine, found, stage.name)
+        if found.inside is not None:
+            break
+    return found, sources
+
+

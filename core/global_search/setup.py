@@ -1,0 +1,90 @@
+"""The global method's setup, made once a run: the overlap cut under the guess, the pair's noise floor,
+its fixed scoring basis and pair threshold (core.threshold), the stated region (core.region), the lock's
+frame, and KISS-Matcher's hypotheses started ahead."""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..candidates import Basis, CandidateConfig, make_basis, pair_spacing
+from ..config import Config
+from ..kiss_matcher_candidates import kiss_available, kiss_candidates
+from ..lock import LockFrame
+from ..noise import noise_floors
+from ..problem import Problem, prepare
+from ..region import Region
+from ..scan import Scan
+from ..surface import Surface
+from ..threshold import PairThreshold, pair_threshold
+
+
+@dataclass(frozen=True, eq=False)
+class Setup:
+    """Everything the stages share, made once: the pair, the cut under the guess, the basis, the
+    threshold, the region, the lock's frame (or None), KISS-Matcher's hypotheses started ahead."""
+
+    source: Scan
+    target: Scan
+    config: Config
+    problem: Problem  # the overlap cut under the guess
+    basis: Basis
+    threshold: PairThreshold
+    region: Region
+    frame: LockFrame | None
+    ahead: Future | None
+    t0: float
+
+    @property
+    def surface(self) -> Surface:
+        return self.problem.surface
+
+    @property
+    def T_guess(self) -> np.ndarray:
+        return self.problem.T_init
+
+    def trusted(self, T: np.ndarray) -> bool:
+        return self.threshold.holds(self.basis, T)
+
+    def score(self, T: np.ndarray) -> float:
+        return float(self.basis.evaluate(np.asarray(T)[None]).score[0])
+
+    def out_of_time(self) -> bool:
+        limit = self.config.candidates.time_limit
+        return limit is not None and time.perf_counter() - self.t0 > limit
+
+
+def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None:
+    """KISS-Matcher's hypotheses, started on a thread of their own (None when it is off or not installed).
+    The thread makes the voxel clouds and waits on core.kiss_matcher_candidates' child process, which runs
+    on the other core while this one cuts the overlap, takes the noise floor and the basis (the same inputs,
+    so the same hypotheses); a run trusted before its stage leaves them unread."""
+    if not (cc.enabled and cc.kiss_matcher and kiss_available()):
+        return None
+    pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
+    future = pool.submit(kiss_candidates, source, target, pair_spacing(source, target), max(cc.fpfh_voxels))
+    pool.shutdown(wait=False)
+    return future
+
+
+def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config) -> Setup:
+    """The cut under the guess, the basis, the pair threshold and the region (module notes: setup)."""
+    t0 = time.perf_counter()
+    cc, pc = config.candidates, config.problem
+    T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
+    ahead = kiss_ahead(source, target, cc)
+    problem = prepare(source, target, T_init, pc, seed=config.seed)
+    # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
+    # before it is scored, and every refinement and the hybrid walk the same free coordinates.
+    frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
+    rng = np.random.default_rng(config.seed)
+    floor = float(np.mean(noise_floors([source, target], rng, len(problem.points))))
+    basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
+    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
+    region = Region.stated(problem.T_init, pc, source, target)
+    return Setup(source, target, config, problem, basis, threshold, region, frame, ahead, t0)
+
+

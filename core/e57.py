@@ -255,23 +255,23 @@ def _entry(scan, k: int, what: str) -> E57Entry:
                     _coordinates(fields) if fields else "no points", grid, _pose(scan, what), "intensity" in fields)
 
 
-def listscan_nodes(path: str | Path) -> list[E57Entry]:
+def list_scans(path: str | Path) -> list[E57Entry]:
     """Every scan of an E57 file from the headers (cheap: no point is read)."""
     path = Path(path)
     with _open(path) as imf, translated(str(path)):
         return [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scan_nodes(imf))]
 
 
-def countscan_nodes(path: str | Path) -> int:
+def count_scans(path: str | Path) -> int:
     """How many scans ``path`` names: all of an E57's without a selector, else 1."""
     file, selector = split_selection(path)
     if file.suffix.lower() != SUFFIX or selector is not None:
         return 1
-    _check_file(file)
-    return len(listscan_nodes(file))
+    check_file(file)
+    return len(list_scans(file))
 
 
-def _check_file(path: Path) -> None:
+def check_file(path: Path) -> None:
     if not path.exists():
         raise InputError(f"{path}: no such file")
     if not path.is_file():
@@ -392,7 +392,7 @@ def read_e57(path: str | Path, selector: str | None = None, viewpoint: np.ndarra
 
     ``viewpoint`` (3,) in the scan's frame overrides the scan's origin. Raises InputError."""
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     with _open(path) as imf, translated(str(path)):
         scans = scan_nodes(imf)
         entries = [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scans)]
@@ -406,7 +406,7 @@ def read_e57(path: str | Path, selector: str | None = None, viewpoint: np.ndarra
 def read_e57_all(path: str | Path) -> list[Scan]:
     """Every scan of the E57 file ``path``, in the file's order."""
     path = Path(path)
-    _check_file(path)
+    check_file(path)
     with _open(path) as imf, translated(str(path)):
         scans = scan_nodes(imf)
         entries = [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scans)]
@@ -427,7 +427,7 @@ def _with_viewpoint(scan: Scan, viewpoint: np.ndarray | None) -> Scan:
     return replace(scan, viewpoint=v)
 
 
-def loadscan_nodes(paths: Sequence[str | Path]) -> list[Scan]:
+def load_scans(paths: Sequence[str | Path]) -> list[Scan]:
     """The scans ``paths`` name, in order: every scan of an E57 given without ``#``, one scan for any
     other path (core.io.load_scan). Names shared by scans of different files are made distinct by
     the file's stem (``site:Scan 0``)."""

@@ -4,8 +4,9 @@ Each scan read from an E57 (``Scan.meta["e57"]`` names its file and index) is co
 every field of its header, its point records value for value (raw: scaled integers as their
 integers, floats at their stored precision), with only its ``pose`` replaced; so the grid,
 intensity, colours and timestamps are kept. A scan from another format is written as
-double-precision cartesian points in its own frame, with its grid (rowIndex/columnIndex, when the
-grid holds every point once) and its intensity when it has them. The file's coordinateMetadata (its
+double-precision cartesian points in a frame with its origin at the scan's viewpoint (E57 puts the
+sensor at the scan's origin): ``points - viewpoint``, posed by ``T_world_scan @ Trans(viewpoint)``,
+with its grid (rowIndex/columnIndex, when the grid holds every point once) and its intensity. The file's coordinateMetadata (its
 coordinate reference system) is the first E57 source's. Images (``images2D``) are not carried over.
 """
 
@@ -187,10 +188,12 @@ def _copy_scan(imf, data3d, src_imf, index: int, T: np.ndarray) -> None:
 
 
 def _new_scan(imf, data3d, scan: Scan, T: np.ndarray) -> None:
-    """A scan read from another format, as double-precision cartesian records in its own frame."""
+    """A scan read from another format, as double-precision cartesian records in its sensor's frame."""
     from pye57 import libe57
 
-    p = scan.points
+    p = scan.points - scan.viewpoint
+    T = np.asarray(T, dtype=np.float64).copy()
+    T[:3, 3] += T[:3, :3] @ scan.viewpoint
     node = libe57.StructureNode(imf)
     node.set("guid", libe57.StringNode(imf, f"{{{uuid.uuid4()}}}"))
     node.set("name", libe57.StringNode(imf, scan.name))

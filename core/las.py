@@ -39,17 +39,28 @@ def _origin_fields(names: list[str]) -> tuple[str, str, str] | None:
 def _read(path: Path):
     import laspy
 
+    kind = path.suffix[1:].upper()
     try:
-        las = laspy.read(str(path))
+        with laspy.open(str(path)) as reader:
+            header = reader.header
+            if not header.are_points_compressed:
+                need = header.offset_to_point_data + header.point_count * header.point_format.size
+                have = path.stat().st_size
+                if have < need:
+                    raise InputError(f"{path}: the file is cut short: its header promises {header.point_count} points "
+                                     f"({need} bytes), the file holds {have} bytes")
+            las = reader.read()
         points = np.asarray(las.xyz, dtype=np.float64)
         fields = _origin_fields(list(las.point_format.extra_dimension_names))
         origins = None if fields is None else np.c_[tuple(np.asarray(las[f], dtype=np.float64) for f in fields)]
     except InputError:
         raise
-    except Exception as exc:  # laspy and lazrs raise many kinds (LaspyException, LazError, ValueError, OSError)
+    except Exception as exc:  # laspy and lazrs raise many kinds (LaspyException, LazrsError, ValueError, OSError)
         text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-        kind = path.suffix[1:].upper()
-        raise InputError(f"{path}: cannot read it as {kind} ({type(exc).__name__}{': ' + text if text else ''})") from None
+        why = f"{type(exc).__name__}{': ' + text if text else ''}"
+        if type(exc).__name__ == "LazrsError":
+            why = f"its compressed points are corrupt or cut short; {why}"
+        raise InputError(f"{path}: cannot read it as {kind} ({why})") from None
     return points, origins, fields
 
 

@@ -418,3 +418,62 @@ def test_scans_from_other_formats_are_written_with_the_sensor_at_their_origin(bu
     np.testing.assert_allclose(apply(back.guess, back.points), apply(T, ply.points), atol=1e-12)
     np.testing.assert_array_equal(back.grid.index, cropped(ply.grid.index))
     assert Surface.from_scan(back).n_triangles == Surface.from_scan(ply).n_triangles
+
+
+# ---- the page's Scans tab ----
+
+def test_the_scans_tab_offers_each_scan_of_an_e57(bunny, tmp_path):
+    from app.tab.scans import choice_labels, data_choices, load_upload_all
+
+    bunny_e57(bunny, tmp_path / "site.e57")
+    write_raw(tmp_path / "plain.e57", [{"fields": _fields(50)}, {"fields": _fields(50)}])  # scans without names
+    (tmp_path / "broken.e57").write_bytes(b"no")
+    files = ["broken.e57", "plain.e57", "site.e57", "x.ply"]
+    assert data_choices(tmp_path, files) == ["broken.e57", "plain.e57#0", "plain.e57#1", "site.e57#bun000",
+                                             "site.e57#bun045", "x.ply"]
+    assert load_scan(tmp_path / "site.e57#bun045").name == "bun045"  # each choice loads as it reads
+    scans = load_upload_all("my site.e57", (tmp_path / "site.e57").read_bytes())
+    assert [s.name for s in scans] == ["bun000", "bun045"] and scans[1].source == "upload:my site.e57#1"
+    assert all("e57" not in s.meta for s in scans)  # the upload's temporary file is not referred to
+    assert choice_labels(scans) == ["#0 bun000 (40256 points)", "#1 bun045 (40097 points)"]
+    with pytest.raises(InputError, match=r"^my site.e57: cannot read it as E57") as err:
+        load_upload_all("my site.e57", b"no")
+    assert "tmp" not in str(err.value)
+
+
+@pytest.mark.browser
+def test_the_page_opens_scans_of_an_e57_from_the_data_folder_and_from_an_upload(bunny, tmp_path, browser):
+    import re
+    import subprocess
+    import sys
+
+    from app.access import free_port
+    from tests.conftest import ROOT
+    from tests.test_workbench import open_page, show_tab
+
+    folder = tmp_path / "data"
+    folder.mkdir()
+    bunny_e57(bunny, folder / "site.e57", names=("bun000", "bun045", "bun090"))
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--data-dir", str(folder)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        while "rangereg workbench:" not in proc.stdout.readline():
+            assert proc.poll() is None, proc.stdout.read()
+        page = open_page(browser, f"http://127.0.0.1:{port}")
+        show_tab(page, "Scans")
+        # the data folder's E57 is offered scan by scan (source #1, target #0 by default)
+        page.get_by_role("button", name="Open files", exact=True).click()
+        page.wait_for_function("() => document.body.innerText.includes('bun045 → bun000')", timeout=60_000)
+        # an uploaded E57 of three scans opens #1 onto #0 and lists its scans to choose from
+        page.locator("input[type=file]").first.set_input_files(str(folder / "site.e57"))
+        page.get_by_text("3 scans, #1 onto #0").first.wait_for(timeout=60_000)
+        page.get_by_text("Source in E57").first.wait_for(timeout=10_000)
+        page.get_by_role("combobox", name="Source in E57").click()
+        page.get_by_role("option", name=re.compile(r"^#2 bun090")).click()
+        page.get_by_role("button", name="Open these scans", exact=True).click()
+        page.wait_for_function("() => document.body.innerText.includes('bun090 → bun000')", timeout=60_000)
+        page.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)

@@ -48,6 +48,7 @@ GRID_CELLS_MAX = 400_000_000
 # 64-bit integer buffers as numpy's "q" (long long): pye57's binding takes the buffer format "l", numpy's
 # int64 on Linux, for 32 bits (measured: every other value read back 0)
 INT64 = "q"
+ORIENT_SAMPLE = 20_000  # grid cells that decide which way a grid's columns run
 _LISTED = 8  # scans named in an error that asks which one
 
 
@@ -311,14 +312,14 @@ def _scan_names(entries: Sequence[E57Entry], stem: str) -> list[str]:
 def _orient(grid: np.ndarray, points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
     """The grid, mirrored left-right when most of its cells' ``cross(d/dcol, d/drow)`` face away from
     the viewpoint (E57 leaves the direction in which rows and columns run to the scanner)."""
-    from .viewpoint import grid_normals
-
     a, b, r = grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1]
-    ok = (a >= 0) & (b >= 0) & (r >= 0)
-    if not ok.any():
+    cells = np.flatnonzero((a >= 0) & (b >= 0) & (r >= 0))
+    if not len(cells):
         return grid
-    n = grid_normals(points, RangeGrid(grid))
-    facing = np.einsum("ij,ij->i", n, viewpoint - points[a[ok]])
+    # a whole scan faces one way: a spread-out sample of cells tells it (all 1M cells took 0.3 s)
+    cells = cells[:: max(1, len(cells) // ORIENT_SAMPLE)]
+    pa, pb, pr = points[a.ravel()[cells]], points[b.ravel()[cells]], points[r.ravel()[cells]]
+    facing = np.einsum("ij,ij->i", np.cross(pb - pa, pr - pa), viewpoint - pa)
     return grid if np.sum(facing > 0) >= np.sum(facing < 0) else np.ascontiguousarray(grid[:, ::-1])
 
 

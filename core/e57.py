@@ -54,13 +54,15 @@ _LISTED = 8  # scans named in an error that asks which one
 
 @dataclass(frozen=True)
 class E57Entry:
-    """One scan of a file, from its header alone. grid: (rows, cols) or None; pose: (4, 4)
-    T_world_scan or None; coordinates: "cartesian", "spherical" or the fields it has instead."""
+    """One scan of a file, from its header alone. structured: it has rowIndex and columnIndex; grid:
+    their (rows, cols) from the header's indexBounds, or None; pose: (4, 4) T_world_scan or None;
+    coordinates: "cartesian", "spherical" or the fields it has instead."""
 
     index: int
     name: str
     points: int
     coordinates: str
+    structured: bool
     grid: tuple[int, int] | None
     pose: np.ndarray | None
     intensity: bool
@@ -69,7 +71,7 @@ class E57Entry:
         return f"#{self.index}" + (f" {self.name!r}" if self.name else "")
 
     def __repr__(self) -> str:
-        grid = "x".join(map(str, self.grid)) if self.grid else "no"
+        grid = "x".join(map(str, self.grid)) if self.grid else ("yes" if self.structured else "no")
         return (f"E57Entry({self.label()}, {self.points} points, {self.coordinates}, grid={grid}, "
                 f"pose={'yes' if self.pose is not None else 'no'})")
 
@@ -246,14 +248,15 @@ def _entry(scan, k: int, what: str) -> E57Entry:
 
     points = libe57.CompressedVectorNode(scan.get("points")) if scan.isDefined("points") else None
     fields = _fields(points) if points is not None else []
-    grid = None
-    if "rowIndex" in fields and "columnIndex" in fields and scan.isDefined("indexBounds"):
+    grid, structured = None, "rowIndex" in fields and "columnIndex" in fields
+    if structured and scan.isDefined("indexBounds"):
         b = _child(scan, "indexBounds")
         rows = _number(b, "rowMaximum", 0) - _number(b, "rowMinimum", 0) + 1
         cols = _number(b, "columnMaximum", 0) - _number(b, "columnMinimum", 0) + 1
         grid = (int(rows), int(cols)) if rows > 1 and cols > 1 else None
     return E57Entry(k, text_of(scan, "name"), points.childCount() if points is not None else 0,
-                    _coordinates(fields) if fields else "no points", grid, _pose(scan, what), "intensity" in fields)
+                    _coordinates(fields) if fields else "no points", structured, grid, _pose(scan, what),
+                    "intensity" in fields)
 
 
 def list_scans(path: str | Path) -> list[E57Entry]:
@@ -339,6 +342,17 @@ def _grid(rows: np.ndarray, cols: np.ndarray, points: np.ndarray, viewpoint: np.
     return RangeGrid(_orient(g.reshape(R, C), points, viewpoint)), ""
 
 
+def _surrounds(points: np.ndarray, viewpoint: np.ndarray) -> bool:
+    """Whether some points lie beside or behind the sensor's mean viewing direction (core.surface's test)."""
+    from .surface import view_projection
+
+    try:
+        view_projection(points[:: max(1, len(points) // 20_000)], viewpoint)
+    except InputError:
+        return True
+    return False
+
+
 def _read_one(imf, scan, entry: E57Entry, path: Path, name: str) -> Scan:
     from pye57 import libe57
 
@@ -376,8 +390,12 @@ def _read_one(imf, scan, entry: E57Entry, path: Path, name: str) -> Scan:
         grid, note = _grid(d["rowIndex"][keep], d["columnIndex"][keep], points, viewpoint)
     meta = {"e57": {"file": str(path), "index": entry.index, "name": entry.name, "coordinates": entry.coordinates,
                     "invalid": int((~valid).sum())}}
-    if note:
-        meta["grid_note"] = note
+    notes = [note] if note else []
+    if _surrounds(points, viewpoint):
+        notes.append("its points surround the sensor (a panorama): the overlap frustum (paper section 2.1) "
+                     "spans less than a half-space around the sensor, so registering it as a whole fails")
+    if notes:
+        meta["notes"] = notes
     if "intensity" in d:
         intensity = d["intensity"][keep]
         if "isIntensityInvalid" in d:

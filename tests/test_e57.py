@@ -477,3 +477,16 @@ def test_the_page_opens_scans_of_an_e57_from_the_data_folder_and_from_an_upload(
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_a_panorama_is_read_and_said_to_surround_its_sensor(tmp_path, rangereg):
+    rows, cols = np.mgrid[0:20, 0:180]
+    az, el = np.radians(cols.ravel() * 2.0 - 180.0), np.radians(rows.ravel() * 2.0 - 20.0)
+    r = 4.0 + 0.5 * np.cos(3 * az)  # a room around the scanner, all the way round
+    write_raw(tmp_path / "p.e57", [{"fields": {"sphericalRange": ("double", r), "sphericalAzimuth": ("double", az),
+                                               "sphericalElevation": ("double", el), "rowIndex": ("int", rows.ravel()),
+                                               "columnIndex": ("int", cols.ravel())}}])
+    s = read_e57(tmp_path / "p.e57")
+    assert s.grid.shape == (20, 180) and any("surround the sensor" in n for n in s.meta["notes"])
+    code, out, _ = rangereg("info", tmp_path / "p.e57#0")
+    assert code == 0 and "note        its points surround the sensor" in out

@@ -44,8 +44,8 @@ def run(a: Namespace) -> int:
         print("  ground truth pose: yes")
     if scan.guess is not None:
         print(f"  stored pose {_pose_text(scan.guess)} (the rough guess)")
-    if scan.meta.get("grid_note"):
-        print(f"  note        {scan.meta['grid_note']}")
+    for note in scan.meta.get("notes", ()):
+        print(f"  note        {note}")
     return 0
 
 
@@ -67,13 +67,13 @@ def list_e57(a: Namespace, path) -> int:
     if a.json:
         print(json.dumps({"file": str(path), "scans": [
             {"index": e.index, "name": e.name, "points": e.points, "coordinates": e.coordinates,
-             "grid": list(e.grid) if e.grid else None, "intensity": e.intensity,
+             "structured": e.structured, "grid": list(e.grid) if e.grid else None, "intensity": e.intensity,
              "pose": None if e.pose is None else e.pose.tolist()} for e in entries]}))
         return 0
     n = len(entries)
     print(f"{path}: {n} scan{'s' * (n != 1)} ({path}#K names one, K counted from 0; or {path}#NAME)")
     for e in entries:
-        grid = "grid " + "x".join(map(str, e.grid)) if e.grid else "no grid"
+        grid = "grid " + "x".join(map(str, e.grid)) if e.grid else ("grid" if e.structured else "no grid")
         pose = f"pose {_pose_text(e.pose)}" if e.pose is not None else "no pose"
         print(f"  #{e.index:<3d} {e.name or '(no name)'}  {e.points} points, {e.coordinates}, {grid}"
               f"{', intensity' if e.intensity else ''}; {pose}")

@@ -167,7 +167,7 @@ def las_vs_ply(bunny: Path, folder: Path) -> None:
     print("bun045 onto bun000.ply from the same --init (10 deg off about the frame's origin)")
     for source, what in ((bunny / "bun045.ply", "PLY"), (folder / "bun045.laz", "LAZ with scan-origin fields"),
                          (folder / "bun045.las", "LAS, viewpoint estimated")):
-        res = cli("register", source, bunny / "bun000.ply", "--init", " ".join(map(repr, init.ravel())), "--json")
+        res = cli("register", source, bunny / "bun000.ply", "--init", " ".join(repr(float(v)) for v in init.ravel()), "--json")
         rot, tr = pose_error(np.array(res["transform"]), truth, ply.centroid)
         print(f"  {what}: {rot:.3f} deg {tr * 1000:.3f} mm from the truth, {res['seconds']:.2f} s, "
               f"trusted {res['below_threshold']}")

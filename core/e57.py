@@ -42,8 +42,8 @@ from .scan import RangeGrid, Scan, clean_points
 SUFFIX = ".e57"
 CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
 SPHERICAL = ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
-# A grid larger than this many cells (8 bytes each) is not built: indices that large are more likely
-# damage than a scanner (a 40k x 20k panorama is 0.8e9 cells); the points are still read, without it.
+# A grid of more cells than this (8 bytes each: 3.2 GB) is not built and the points are read without it:
+# such indices are damage, or a scan far beyond what the registration handles (20k x 20k cells).
 GRID_CELLS_MAX = 400_000_000
 # 64-bit integer buffers as numpy's "q" (long long): pye57's binding takes the buffer format "l", numpy's
 # int64 on Linux, for 32 bits (measured: every other value read back 0)
@@ -52,7 +52,7 @@ ORIENT_SAMPLE = 20_000  # grid cells that decide which way a grid's columns run
 _LISTED = 8  # scans named in an error that asks which one
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class E57Entry:
     """One scan of a file, from its header alone. structured: it has rowIndex and columnIndex; grid:
     their (rows, cols) from the header's indexBounds, or None; pose: (4, 4) T_world_scan or None;
@@ -89,10 +89,6 @@ def split_selection(path: str | Path) -> tuple[Path, str | None]:
     return Path(head), selector
 
 
-def is_e57(path: str | Path) -> bool:
-    return split_selection(path)[0].suffix.lower() == SUFFIX
-
-
 def choose(entries: Sequence[E57Entry], selector: str | None, path: Path) -> int:
     """The index of the scan ``selector`` names (see the module notes); raises InputError."""
     n = len(entries)
@@ -105,7 +101,7 @@ def choose(entries: Sequence[E57Entry], selector: str | None, path: Path) -> int
     sel = selector.strip()
     if not sel:
         raise InputError(f"{path}#: name a scan after '#': an index from 0 to {n - 1} or a scan's name")
-    if sel.isdigit():
+    if sel.isascii() and sel.isdigit():
         k = int(sel)
         if k >= n:
             raise InputError(f"{path}#{selector}: no scan #{k}; the file holds {n} scan{'s' * (n != 1)}, "
@@ -262,6 +258,7 @@ def _entry(scan, k: int, what: str) -> E57Entry:
 def list_scans(path: str | Path) -> list[E57Entry]:
     """Every scan of an E57 file from the headers (cheap: no point is read)."""
     path = Path(path)
+    check_file(path)
     with _open(path) as imf, translated(str(path)):
         return [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scan_nodes(imf))]
 
@@ -271,11 +268,11 @@ def count_scans(path: str | Path) -> int:
     file, selector = split_selection(path)
     if file.suffix.lower() != SUFFIX or selector is not None:
         return 1
-    check_file(file)
     return len(list_scans(file))
 
 
 def check_file(path: Path) -> None:
+    """Refuse, before opening it, a path that is missing, not a regular file (a folder, a FIFO), or empty."""
     if not path.exists():
         raise InputError(f"{path}: no such file")
     if not path.is_file():

@@ -164,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--init", help="initial poses: a Stanford .conf (default: stored rough poses, else a chain)")
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
     s.add_argument("--out", default="model.ply", help="the fused mesh (.ply), or the scans with their registered "
-                   "poses (.e57; points untouched, the first scan's stored pose kept)")
+                   "poses (.e57; points untouched, the first scan left at its initial pose)")
     s.add_argument("--seed", type=_knob("seed"), default=0)
     s.add_argument("--workers", type=_knob("workers"), default=None, help="pairwise registrations at once: 1 = a "
                    "plain loop here, N = a local Dask cluster of N processes (default: one per core)")

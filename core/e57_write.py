@@ -26,11 +26,14 @@ from .scan import Scan
 COPY_CHUNK = 1 << 20  # records per buffer when copying a scan's points into a new file
 
 
-def world_poses(scans: Sequence[Scan], T_first_scan: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Poses in the frame the first scan's stored pose places it in (the project's frame of an E57
-    it came from): T_world_scan = T_world_first @ T_first_scan; the first scan's frame when it has none."""
-    anchor = scans[0].guess if scans[0].guess is not None else np.eye(4)
-    return [anchor @ np.asarray(T, dtype=np.float64) for T in T_first_scan]
+def world_poses(scans: Sequence[Scan], T_first_scan: Sequence[np.ndarray],
+                T_world_first: np.ndarray | None = None) -> list[np.ndarray]:
+    """Poses in the project's frame: T_world_scan = T_world_first @ T_first_scan, the first scan kept
+    where ``T_world_first`` (its given initial pose) or else its stored pose places it (the frame of the
+    E57 it came from); the first scan's own frame when it has neither."""
+    if T_world_first is None:
+        T_world_first = scans[0].guess if scans[0].guess is not None else np.eye(4)
+    return [np.asarray(T_world_first, dtype=np.float64) @ np.asarray(T, dtype=np.float64) for T in T_first_scan]
 
 
 def write_e57(path: str | Path, scans: Sequence[Scan], T_world_scan: Sequence[np.ndarray]) -> None:

@@ -490,3 +490,29 @@ def test_a_panorama_is_read_and_said_to_surround_its_sensor(tmp_path, rangereg):
     assert s.grid.shape == (20, 180) and any("surround the sensor" in n for n in s.meta["notes"])
     code, out, _ = rangereg("info", tmp_path / "p.e57#0")
     assert code == 0 and "note        its points surround the sensor" in out
+
+
+def test_merge_of_ply_scans_into_an_e57_keeps_the_project_frame_of_init(bunny, tmp_path, rangereg):
+    from scipy.spatial.transform import Rotation
+
+    from core.sidefiles import load_conf
+    from tests.conftest import BUNNY
+
+    truth = load_conf(BUNNY / "bun.conf")
+    G = from_params(np.r_[100.0, 200.0, 30.0, 0.0, 0.0, 1.0])  # the project's frame: far from the first scan's
+    lines = []
+    for k, n in enumerate(("bun000", "bun045")):
+        T = G @ truth[n] @ from_params(np.r_[0.0, 0.0, 0.0, 0.0, np.radians(8.0 * k), 0.0])
+        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+        values = [T[0, 3], T[1, 3], T[2, 3], -x, -y, -z, w]  # .conf holds the conjugate quaternion
+        lines.append(f"bmesh {n}.ply " + " ".join(repr(float(v)) for v in values))
+    (tmp_path / "init.conf").write_text("\n".join(lines) + "\n")
+    code, _, err = rangereg("merge", BUNNY / "bun000.ply", BUNNY / "bun045.ply", "--init", tmp_path / "init.conf",
+                            "--out", tmp_path / "out.e57", "--workers", "1")
+    assert code == 0, err
+    for n, back in zip(("bun000", "bun045"), read_e57_all(tmp_path / "out.e57")):
+        ply = bunny(n)
+        np.testing.assert_array_equal(back.points, ply.points - ply.viewpoint)
+        sensor = from_params(np.r_[ply.viewpoint, 0.0, 0.0, 0.0])  # the written frame: origin at the viewpoint
+        rot, tr = pose_error(back.guess, G @ truth[n] @ sensor, back.points.mean(0))
+        assert rot < 2.0 and tr < 0.002, (n, rot, tr)

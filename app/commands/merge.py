@@ -111,7 +111,8 @@ def run(a) -> int:
         _print(report, a.json, res, names, scans, truth, runner, scheduler, out)
     finally:
         if as_e57:
-            write_output(out, "--out", lambda p: write_e57(p, scans, world_poses(scans, res.poses)), ".e57")
+            first = None if initial is None else initial[0]  # the first scan stays where --init or its stored pose has it
+            write_output(out, "--out", lambda p: write_e57(p, scans, world_poses(scans, res.poses, first)), ".e57")
         else:
             write_output(out, "--out", lambda p: write_ply(p, res.model.vertices, res.model.faces,
                                                            comments=("rangereg fused model",)), ".ply")
@@ -138,7 +139,7 @@ def _print(report, as_json, res, names, scans, truth, runner, scheduler, out) ->
         print(line)
     m = report["model"]
     if m is None:
-        print(f"scans: {len(names)} with their registered poses (the first scan's stored pose kept) -> {out}")
+        print(f"scans: {len(names)} with their registered poses (the first scan where its initial pose has it) -> {out}")
         return
     print(f"model: {m['vertices']} vertices, {m['triangles']} triangles, double layer on "
           f"{m['double_layer_fraction']:.2%} of triangles -> {out}")

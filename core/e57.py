@@ -117,6 +117,13 @@ def choose(entries: Sequence[E57Entry], selector: str | None, path: Path) -> int
     raise InputError(f"{path}#{selector}: no scan of that name (names: {names}); or pick by index, #0 to #{n - 1}")
 
 
+def selector_for(entry: E57Entry, entries: Sequence[E57Entry]) -> str:
+    """What to write after '#' to pick ``entry``: its name when that picks it alone, else its index."""
+    name = entry.name
+    clean = name and name == name.strip() and "#" not in name and not (name.isascii() and name.isdigit())
+    return name if clean and sum(e.name.lower() == name.lower() for e in entries) == 1 else str(entry.index)
+
+
 # ---- errors ----
 
 _EXPLAIN = {

@@ -516,3 +516,15 @@ def test_merge_of_ply_scans_into_an_e57_keeps_the_project_frame_of_init(bunny, t
         sensor = from_params(np.r_[ply.viewpoint, 0.0, 0.0, 0.0])  # the written frame: origin at the viewpoint
         rot, tr = pose_error(back.guess, G @ truth[n] @ sensor, back.points.mean(0))
         assert rot < 2.0 and tr < 0.002, (n, rot, tr)
+
+
+def test_the_selector_offered_for_a_scan_picks_that_scan(tmp_path):
+    from core.e57 import selector_for
+
+    names = ["Station 1", "2", "a#b", " padded ", "twin", "TWIN", "", "Station 8"]
+    write_raw(tmp_path / "s.e57", [{"name": n, "fields": _fields(20)} for n in names])
+    entries = list_scans(tmp_path / "s.e57")
+    offered = [selector_for(e, entries) for e in entries]
+    assert offered == ["Station 1", "1", "2", "3", "4", "5", "6", "Station 8"]
+    for k, sel in enumerate(offered):
+        assert choose(entries, sel, tmp_path / "s.e57") == k

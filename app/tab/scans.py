@@ -17,7 +17,7 @@ import viser
 from app.tab.fields import parse_vector, show_vector
 from app.tab.scene3d import Visibility
 from core.e57 import SUFFIX as E57_SUFFIX
-from core.e57 import list_scans, read_e57_all
+from core.e57 import list_scans, read_e57_all, selector_for
 from core.errors import InputError
 from core.io import load_scan
 from core.scan import Scan
@@ -88,7 +88,7 @@ def build(gui: viser.GuiApi, wb) -> ScansHandles:
 
 def data_choices(folder: Path | None, files: list[str]) -> list[str]:
     """The --data-dir files as the dropdowns offer them: each scan of an E57 as ``FILE#NAME`` (``FILE#K``
-    when a name is missing, repeated or all digits); an E57 that cannot be read stays as itself, so
+    when the name would not pick it alone, core.e57.selector_for); an E57 that cannot be read stays as itself, so
     opening it says why."""
     out = []
     for rel in files:
@@ -100,9 +100,7 @@ def data_choices(folder: Path | None, files: list[str]) -> list[str]:
         except InputError:
             out.append(rel)
             continue
-        names = [e.name for e in entries]
-        out += [f"{rel}#{e.name}" if e.name and names.count(e.name) == 1 and not e.name.strip().isdigit()
-                else f"{rel}#{e.index}" for e in entries]
+        out += [f"{rel}#{selector_for(e, entries)}" for e in entries]
     return out
 
 

@@ -96,7 +96,8 @@ def test_a_bad_las_gives_one_line(case, words, bunny, tmp_path, rangereg):
         write_las(path, pts[:10])
         las = laspy.read(str(path))
         las.header.scales = np.array([np.nan, 1.0, 1.0])
-        las.write(str(path))
+        with np.errstate(invalid="ignore"):  # laspy re-scales the coordinates with the NaN while writing
+            las.write(str(path))
     else:
         write_las(path, pts)
         raw = bytearray(path.read_bytes())

@@ -62,7 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("info", help="describe a scan file", description="Describe a scan: points, bounds, units, "
                        "viewpoint, range grid, surface triangles, point spacing.")
-    s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .obj .stl .off)")
+    s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .obj .stl .off .e57 .las .laz); an .e57 "
+                   "alone lists its scans, FILE.e57#K (K from 0) or FILE.e57#NAME describes one")
     s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated)")
     s.add_argument("--triangles", action="store_true", help="count the surface's triangles even for a large scan "
                    "without a range grid (a 2.5-D Delaunay: about 30 s for 2M points)")
@@ -71,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     pc, cfg = ProblemConfig(), Config()
 
     def pair(s):
-        s.add_argument("source", help="the scan to move")
+        s.add_argument("source", help="the scan to move (one scan of an E57: FILE.e57#K, K from 0, or FILE.e57#NAME)")
         s.add_argument("target", help="the scan to register onto")
         s.add_argument("--init", help="initial T_target_source: 16 numbers (row-major, quoted, spaces or commas) or "
                        "a file holding them or JSON with 'transform'; default: from the scans' stored rough poses, "
@@ -170,10 +171,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("merge", help="register a set of scans and fuse them into one model",
                        description="Register overlapping pairs, make poses globally consistent, fuse one mesh.")
-    s.add_argument("scans", nargs="+")
+    s.add_argument("scans", nargs="+", help="scan files; an .e57 without #K brings all its scans, with their stored "
+                   "poses as the initial poses")
     s.add_argument("--init", help="initial poses: a Stanford .conf (default: stored rough poses, else a chain)")
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
-    s.add_argument("--out", default="model.ply", help="the fused mesh (.ply)")
+    s.add_argument("--out", default="model.ply", help="the fused mesh (.ply), or the scans with their registered "
+                   "poses (.e57; points untouched, the first scan left at its initial pose)")
     s.add_argument("--seed", type=_knob("seed"), default=0)
     s.add_argument("--workers", type=_knob("workers"), default=None, help="pairwise registrations at once: 1 = a "
                    "plain loop here, N = a local Dask cluster of N processes (default: one per core)")

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
+from core.e57 import split_selection
 from core.errors import InputError
 from core.io import load_scan
 from core.scan import Scan
@@ -24,7 +25,7 @@ from core.scenes import scene_paths
 from core.simulate import SCENES
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".obj", ".stl", ".off")
+SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".obj", ".stl", ".off", ".e57", ".las", ".laz")
 MAX_LISTED_FILES = 500
 PANEL_WIDTH = 480  # pixels of the page the docked panel takes: room for the E chart and the contour (the floating
 # "large" panel was ~400; at 480 the contour's axes and colour bar fit, docs/landscape.png)
@@ -54,10 +55,10 @@ def _load_cached(path: str, mtime: float) -> Scan:
 
 
 def _load(path: Path) -> Scan:
-    path = Path(path)
+    path, selector = split_selection(path)  # one scan of an E57: site.e57#K or site.e57#NAME
     if not path.exists():
         raise InputError(f"{path}: no such file")
-    return _load_cached(str(path.resolve()), path.stat().st_mtime)
+    return _load_cached(str(path.resolve()) + ("" if selector is None else f"#{selector}"), path.stat().st_mtime)
 
 
 def check_port(host: str, port: int) -> None:

@@ -1,4 +1,5 @@
-"""Loading and saving scans: PLY (with Stanford range grids), PCD, XYZ/TXT/CSV, OBJ/STL/OFF meshes,
+"""Loading and saving scans: PLY (with Stanford range grids), PCD, XYZ/TXT/CSV, OBJ/STL/OFF meshes, E57
+(core.e57) and LAS/LAZ (core.las),
 Stanford ``.conf`` poses and our JSON sidecar (viewpoint, units, ground truth)."""
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import e57, las
 from .errors import InputError
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
 from .scan import RangeGrid, Scan, clean_points
@@ -27,15 +29,17 @@ from .viewpoint import check_viewpoint, estimate_viewpoint
 
 POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
 MESH_FORMATS = (".obj", ".stl", ".off")
-FORMATS = POINT_FORMATS + MESH_FORMATS
+SCANNER_FORMATS = (e57.SUFFIX, *las.SUFFIXES)  # files that carry their own units, poses or sensor origins
+FORMATS = POINT_FORMATS + MESH_FORMATS + SCANNER_FORMATS
 
 
 def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str | None = None) -> Scan:
     """Read a scan file. ``viewpoint`` (3,) overrides any stored or estimated one.
 
+    ``path`` may pick one scan of an E57 file: ``site.e57#3`` or ``site.e57#NAME`` (core.e57).
     Raises InputError with a message naming the file for anything unreadable or degenerate.
     """
-    path = Path(path)
+    path, selector = e57.split_selection(path)
     what = str(path)
     if not path.exists():
         raise InputError(f"{what}: no such file")
@@ -47,6 +51,10 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
                          f"use one of {', '.join(FORMATS)}")
     if path.stat().st_size == 0:
         raise InputError(f"{what}: the file is empty")
+    if suffix == e57.SUFFIX:
+        return e57.read_e57(path, selector, viewpoint, name)
+    if suffix in las.SUFFIXES:
+        return las.read_las(path, viewpoint, name)
     stored_vp, grid, faces = None, None, None
     try:
         if suffix == ".ply":

@@ -1,4 +1,5 @@
-"""``rangereg info``: describe a scan (points, bounds, units, viewpoint, range grid, triangles, spacing)."""
+"""``rangereg info``: describe a scan (points, bounds, units, viewpoint, range grid, triangles, spacing);
+an E57 file given without ``#K`` is listed scan by scan (core.e57)."""
 
 from __future__ import annotations
 
@@ -13,16 +14,20 @@ COUNT_TRIANGLES_UP_TO = 200_000
 
 
 def run(a: Namespace) -> int:
+    from core.e57 import SUFFIX, split_selection
     from core.io import load_scan
     from core.surface import Surface
 
+    file, selector = split_selection(a.scan)
+    if file.suffix.lower() == SUFFIX and selector is None:
+        return list_e57(a, file)
     scan = load_scan(a.scan, viewpoint=a.viewpoint)
     cheap = scan.grid is not None or scan.faces is not None or len(scan.points) <= COUNT_TRIANGLES_UP_TO
     tri = Surface.from_scan(scan).n_triangles if cheap or a.triangles else None
     info = {"points": len(scan.points), "bounds": [scan.points.min(0).tolist(), scan.points.max(0).tolist()],
             "units": scan.units, "viewpoint": scan.viewpoint.tolist(), "viewpoint_estimated": scan.viewpoint_estimated,
             "grid": scan.grid is not None, "triangles": tri, "spacing": scan.spacing, "dropped": scan.dropped,
-            "ground_truth": scan.pose is not None}
+            "ground_truth": scan.pose is not None, "stored_pose": scan.guess is not None}
     if a.json:
         print(json.dumps(info))
         return 0
@@ -37,4 +42,38 @@ def run(a: Namespace) -> int:
     print(f"  spacing     {scan.spacing:.6g} {scan.units} (median nearest-neighbour)")
     if scan.pose is not None:
         print("  ground truth pose: yes")
+    if scan.guess is not None:
+        print(f"  stored pose {_pose_text(scan.guess)} (the rough guess)")
+    for note in scan.meta.get("notes", ()):
+        print(f"  note        {note}")
+    return 0
+
+
+def _pose_text(T: np.ndarray) -> str:
+    from core.transforms import rotation_angle
+
+    return f"t={np.round(T[:3, 3], 4).tolist()} rotation {np.degrees(rotation_angle(T[:3, :3])):.2f} deg"
+
+
+def list_e57(a: Namespace, path) -> int:
+    """The scans of an E57 file from its headers: index, name, points, coordinates, grid, pose."""
+    from core.e57 import list_scans
+    from core.errors import InputError
+
+    if a.viewpoint is not None:
+        raise InputError(f"{path}: --viewpoint is for one scan; pick it with {path}#K")
+    entries = list_scans(path)
+    if a.json:
+        print(json.dumps({"file": str(path), "scans": [
+            {"index": e.index, "name": e.name, "points": e.points, "coordinates": e.coordinates,
+             "structured": e.structured, "grid": list(e.grid) if e.grid else None, "intensity": e.intensity,
+             "pose": None if e.pose is None else e.pose.tolist()} for e in entries]}))
+        return 0
+    n = len(entries)
+    print(f"{path}: {n} scan{'s' * (n != 1)} ({path}#K names one, K counted from 0; or {path}#NAME)")
+    for e in entries:
+        grid = "grid " + "x".join(map(str, e.grid)) if e.grid else ("grid" if e.structured else "no grid")
+        pose = f"pose {_pose_text(e.pose)}" if e.pose is not None else "no pose"
+        print(f"  #{e.index:<3d} {e.name or '(no name)'}  {e.points} points, {e.coordinates}, {grid}"
+              f"{', intensity' if e.intensity else ''}; {pose}")
     return 0

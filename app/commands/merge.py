@@ -51,24 +51,28 @@ class DelayedLines:
 
 def run(a) -> int:
     from app.distributed import TaskRunner
+    from core.e57 import count_scans, load_scans, split_selection
+    from core.e57_write import world_poses, write_e57
     from core.fuse import double_layer_fraction
-    from core.io import load_conf, load_scan
+    from core.io import load_conf
     from core.merge import PAIR_MODES, merge
     from core.ply import write_ply
     from core.transforms import invert, pose_error
 
     workers, scheduler, pairs = a.workers, a.scheduler, a.pairs
     threads = getattr(a, "threads", None)  # threads per task stream (app.distributed); None: its default
-    if len(a.scans) < 2:
+    if sum(count_scans(p) for p in a.scans) < 2:  # an E57 without '#K' is all its scans
         raise InputError("merge needs at least two scans")
     for flag in ("--init", "--truth"):
         path = getattr(a, flag[2:])
         if path is not None:
             read_text_file(path, flag)  # missing, a folder, unreadable, binary: one line now
-    out = check_output(a.out, "--out", (".ply",), [p for p in (a.init, a.truth) if p], a.scans)
+    out = check_output(a.out, "--out", (".ply", ".e57"), [p for p in (a.init, a.truth) if p],
+                       [split_selection(p)[0] for p in a.scans])
+    as_e57 = out.suffix.lower() == ".e57"  # the scans with their registered poses, not a fused model
     if pairs is not None and pairs not in PAIR_MODES:
         raise InputError(f"--pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
-    scans = [load_scan(p) for p in a.scans]
+    scans = load_scans(a.scans)
     names = [s.name for s in scans]
     if len(set(names)) != len(names):
         raise InputError(f"two scans share a name ({', '.join(names)}): rename one")
@@ -79,7 +83,7 @@ def run(a) -> int:
     config = to_config(Settings(method="hybrid", seed=a.seed, rotation_uncertainty=25.0))
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
     with TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
-        res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map)
+        res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map, build_model=not as_e57)
     gap = float(np.median([s.spacing for s in scans]))
     report = {
         "scans": names,
@@ -94,8 +98,10 @@ def run(a) -> int:
         "threads_per_worker": runner.stream_threads,  # None: the libraries' defaults (or the scheduler's workers')
         "pair_seconds": res.pair_seconds,
         "seconds": res.seconds,
-        "model": {"path": str(out), "vertices": len(res.model.vertices), "triangles": len(res.model.faces),
-                  "double_layer_fraction": double_layer_fraction(res.model.vertices, res.model.faces, gap)},
+        "model": None if as_e57 else {
+            "path": str(out), "vertices": len(res.model.vertices), "triangles": len(res.model.faces),
+            "double_layer_fraction": double_layer_fraction(res.model.vertices, res.model.faces, gap)},
+        "scans_out": str(out) if as_e57 else None,
     }
     if truth is not None:
         errs = [pose_error(T, invert(truth[0]) @ Tt, s.points.mean(0)) for T, Tt, s in zip(res.poses, truth, scans)]
@@ -104,8 +110,12 @@ def run(a) -> int:
     try:
         _print(report, a.json, res, names, scans, truth, runner, scheduler, out)
     finally:
-        write_output(out, "--out", lambda p: write_ply(p, res.model.vertices, res.model.faces,
-                                                       comments=("rangereg fused model",)), ".ply")
+        if as_e57:
+            first = None if initial is None else initial[0]  # the first scan stays where --init or its stored pose has it
+            write_output(out, "--out", lambda p: write_e57(p, scans, world_poses(scans, res.poses, first)), ".e57")
+        else:
+            write_output(out, "--out", lambda p: write_ply(p, res.model.vertices, res.model.faces,
+                                                           comments=("rangereg fused model",)), ".ply")
     return 0
 
 
@@ -128,5 +138,8 @@ def _print(report, as_json, res, names, scans, truth, runner, scheduler, out) ->
             line += f"  vs truth {report['rotation_error_deg'][k]:.3f} deg, {report['translation_error'][k]:.4g} {scans[k].units}"
         print(line)
     m = report["model"]
+    if m is None:
+        print(f"scans: {len(names)} with their registered poses (the first scan where its initial pose has it) -> {out}")
+        return
     print(f"model: {m['vertices']} vertices, {m['triangles']} triangles, double layer on "
           f"{m['double_layer_fraction']:.2%} of triangles -> {out}")

@@ -244,3 +244,15 @@ def test_no_guess_and_no_flags_is_no_guess_at_all(rangereg):
     code, out, _ = rangereg("register", BUNNY / "bun090.ply", BUNNY / "bun000.ply")  # 90 degrees apart
     assert code == 0 and "guess       no guess" in out and "trust       yes" in out, out
     assert float(re.search(r"vs ground truth: rotation ([0-9.]+) deg", out).group(1)) < 2.0
+
+
+def test_register_says_when_a_viewpoint_was_estimated(rangereg, tmp_path):
+    from core.io import load_scan
+
+    src = load_scan(ASSETS / "corner" / "scan2.ply")
+    xyz = tmp_path / "scan2.xyz"
+    np.savetxt(xyz, src.points)  # no viewpoint in the file, no sidecar: it is estimated
+    code, out, _ = rangereg("register", xyz, ASSETS / "corner" / "scan1.ply", "--method", "icp")
+    assert code == 0 and "viewpoint   estimated for scan2" in out, out
+    code, out, _ = rangereg("register", xyz, ASSETS / "corner" / "scan1.ply", "--method", "icp", "--json")
+    assert json.loads(out)["viewpoint_estimated"] == ["scan2"]

@@ -119,8 +119,9 @@ def _write_transform(path, res) -> None:
 def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
     """Print the result: one JSON object, or lines for people (with the truth when the scans carry it).
     ``seconds``: 'seconds' from reading both files to the result, 'import_seconds' the imports before."""
+    estimated = [s.name for s in (source, target) if s.viewpoint_estimated]
     if as_json:
-        out = {**res.to_json(), "search_seconds": res.seconds, **seconds}
+        out = {**res.to_json(), "search_seconds": res.seconds, **seconds, "viewpoint_estimated": estimated}
         if cfg.lock.active:
             out["lock"] = str(cfg.lock)
         print(json.dumps(out))
@@ -138,6 +139,9 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
           f"imports {seconds['import_seconds']:.2f} s apart)")
     if res.cut != "frustum":
         print(f"overlap     cut by {res.cut}: the frustum under the guess held too few points")
+    if estimated:
+        print(f"viewpoint   estimated for {' and '.join(estimated)} (the file holds none): give it with "
+              "--viewpoint-source / --viewpoint-target or a sidecar if you know it")
     print(f"trust       {'yes' if res.below_threshold else 'no'}: {res.trust_text}")
     print("transform (maps SOURCE into TARGET's frame):")
     for row in res.transform:

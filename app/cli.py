@@ -110,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--rotation-samples", type=_knob("rotation_samples"), metavar="N", help="global: rotations "
                    "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
     s.add_argument("--full-search", action="store_true", help="global: when no candidate is trusted, let the "
-                   "paper's hybrid search round the best one until it stops by itself (default: 600 steps)")
+                   "paper's hybrid search round the best one until it stops by itself (default: 300 steps)")
     s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: start no new stage of the "
                    "search after S seconds (default: none; the search's work is bounded anyway)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "

@@ -81,7 +81,7 @@ def test_when_nothing_is_trusted_the_fallback_is_bounded_and_says_what_the_user_
     assert res.iterations.sa <= Config().candidates.fallback_steps
     assert res.stop_reason.name in ("TIME_BOUND", "NO_BETTER_POINT", "BELOW_THRESHOLD")
     if res.stop_reason.name == "TIME_BOUND":
-        assert "nothing trusted within the search's bound (600 steps" in res.stop_text
+        assert "nothing trusted within the search's bound (300 steps" in res.stop_text
 
 
 WARNS = """

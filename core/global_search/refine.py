@@ -31,7 +31,8 @@ def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: Prob
                    visibility=False)
     converged = replace(pc, rotation_uncertainty_deg=s.resegment_rotation_deg,
                         translation_uncertainty=s.resegment_translation * target.size)
-    icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience)
+    icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience,
+                         max_iterations=min(config.icp.max_iterations, cc.refine_iterations))
     for cfg in (near, converged):
         p = at_T if cfg is near and at_T is not None else prepare(source, target, T, cfg, surface=surface, seed=config.seed)
         T = icp(p.error, T, icp_config, on_step, frame=frame).T

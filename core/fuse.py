@@ -98,7 +98,7 @@ def fuse(scans: list[Scan], poses: list[np.ndarray], surfaces: list[Surface] | N
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     pcd.normals = o3d.utility.Vector3dVector(nrm)
     # One thread: on several, Open3D's Poisson gives a slightly different mesh from run to run (the four bunny
-    # scans: 240,144-240,147 triangles) and at times segfaults (isl-org/Open3D issue 6828, open); on one, the
+    # scans: 240,144-240,147 triangles) and at times segfaults (upstream isl-org/Open3D issue 6828, open); on one, the
     # same mesh every run, in no more time here (those scans: 6.2-7.5 s of CPU against 7.6-8.4 s, load ~10).
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pcd, depth=depth, linear_fit=True,

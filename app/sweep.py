@@ -14,8 +14,8 @@ Modes (how a start is made from the truth, and what the method is told):
     turntable   rotated about the vertical axis through the object (Stanford's turntable: world y; every
                 bun.conf rotation axis lies within 1.5 deg of it), either way, plus the shift; told the
                 rotation only
-    centroid    rotated about the source's centroid, plus the shift; told max(offset, 15) deg and
-                max(shift, 25 mm)
+    centroid    rotated about the source's centroid, plus the shift; told max(offset, 15) deg (180 from 90
+                up) and max(shift, 25 mm)
     no-guess    no --init (the scans as stored, up to 90 deg apart here) and no flags: no guess at all
 Offsets 5, 15, 30, 60, 90 and 180 deg with shifts of 10, 25, 50, 75, 75 and 75 mm. Success: < 2 deg and
 < 2 mm at the source centroid. Each side is timed from reading the two files to the pose (ours with our

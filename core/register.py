@@ -17,11 +17,12 @@ from .config import METHODS, Config
 from .events import Listener
 from .global_search import register_global
 from .lock import LockFrame
-from .problem import Problem
+from .problem import Problem, prepare
 from .result import Result, Stop, StopReason
 from .scan import Scan
 from .search import recut
 from .search.run import run_method
+from .surface import Surface
 from .threshold import estimate_threshold
 
 __all__ = ["METHODS", "Config", "Result", "Stop", "StopReason", "estimate_threshold", "recut", "register"]
@@ -29,15 +30,18 @@ __all__ = ["METHODS", "Config", "Result", "Stop", "StopReason", "estimate_thresh
 
 def register(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: Config = Config(),
              listener: Listener | None = None, problem: Problem | None = None,
-             frame: LockFrame | None = None) -> Result:
+             frame: LockFrame | None = None, surface: Surface | None = None) -> Result:
     """Register ``source`` onto ``target`` from the guess ``T_init`` (T_target_source, default identity).
 
     ``listener`` receives every :class:`~core.events.Event`; it may raise :class:`Cancelled` to stop
     early (the result is then the best pose so far). ``problem``: one prepared already for this pair
-    and guess (it is only read, so it may be shared by several runs; the paper's methods only).
-    ``frame``: ``config.lock`` bound elsewhere (the paper's methods only).
+    and guess (the paper's methods; it is only read, so it may be shared by several runs). ``frame``:
+    ``config.lock`` bound elsewhere (the paper's methods). ``surface``: the target's triangulated surface,
+    when made already.
     """
     config.validate()
     if config.method == "global":
-        return register_global(source, target, T_init, config, listener)
+        return register_global(source, target, T_init, config, listener, surface)
+    if problem is None and surface is not None:
+        problem = prepare(source, target, T_init, config.problem, surface=surface, seed=config.seed)
     return run_method(source, target, T_init, config, listener, problem, frame)

@@ -101,10 +101,13 @@ class PairThreshold:
             m = np.sqrt(s.inlier_median[0] / self.floor) * (basis.normal_angle(T) / self.angle_floor)
         return float(m) if np.isfinite(m) else float("inf")
 
-    def holds(self, basis: Basis, T: np.ndarray) -> bool:
-        """Whether pose T (4, 4) passes: it overlaps enough (notes above) and its misfit is below the factor."""
-        s = basis.evaluate(np.asarray(T)[None])
-        return bool(basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor)
+    def holds(self, basis: Basis, T: np.ndarray, scores: Scores | None = None, misfit: float | None = None) -> bool:
+        """Whether pose T (4, 4) passes: it overlaps enough (notes above) and its misfit is below the factor
+        (``scores``, ``misfit``: T's, when computed already)."""
+        s = basis.evaluate(np.asarray(T)[None]) if scores is None else scores
+        if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP):
+            return False
+        return bool((self.misfit(basis, T, s) if misfit is None else misfit) < self.factor)
 
 
 def pair_threshold(floor: float, angle_floor: float, min_overlap: float, factor: float = FACTOR) -> PairThreshold:

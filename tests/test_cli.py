@@ -243,7 +243,8 @@ def test_no_guess_and_no_flags_is_no_guess_at_all(rangereg):
         pytest.skip("the shared bunny scans are absent")
     code, out, _ = rangereg("register", BUNNY / "bun090.ply", BUNNY / "bun000.ply")  # 90 degrees apart
     assert code == 0 and "guess       no guess" in out and "trust       yes" in out, out
-    assert float(re.search(r"vs ground truth: rotation ([0-9.]+) deg", out).group(1)) < 2.0
+    found = re.search(r"vs ground truth: rotation ([0-9.]+) deg, translation ([0-9.e-]+) m", out)
+    assert float(found.group(1)) < 2.0 and float(found.group(2)) < 0.002
 
 
 def test_register_says_when_a_viewpoint_was_estimated(rangereg, tmp_path):

@@ -73,15 +73,29 @@ def test_no_hypothesis_is_dropped_a_trusted_pose_beyond_the_region_comes_back_an
     assert res.details.found_by in ("kiss-matcher", "fpfh-ransac 5 spacings")  # start-free: not the region's samples
 
 
-def test_when_nothing_is_trusted_the_fallback_is_bounded_and_says_what_the_user_can_do(scene):
+def test_when_nothing_is_trusted_the_fallback_takes_exactly_its_steps_and_says_what_to_do(scene):
+    from dataclasses import replace
+
+    from app.commands.register import advice
+    from core.candidates import CandidateConfig
+
     corner, _ = scene("corner")
     _, bowl = scene("bowl")  # two different objects: no pose is right, none is trusted
-    res = register(corner, bowl, np.eye(4), Config(method="global", problem=no_guess(ProblemConfig())))
-    assert not res.trusted
-    assert res.iterations.sa <= Config().candidates.fallback_steps
-    assert res.stop_reason.name in ("TIME_BOUND", "NO_BETTER_POINT", "BELOW_THRESHOLD")
-    if res.stop_reason.name == "TIME_BOUND":
-        assert "nothing trusted within the search's bound (300 steps" in res.stop_text
+
+    def run(steps):
+        cfg = Config(method="global", problem=no_guess(ProblemConfig()),
+                     candidates=replace(CandidateConfig(), fallback_steps=steps))
+        return cfg, register(corner, bowl, np.eye(4), cfg)
+
+    _, none = run(0)
+    cfg, ten = run(10)
+    assert not none.trusted and not ten.trusted
+    assert none.stop_reason.name == ten.stop_reason.name == "TIME_BOUND"
+    assert "before the hybrid could start" in none.stop_text
+    assert "nothing trusted within the search's bound (10 steps" in ten.stop_text
+    steps = lambda r: r.iterations.icp + r.iterations.sa  # noqa: E731
+    assert steps(ten) - steps(none) == 10  # the same stages, then exactly the bound's steps of the hybrid
+    assert "--full-search" in advice(ten, cfg) and "not trusted" in advice(ten, cfg)
 
 
 WARNS = """

@@ -54,3 +54,21 @@ def test_the_tasks_cover_every_family_mode_and_level_and_the_table_reports_each(
         for m in MODES:
             assert f"| {f} | {m} |" in table
     assert "trusted -> right" in table and f"all {len(tasks)} runs" in table
+
+
+def test_a_row_of_the_table_counts_right_trusted_flagged_and_doubted():
+    def row(ok, trusted, seconds):
+        return {"family": "whole", "mode": "origin", "offset": 30.0, "pair": "a->b", "method": "global", "ok": ok,
+                "trusted": trusted, "within_region": True, "seconds": seconds, "load_seconds": 0.1}
+
+    rows = [row(True, True, 1.0), row(True, False, 2.0), row(False, False, 3.0), row(False, True, 4.0)]
+    rows += [{"family": "whole", "mode": "origin", "offset": 30.0, "pair": "a->b", "method": p, "ok": p == PEERS[0]}
+             for p in PEERS]
+    line = next(x for x in sweep_table(rows).splitlines() if x.startswith("| whole | origin | 30 deg"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[3] == "2/4 = 50%" and cells[4] == "15%-85%"  # Wilson's 95 % interval of 2 in 4
+    assert cells[5] == "1/2"  # trusted -> right: one of the two trusted runs was right
+    assert cells[6] == "1/2"  # wrong, flagged: one wrong run said 'trust no'
+    assert cells[7] == "1/2"  # right, doubted
+    assert cells[8] == "2.50 / 3.70 / 4.00"
+    assert cells[9:] == ["100%", "0%", "0%"]

@@ -275,5 +275,5 @@ def test_the_finished_line_advises_in_the_pages_words(scene):
 
     assert page_advice(result(True)) == ""
     assert "Settings" in page_advice(result(True, "found 40 deg beyond")) and "--" not in page_advice(result(False))
-    assert "Run hybrid" in page_advice(result(False))
+    assert "drag the gizmo" in page_advice(result(False))
     assert page_advice(Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "hybrid", 1.0, Stop(StopReason.BELOW_THRESHOLD))) == ""

@@ -15,7 +15,6 @@ import json
 import sys
 import time
 from argparse import Namespace
-from dataclasses import replace
 
 from app.commands import pair
 from app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, write_outputs
@@ -80,11 +79,8 @@ def _register(a: Namespace):
     import core.global_search  # noqa: F401
     t0 = time.perf_counter()
     source, target, T_init = pair.load(a)
-    if cfg.method == "global" and not pair.has_guess(a, source, target) and a.rotation_uncertainty is None \
-            and a.translation_uncertainty is None:
-        from core.region import no_guess
-
-        cfg = replace(cfg, problem=no_guess(cfg.problem))  # nothing said about the pose: any pose
+    if not pair.has_guess(a, source, target) and a.rotation_uncertainty is None and a.translation_uncertainty is None:
+        cfg = pair.config(a, no_guess=True)  # nothing said about the pose: any pose (the global method)
     # progress is for someone watching a terminal: a log or a pipe gets the result and at most one error line
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
@@ -121,7 +117,8 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
     ``seconds``: 'seconds' from reading both files to the result, 'import_seconds' the imports before."""
     estimated = [s.name for s in (source, target) if s.viewpoint_estimated]
     if as_json:
-        out = {**res.to_json(), "search_seconds": res.seconds, **seconds, "viewpoint_estimated": estimated}
+        out = {**res.to_json(), "search_seconds": res.seconds, **seconds, "viewpoint_estimated": estimated,
+               "advice": advice(res, cfg)}
         if cfg.lock.active:
             out["lock"] = str(cfg.lock)
         print(json.dumps(out))

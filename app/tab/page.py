@@ -190,6 +190,7 @@ class Tab:
     def update_status(self) -> None:
         st = self.state
         trail = self.trail()
+        guess = self.run_panel.guess_line()  # reads the settings' fields: outside the state's lock
         with st.lock:
             n = min(trail.n, len(st.events))
             last = st.events[n - 1] if n else None
@@ -208,7 +209,7 @@ class Tab:
                      f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
                      else "Temperature -",
                      f"Threshold {thr} {e_unit}",
-                     self.run_panel.guess_line()]
+                     guess]
             if st.finished_text and not running:
                 lines.append(st.finished_text)
         self.status.content = "  \n".join(lines)

@@ -25,7 +25,6 @@ from app.tab.settings import (
 from app.tab.state import TabState
 from core.errors import InputError
 from core.frustum import KINDS
-from core.problem import prepare
 from core.register import register
 from core.trace import TraceHeader
 
@@ -95,8 +94,8 @@ def page_advice(r) -> str:
                 "uncertainty, or No guess)")
     if not r.below_threshold:
         return (". Not trusted: state how far off the initial pose may be in Settings (Rotation / Translation "
-                "uncertainty, or No guess), move it closer with the gizmo or point pairs, or search on from "
-                "this pose with Run hybrid")
+                "uncertainty, or No guess), or set a better initial pose (drag the gizmo, or Align from point "
+                "pairs) and run again")
     return ""
 
 
@@ -115,6 +114,9 @@ class RunPanel:
         h.reset.on_click(lambda e: guarded(self.reset))
         h.settings.frustum.on_update(lambda e: guarded(tab.reprepare))
         h.settings.numbers["max_points"].on_update(lambda e: self._sample_size_typed())
+        for field_ in (h.settings.numbers["rotation_uncertainty"], h.settings.numbers["translation_uncertainty"],
+                       h.settings.no_guess):  # the status names the stated region: said as it is typed
+            field_.on_update(lambda e: tab.update_status())
 
     def _sample_size_typed(self) -> None:
         """A new sample size re-cuts the overlap once it is a valid number (half-typed ones wait for the run)."""
@@ -135,8 +137,8 @@ class RunPanel:
             return "Guess -"
         try:
             return f"Guess (Run global): {guess_text(self.settings(), st.T_init, st.source, st.target)}"
-        except InputError:
-            return "Guess: a setting is not a valid number yet"
+        except InputError as exc:
+            return f"Guess: - ({exc})"
 
     def start(self, method: str, mode: str = "run") -> None:
         st = self.state
@@ -147,9 +149,9 @@ class RunPanel:
             source, target, T_init, surface = st.source, st.target, st.T_init, st.problem.surface
 
             def work(listener):
-                # register widens the problem's error as it goes: each run gets its own prepared problem
-                problem = prepare(source, target, T_init, cfg.problem, surface=surface, seed=cfg.seed)
-                return register(source, target, T_init, cfg, listener, problem=problem)
+                # each run cuts its own overlap (the paper's methods; the global method cuts per candidate) on
+                # the target surface the page made once
+                return register(source, target, T_init, cfg, listener, surface=surface)
 
             st.reset_run(T_init)
             st.run_method = method

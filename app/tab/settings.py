@@ -108,7 +108,8 @@ def guess_text(s: Settings, T_init, source, target) -> str:
 
 
 def problem_config(s: Settings) -> ProblemConfig:
-    return to_config(s).problem
+    """The overlap cut the page shows (E, the slice, the residuals): the paper's, round the initial pose."""
+    return page_config(s, "hybrid").problem
 
 
 def page_config(s: Settings, method: str) -> Config:

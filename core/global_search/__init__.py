@@ -15,7 +15,8 @@ pair's fixed basis.
                trusted beyond it is kept, and returned (``within_region`` False) when no stage finds one
                inside (a symmetric scene's twin inside wins)
     fallback   (fallback.py) nothing trusted: the paper's hybrid (``--method hybrid``, unchanged) round
-               the best refined pose, for at most ``CandidateConfig.fallback_steps`` steps; the lower
+               the best refined pose for at most ``CandidateConfig.fallback_steps`` steps; the pose of the
+               two with the lower score
     events     (stream.py) every stage's events in one numbered stream; the bounds raised from it
 
 No new stage or leg starts once ``CandidateConfig.time_limit`` seconds have passed. With candidates off
@@ -34,6 +35,7 @@ from ..events import Cancelled, Listener
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
+from ..surface import Surface
 from .fallback import fallback
 from .refine import Found, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
@@ -44,12 +46,15 @@ __all__ = ["EventStream", "Hypotheses", "Stage", "TimeBound", "kiss_ahead", "ref
 
 
 def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
-                    config: Config = Config(method="global"), listener: Listener | None = None) -> Result:
+                    config: Config = Config(method="global"), listener: Listener | None = None,
+                    surface: Surface | None = None) -> Result:
     """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes);
-    ``config.candidates`` holds its own knobs, ``config.problem`` the stated region (core.region)."""
+    ``config.candidates`` holds its own knobs, ``config.problem`` the stated region (core.region);
+    ``surface``: the target's, when triangulated already."""
     config.validate()
-    setup = prepare_setup(source, target, T_init, config)
+    setup = prepare_setup(source, target, T_init, config, surface)
     run = EventStream(listener, setup.frame, setup.t0, config.candidates.time_limit)
+    found, local_minima = Found(), 0
     try:
         found, sources = search_stages(setup, run)
         if found.inside is not None:
@@ -57,16 +62,15 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         elif found.beyond is not None:
             best, stop = found.beyond, Stop(StopReason.TRUSTED, f"{StopReason.TRUSTED.value}, beyond the stated region")
         else:
-            best, _, stop = fallback(setup, run, found)
-        scored = found.scored
+            best, stop, local_minima = fallback(setup, run, found)
     except Cancelled:
-        best, stop, sources, scored, found = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}, 1, Found()
-    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, scored, sources,
-                   found.stage_of(best) or ("guess" if best is setup.T_guess else ""))
+        best, stop, sources = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}
+    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, sources,
+                   found.source_of(best) or ("guess" if best is setup.T_guess else ""), local_minima)
 
 
-def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut: Problem | None, scored: int,
-            sources: dict, found_by: str) -> Result:
+def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut: Problem | None, sources: dict,
+            found_by: str, local_minima: int) -> Result:
     """The Result of pose T: E on the overlap cut at T (a trusted refinement's last cut is that already)."""
     cfg = setup.config
     if last_cut is None:
@@ -75,9 +79,9 @@ def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut:
         last_cut = prepare(setup.source, setup.target, T, converged, surface=setup.surface, seed=cfg.seed)
     s = setup.basis.evaluate(T[None])
     misfit = setup.threshold.misfit(setup.basis, T, s)
-    trusted = setup.trusted(T)
+    trusted = setup.threshold.holds(setup.basis, T, s, misfit)
     details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
-                            setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]), scored, sources,
-                            found_by)
-    return Result(T, last_cut.error(T), run.iterations(), 0, run.total(), time.perf_counter() - setup.t0, "global",
-                  setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)
+                            setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]),
+                            run.n["candidates"], sources, found_by)
+    return Result(T, last_cut.error(T), run.iterations(), local_minima, run.total(), time.perf_counter() - setup.t0,
+                  "global", setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)

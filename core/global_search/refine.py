@@ -4,7 +4,7 @@ stages."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,30 +49,31 @@ def _near(Ts: list[np.ndarray], T: np.ndarray, center: np.ndarray, rot: float, t
 
 @dataclass
 class Found:
-    """What the stages found so far: every pose scored, every pose refined, the trusted pose inside the
-    region (ends the search) and the first trusted beyond it, and the last cut of a trusted refinement."""
+    """What the stages found so far: every pose refined (with the source that gave it: a stage, the guess,
+    the hybrid), the trusted pose inside the region (it ends the search), the first trusted beyond it, and
+    the last cut of the trusted refinement inside."""
 
-    scored: int = 0
-    refined: list | None = None
+    refined: list = field(default_factory=list)
+    sources: list = field(default_factory=list)  # beside refined
     inside: np.ndarray | None = None
     beyond: np.ndarray | None = None
     last_cut: Problem | None = None
-    by: dict | None = None  # id of a refined pose -> the stage that gave it
 
-    def stage_of(self, T: np.ndarray) -> str:
-        return (self.by or {}).get(id(T), "")
+    def note(self, T: np.ndarray, source: str) -> None:
+        """Pose T (4, 4) was found by ``source``."""
+        self.refined.append(T)
+        self.sources.append(source)
 
-    def __post_init__(self):
-        self.refined = [] if self.refined is None else self.refined
-        self.by = {} if self.by is None else self.by
+    def source_of(self, T: np.ndarray) -> str:
+        """Which source gave pose T ('' for a pose never refined)."""
+        return next((src for R, src in zip(self.refined, self.sources) if R is T), "")
 
 
-def run_stage(setup: Setup, run: EventStream, poses: list[np.ndarray], n: int, found: Found, stage: str = "") -> None:
-    """Score ``poses`` in one query (events of phase 'candidates'); refine the best ``n`` by score, those
-    inside the region first (once each: near-duplicates are skipped), until one is trusted inside."""
-    cc = setup.config.candidates
+def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Found) -> None:
+    """Score the hypotheses in one query (events of phase 'candidates'); refine the best ``n`` by score,
+    those inside the region first (once each: near-duplicates are skipped), until one is trusted inside."""
+    cc, poses = setup.config.candidates, hyp.poses
     scores = setup.basis.evaluate(np.stack(poses)).score
-    found.scored += len(poses)
     run.leg("candidates")
     for T, s in zip(poses, scores):
         run.emit("candidates", T, float(s))
@@ -92,8 +93,7 @@ def run_stage(setup: Setup, run: EventStream, poses: list[np.ndarray], n: int, f
         at_guess = setup.problem if poses[k] is setup.T_guess else None
         T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
                          lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
-        found.refined.append(T)
-        found.by[id(T)] = stage
+        found.note(T, hyp.label(k))
         if setup.trusted(T):
             if setup.region.inside(T):
                 found.inside, found.last_cut = T, last
@@ -122,15 +122,16 @@ def search_stages(setup: Setup, run: EventStream) -> tuple[Found, dict]:
         if setup.out_of_time():
             sources[stage.name] = "not reached within the time limit"
             continue
-        if found.beyond is not None and stage.features:
-            sources[stage.name] = "not needed (a trusted pose was found; feature matching does not use the guess)"
+        if found.beyond is not None and stage.costly:
+            sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "
+                                   "ignores the guess (it would give that pose again, not one inside)")
             continue
         hyp = stage.make()
         if setup.frame is not None:
-            hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none)
+            hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none, hyp.labels)
         sources[stage.name] = hyp.source_note
         if hyp.poses:
-            run_stage(setup, run, hyp.poses, stage.refine, found, stage.name)
+            run_stage(setup, run, hyp, stage.refine, found)
         if found.inside is not None:
             break
     return found, sources

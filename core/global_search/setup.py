@@ -70,13 +70,15 @@ def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None
     return future
 
 
-def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config) -> Setup:
-    """The cut under the guess, the basis, the pair threshold and the region (module notes: setup)."""
+def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config,
+                  surface: Surface | None = None) -> Setup:
+    """The cut under the guess, the basis, the pair threshold and the region (module notes: setup);
+    ``surface``: the target's, when triangulated already."""
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
     ahead = kiss_ahead(source, target, cc)
-    problem = prepare(source, target, T_init, pc, seed=config.seed)
+    problem = prepare(source, target, T_init, pc, surface=surface, seed=config.seed)
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None

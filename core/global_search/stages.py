@@ -15,10 +15,18 @@ from .setup import Setup
 
 @dataclass(frozen=True, eq=False)
 class Hypotheses:
-    """A stage's poses (each (4, 4) T_target_source), or why it has none (``why_none``)."""
+    """A stage's poses (each (4, 4) T_target_source), or why it has none (``why_none``); labels: where each
+    pose came from ("guess", "kiss-matcher", ...), beside ``poses``."""
 
     poses: list
     why_none: str = ""
+    labels: tuple = ()
+
+    def label(self, k: int) -> str:
+        return self.labels[k]
+
+    def __add__(self, other: Hypotheses) -> Hypotheses:
+        return Hypotheses(self.poses + other.poses, self.why_none or other.why_none, self.labels + other.labels)
 
     @property
     def source_note(self) -> int | str:
@@ -33,7 +41,8 @@ def sampled(setup: Setup) -> Hypotheses:
         return Hypotheses([], "candidates off")
     poses = rotation_candidates(setup.source, setup.target, setup.T_guess, region.rotation + region.slack_rotation,
                                 region.translation, cc.rotation_samples)
-    return Hypotheses(list(setup.basis.shift_to_fit(np.stack(poses))) if poses else [])
+    poses = list(setup.basis.shift_to_fit(np.stack(poses))) if poses else []
+    return Hypotheses(poses, labels=("rotation samples",) * len(poses))
 
 
 def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None) -> Hypotheses:
@@ -42,25 +51,26 @@ def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None) 
     cc, source, target = setup.config.candidates, setup.source, setup.target
     spacing = pair_spacing(source, target)
     if method == "fpfh-ransac":
-        return Hypotheses(fpfh_candidates(source, target, spacing, voxels or cc.fpfh_voxels, cc.fpfh_seeds,
-                                          setup.config.seed))
+        voxels = voxels or cc.fpfh_voxels
+        poses = fpfh_candidates(source, target, spacing, voxels, cc.fpfh_seeds, setup.config.seed)
+        return Hypotheses(poses, labels=(f"fpfh-ransac {max(voxels):g} spacings",) * len(poses))
     if not kiss_available():
         return Hypotheses([], "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)")
-    if setup.ahead is not None:
-        return Hypotheses(setup.ahead.result())
-    return Hypotheses(kiss_candidates(source, target, spacing, max(cc.fpfh_voxels)))
+    poses = setup.ahead.result() if setup.ahead is not None else kiss_candidates(source, target, spacing,
+                                                                                   max(cc.fpfh_voxels))
+    return Hypotheses(poses, labels=("kiss-matcher",) * len(poses))
 
 
 @dataclass(frozen=True)
 class Stage:
     """name; make: the stage's hypotheses; refine: how many of them (the best by score) ICP refines;
-    features: hypotheses from feature matching, start-free (a pose they give beyond the region they give
-    from any guess: once one such is trusted, a later feature stage has nothing new to say)."""
+    costly: skipped once a pose beyond the region is trusted (FPFH + RANSAC, about the cost of the whole
+    Open3D pipeline: start-free, it would give that pose again rather than a twin inside)."""
 
     name: str
     make: Callable[[], Hypotheses]
     refine: int
-    features: bool = False
+    costly: bool = False
 
 
 def stages(setup: Setup) -> Iterator[Stage]:
@@ -70,17 +80,18 @@ def stages(setup: Setup) -> Iterator[Stage]:
     samples. FPFH + RANSAC last: it costs about what the whole Open3D pipeline does."""
     cc = setup.config.candidates
     kiss = cc.enabled and cc.kiss_matcher
-    guess = Hypotheses([setup.T_guess])
+    guess = Hypotheses([setup.T_guess], labels=("guess",))
     if setup.region.stated_rotation_deg > cc.guess_first_deg and kiss:
-        yield Stage("guess, kiss-matcher", lambda: Hypotheses(guess.poses + matched(setup, "kiss-matcher").poses), 2, True)
+        yield Stage("guess, kiss-matcher", lambda: guess + matched(setup, "kiss-matcher"), 2)
     else:
         yield Stage("guess", lambda: guess, 1)
         if kiss:
-            yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1, True)
+            yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1)
     if not cc.enabled:
         return
     yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
     for v in sorted(cc.fpfh_voxels, reverse=True):  # coarse first: 5 spacings costs ~1/5 of 2 spacings
-        yield Stage(f"fpfh-ransac {v:g} spacings", lambda v=v: matched(setup, "fpfh-ransac", (v,)), cc.fpfh_seeds, True)
+        yield Stage(f"fpfh-ransac {v:g} spacings", lambda v=v: matched(setup, "fpfh-ransac", (v,)), cc.fpfh_seeds,
+                    costly=True)
 
 

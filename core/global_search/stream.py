@@ -4,6 +4,7 @@ bound on the fallback's steps and on time, raised as :class:`TimeBound` from the
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -44,27 +45,19 @@ class EventStream:
     def forward(self, e: Event) -> None:
         """An event of the fallback hybrid's own run, renumbered into this stream (a local-minimum marker is
         not a step); its legs follow this stream's. Raises :class:`TimeBound` past the bound."""
-        if not e.local_minimum:
-            self.n[e.phase] += 1
-            if self.steps_left is not None:
-                self.steps_left -= 1
-        if self.listener is not None:
-            self.listener(replace_event(e, iteration=self.total(), leg=self.legs[e.phase] + e.leg))
-        if (self.steps_left is not None and self.steps_left < 0) or (
-                self.time_limit is not None and time.perf_counter() - self.t0 > self.time_limit):
+        if self.time_limit is not None and time.perf_counter() - self.t0 > self.time_limit:
             raise TimeBound()
+        if not e.local_minimum:
+            if self.steps_left is not None:
+                if self.steps_left <= 0:
+                    raise TimeBound()  # the bound's steps are spent: this one is not taken
+                self.steps_left -= 1
+            self.n[e.phase] += 1
+        if self.listener is not None:
+            self.listener(replace(e, iteration=self.total(), leg=self.legs[e.phase] + e.leg))
 
     def total(self) -> int:
         return self.n["candidates"] + self.n["icp"] + self.n["sa"]
 
     def iterations(self) -> Iterations:
         return Iterations(self.n["icp"], self.n["sa"], self.n["candidates"])
-
-
-def replace_event(e: Event, **kw) -> Event:
-    d = {k: getattr(e, k) for k in ("phase", "iteration", "phase_iteration", "leg", "T", "error", "temperature",
-                                    "accepted", "local_minimum", "coords")}
-    d.update(kw)
-    return Event(**d)
-
-

@@ -137,8 +137,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quick", action="store_true", help="fewer runs (under 3 minutes)")
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
+    s.add_argument("--lesson", action="store_true", help="the lesson's starts on its scene (ribbed) with ICP, "
+                   "annealing and the hybrid, and the lesson's targets")
     s.add_argument("--json", help="write the rows as JSON to this file")
-    s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
+    s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2; lesson: all 10)")
     s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "
                    "(default), N = a local Dask cluster of N processes")
     s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="--sweep: run the starts on an existing Dask cluster")

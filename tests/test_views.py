@@ -125,14 +125,15 @@ def test_slice_figure_draws_both_legs_in_the_page_colours_and_the_current_pose()
         drawn = ~np.isnan(np.asarray(traces[name].x, float))
         assert drawn.any()
     assert np.array_equal(~np.isnan(np.asarray(traces["SA"].x, float)), [False, False, True, True, False])
-    assert (traces["current"].x[0], traces["current"].y[0]) == (0.0, 0.5)
+    assert (traces["shown pose"].x[0], traces["shown pose"].y[0]) == (0.0, 0.5)
+    assert (traces["minima of the slice"].x[0], traces["minima of the slice"].y[0]) == (0.0, 0.0)  # the bowl's floor
     assert (traces["start"].x[0], traces["start"].y[0]) == (0.9, 8.0)
     assert fig.layout.xaxis.title.text.startswith("tx") and "deg" in fig.layout.yaxis.title.text
 
 
-def test_slice_figure_without_a_run_shows_the_surface_and_the_pose_only():
+def test_slice_figure_without_a_run_shows_the_surface_its_minima_and_the_pose_only():
     fig = slice_figure(a_slice(), None, None, np.array([0.0, 0.0]), "t")
-    assert [t.name for t in fig.data if t.name] == ["current"]
+    assert [t.name for t in fig.data if t.name] == ["minima of the slice", "shown pose"]
 
 
 def test_the_png_draws_each_leg_in_the_page_colour():

@@ -129,7 +129,9 @@ class ScansPanel:
             self.tab.load_pair(scan, st.target)
         else:
             self.tab.load_pair(st.source, scan)
-        self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points", error=False)
+        estimated = "; no sidecar came with it, so its viewpoint is estimated (Scans: Source/Target viewpoint)" if (
+            scan.viewpoint_estimated) else ""
+        self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points{estimated}", error=False)
 
     def apply_viewpoints(self) -> None:
         st = self.state

@@ -178,6 +178,11 @@ class Trail:
         with np.errstate(divide="ignore", invalid="ignore"):
             log_temp = np.where(temp > 0, np.log10(temp), np.nan)
         line = np.full(len(it), np.log10(threshold) if threshold is not None and threshold > 0 else np.nan)
+        # every series starts at the shared start's value: a series whose first value is NaN left uPlot's scale without
+        # a range, and the whole chart blank (a lone first point draws no line: it shows nothing of its own)
+        log_temp[0] = phases[0][0]
+        if np.isnan(line[0]):
+            line[0] = phases[0][0]
         return it, *phases, line, log_temp
 
 

@@ -83,7 +83,7 @@ CHART_AXES = chart_axes()
 def build_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
     """E against iteration, coloured by phase, with the threshold and the temperature (Trail.chart's series)."""
     return gui.add_uplot(
-        data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES), np.ones(1), np.full(1, np.nan)),
+        data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES), np.ones(1), np.ones(1)),  # no first value may be NaN
         # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
         series=(uplot.Series(label="iteration"), *(_series(PHASE_LABEL[p], p, 5 if p == "icp" else 3)
                                                    for p in PHASE_NAMES),

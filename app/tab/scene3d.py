@@ -251,11 +251,10 @@ def shown_extent(state: TabState) -> np.ndarray:
 
 
 def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:
-    """Point the camera at (K, 3) page points so that all fit the view, looking the way it looks now."""
+    """Point the camera at (K, 3) page points so that all fit the view, looking the way it looks now: the nearest
+    distance at which every point lies inside both the vertical and the horizontal field of view."""
     cam = client.camera
-    lo, hi = points.min(0), points.max(0)
-    centre = 0.5 * (lo + hi)
-    radius = max(float(np.linalg.norm(points - centre, axis=1).max()), 1e-6)
+    centre = 0.5 * (points.min(0) + points.max(0))
     try:  # the camera as the browser last reported it
         way = np.asarray(cam.position, np.float64) - np.asarray(cam.look_at, np.float64)
         fov, aspect = float(cam.fov), float(cam.aspect)  # fov: vertical, radians
@@ -264,8 +263,18 @@ def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:
     if not np.linalg.norm(way) > 1e-9:
         way = np.asarray(VIEW_DIRECTION, np.float64)
     way = way / np.linalg.norm(way)
-    half = min(fov, 2 * np.arctan(np.tan(fov / 2) * aspect)) / 2
-    distance = FIT_MARGIN * radius / np.sin(half)
+    up = np.array([0.0, 1.0, 0.0])
+    right = np.cross(up, way)
+    if np.linalg.norm(right) < 1e-9:  # looking straight down or up
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(way, right)
+    rel = points - centre
+    x, y, toward = np.abs(rel @ right), np.abs(rel @ up), rel @ way
+    tan_v = np.tan(fov / 2) / FIT_MARGIN
+    tan_h = tan_v * aspect
+    distance = float(np.max(toward + np.maximum(x / tan_h, y / tan_v)))
+    distance = max(distance, 1e-3)
     cam.position = tuple(centre + distance * way)  # first: a new position moves the look-at point along with it
     cam.look_at = tuple(centre)
 

@@ -86,7 +86,8 @@ def run_method(case: Case, method: str, T0: np.ndarray, seed: int) -> dict:
     rot, tr = pose_error(res.transform, case.T_true, case.source.centroid)
     return {"error": res.error, "iterations": res.iterations["icp"] + res.iterations["sa"], "icp": res.iterations["icp"],
             "sa": res.iterations["sa"], "seconds": res.seconds, "rot": rot, "trans": tr,
-            "ok": rot < case.ok_rot and tr < case.ok_trans, "T": res.transform, "threshold": res.threshold}
+            "ok": rot < case.ok_rot and tr < case.ok_trans, "T": res.transform, "threshold": res.threshold,
+            "local_minima": res.local_minima}
 
 
 def summarise(scene: str, method: str, runs: list[dict]) -> dict:
@@ -142,6 +143,8 @@ def lesson(runs: int | None, say) -> list[dict]:
         results = [run_method(case, method, T0, k) for k, T0 in enumerate(T0s)]
         row = summarise(case.name, method, results)
         row["stuck_rate"] = float(np.mean([not r["ok"] and r["error"] >= r["threshold"] for r in results]))
+        row["local_minima_per_run"] = [int(r["local_minima"]) for r in results]  # the paper's Table 3 column
+        row["error_over_threshold"] = [float(r["error"] / r["threshold"]) for r in results]
         rows.append(row)
         say(f"  {case.name:16s} {method:8s} success {row['success_rate']:.0%}  stuck {row['stuck_rate']:.0%}  "
             f"iterations {row['mean_iterations']:.0f}  median {row['median_seconds']:.2f} s")

@@ -39,8 +39,9 @@ class Lesson:
 
     starts: (tx in mm, ry in degrees) each, the truth moved by that shift along the target's x axis and turned by
     that angle about its y axis through the source's centroid (core.transforms.perturb), run k with seed k;
-    shown: the start the workbench's Lesson tab opens at; params and spans: the slice of E through the truth (on the
-    overlap cut there) that shows the small minima and covers every start (half-widths in mm and degrees).
+    shown: the start the workbench's Lesson tab opens at; params, spans and steps: the slice of E through the truth
+    (on the overlap cut there) that shows the small minima and covers every start (half-widths in mm and degrees,
+    grid points a side).
     """
 
     scene: str = "ribbed"
@@ -50,7 +51,10 @@ class Lesson:
                                                (325, 6), (325, 9), (325, 12), (325, 15))
     shown: int = 0
     params: tuple[str, str] = ("tx", "ry")
-    spans: tuple[float, float] = (360.0, 16.0)
+    # +-400 mm and +-24 deg take in every start (they lie 279-362 mm along tx on this slice, its centre being the
+    # overlap's) and ICP's first legs (down to -22 deg); 51 steps a side show 11 minima (41: 4, at 0.65 x the time)
+    spans: tuple[float, float] = (400.0, 24.0)
+    steps: int = 51
 
     def scans(self, assets: Path) -> tuple[Scan, Scan]:
         """(source, target) of the lesson's scene as bundled in ``assets`` (``rangereg scenes``), as the page

@@ -114,7 +114,7 @@ def test_the_lesson_starts_lie_where_written_in_the_target_frame():
 
 
 def test_the_lesson_slice_shows_small_minima_in_a_larger_pit_and_the_plain_corner_one():
-    # the README's claim, on the lesson's slice through the truth (a coarser grid than the page's 41: the budget)
+    # the README's claim, on the lesson's slice through the truth (a coarser grid than the page's: the budget)
     from core.landscape import compute_slice
     from core.problem import prepare
     from core.scenes import LESSON
@@ -125,8 +125,21 @@ def test_the_lesson_slice_shows_small_minima_in_a_larger_pit_and_the_plain_corne
         target, source = make_scene(name, seed)
         T_true = true_transform(source, target)
         p = prepare(source, target, T_true, seed=0)
-        sl = compute_slice(p, T_true, LESSON.params, LESSON.spans, 33)
+        sl = compute_slice(p, T_true, LESSON.params, LESSON.spans, 35)
         minima = sl.minima()
         counts[name] = len(minima)
         assert np.allclose(minima[0], 0.0, atol=1e-9)  # the lowest is the truth
     assert counts["corner"] == 1 and counts["ribbed"] >= 4, counts
+
+
+def test_the_lesson_bench_says_each_target_with_its_value_and_refuses_more_starts_than_it_has(rangereg):
+    from app.bench import lesson_verdict
+
+    rows = [{"method": "icp", "success_rate": 0.0, "mean_iterations": 41.0, "median_seconds": 0.8},
+            {"method": "sa", "success_rate": 0.9, "mean_iterations": 13729.0, "median_seconds": 66.0},
+            {"method": "hybrid", "success_rate": 0.8, "mean_iterations": 155.0, "median_seconds": 0.99}]
+    text = lesson_verdict(rows)
+    assert "met: ICP alone success <= 0.2 (0.00)" in text and "MISSED: hybrid success >= 0.9 (0.80)" in text
+    assert "met: hybrid's mean iterations <= 25 % of annealing's (1.1%)" in text and "(0.99 s)" in text
+    code, out, err = rangereg("bench", "--lesson", "--runs", "11")
+    assert code == 2 and "the lesson has 10 starts" in err

@@ -33,7 +33,6 @@ TITLES = {"start": "The start", "icp": "ICP runs", "stuck": "Stuck above the thr
           "anneal": "Annealing roams, temperature falling", "lower": "A lower point", "icp-again": "ICP again",
           "below": "Below the threshold", "gave-up": "Annealing gave up"}
 NUMBERS = {"start": 0, "icp": 1, "stuck": 2, "anneal": 3, "lower": 4, "icp-again": 5, "below": 6, "gave-up": 6}
-SLICE_STEPS = 41  # grid points per axis of the lesson's slice: 8 of its minima show (61: 11, at 2.2 x the time)
 
 
 @dataclass(frozen=True)
@@ -81,8 +80,11 @@ class Story:
     history: list[str] = field(default_factory=list)
 
     def ready(self, run: str) -> bool:
-        """Whether Next may be clicked: the run is not moving, and the lesson is not over."""
-        return run != "running" and self.step not in ("below", "gave-up") or (self.step == "below" and run == "paused")
+        """Whether Next may be clicked: the run is not moving and the lesson is not over (at "below", a paused run
+        still has its refinement to finish)."""
+        if run == "running" or self.step == "gave-up":
+            return False
+        return run == "paused" if self.step == "below" else True
 
     def advance(self, run: str, run_legs: list[Leg], threshold: float) -> str | None:
         if not self.ready(run):
@@ -109,9 +111,7 @@ class Story:
             return "lower", None
         if self.step == "lower":
             return "icp-again", "next"
-        if self.step == "below":
-            return "below", "resume"
-        return self.step, None
+        return "below", "resume"  # "below", paused: let the run finish
 
 
 @dataclass(frozen=True)
@@ -226,13 +226,13 @@ class LessonPanel:
         tab.load_pair(source, target)
         tab.set_initial(self.lesson.start(st.source, st.target, self.k))
         # the slice through the truth, on the overlap cut there: the error surface the registration ends on, as in
-        # the paper's Fig. 3 and 7 (under the start's cut, 41 steps showed 2 of its minima where this shows 8)
+        # the paper's Fig. 3 and 7 (under the start's cut the same grid shows 5 of its minima against 11)
         settings = tab.run_panel.settings()
         at_truth = prepare(st.source, st.target, st.T_truth, problem_config(settings), surface=st.surfaces[1],
                            seed=settings.seed)
         h = tab.landscape.h
         h.span_a.value, h.span_b.value = (fmt(v) for v in self.lesson.spans)
-        tab.landscape.compute_at(st.T_truth, self.lesson.params, self.lesson.spans, SLICE_STEPS, terrain=True,
+        tab.landscape.compute_at(st.T_truth, self.lesson.params, self.lesson.spans, self.lesson.steps, terrain=True,
                                  problem=at_truth)
         self.story = Story()
         self.run = None

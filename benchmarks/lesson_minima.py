@@ -6,8 +6,8 @@ Each variant is the paper's 4 ft corner seen from the corner scene's two viewpoi
 scanner changed one fault at a time (range noise, range steps, the paper's sparse sampling) or the faces folded
 into ribs (core.simulate.ribbed_corner_mesh: a regular pitch, and the lesson's pitch growing 80 -> 160 mm). For
 each it prints the local minima of the lesson's tx-ry slice through the truth (core.landscape.Slice.minima, the
-grid's points lower than their eight neighbours) and how many lie in the pit (E below the slice's median: the
-rest are dips in the flat rim, where the robust cap leaves E nearly level far from the truth), and ICP alone
+grid's points lower than their eight neighbours) and how many lie in the pit (E below half the slice's median:
+the rest are dips in the flat rim, where the robust cap leaves E nearly level far from the truth), and ICP alone
 from the lesson's starts and from the paper's spread (5 deg about a random axis and 250 mm, seeded): how often
 it succeeds (within 1 deg and 1 % of the scene's size) and how often it is stuck (ends above the threshold, off
 the truth). The lesson's scene is the last row.
@@ -68,11 +68,12 @@ def scans(mesh, scanner: Scanner, seed: int = 3):
 
 
 def in_pit(sl) -> int:
-    """How many of the slice's local minima have E below the slice's median E."""
+    """How many of the slice's local minima have E below half the slice's median E (measured: the plain corner's
+    rim dips lie at 0.96-1.4 x the median, the ribbed corner's minima at 0.16-0.49 x)."""
     minima = sl.minima()
     i = np.searchsorted(sl.axis_a, minima[:, 0])
     j = np.searchsorted(sl.axis_b, minima[:, 1])
-    return int(np.sum(sl.values[i, j] < np.median(sl.values)))
+    return int(np.sum(sl.values[i, j] < 0.5 * np.median(sl.values)))
 
 
 def icp_outcomes(source, target, T_true, starts) -> tuple[int, int]:

@@ -52,7 +52,7 @@ class Lesson:
     shown: int = 0
     params: tuple[str, str] = ("tx", "ry")
     # +-400 mm and +-24 deg take in every start (they lie 279-362 mm along tx on this slice, its centre being the
-    # overlap's) and ICP's first legs (down to -22 deg); 51 steps a side show 11 minima (41: 4, at 0.65 x the time)
+    # overlap's) and ICP's first legs (down to -22 deg); 51 steps show 11 minima on the bundled scans (41: 4)
     spans: tuple[float, float] = (400.0, 24.0)
     steps: int = 51
 

@@ -212,7 +212,8 @@ class LandscapePanel:
         fig = slice_figure(*args, units=units)
         if self.h.plot is None:
             with self.h.folder:
-                self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2)
+                # first in its folder, above the slice's fields: the picture is what a class looks at
+                self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2, order=self.h.param_a.order - 0.5)
         else:
             self.h.plot.figure = fig
 

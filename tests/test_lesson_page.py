@@ -80,10 +80,17 @@ def test_the_legend_names_every_colour_and_fit_view_frames_the_scans_then_the_te
     wait_for(lambda: np.allclose(camera.look_at, (30.0, 0.0, 0.0), atol=1e-3), 30, "the camera moved away")
 
     def in_view(points: np.ndarray) -> bool:
+        """Whether every point lies inside the camera's vertical and horizontal field of view."""
         pos, at = np.asarray(camera.position), np.asarray(camera.look_at)
         ahead = (at - pos) / np.linalg.norm(at - pos)
-        rays = (points - pos) / np.linalg.norm(points - pos, axis=1, keepdims=True)
-        return bool(np.all(np.degrees(np.arccos(np.clip(rays @ ahead, -1, 1))) < np.degrees(camera.fov) / 2))
+        right = np.cross(ahead, (0.0, 1.0, 0.0))
+        right /= np.linalg.norm(right)
+        up = np.cross(right, ahead)
+        rel = points - pos
+        depth = rel @ ahead
+        tan_v = np.tan(camera.fov / 2)
+        return bool(np.all(depth > 0) and np.all(np.abs(rel @ up) <= tan_v * depth * 1.001)
+                    and np.all(np.abs(rel @ right) <= tan_v * camera.aspect * depth * 1.001))
 
     with tab.state.lock:
         scans = shown_extent(tab.state)

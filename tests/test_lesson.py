@@ -143,3 +143,13 @@ def test_the_lesson_bench_says_each_target_with_its_value_and_refuses_more_start
     assert "met: hybrid's mean iterations <= 25 % of annealing's (1.1%)" in text and "(0.99 s)" in text
     code, out, err = rangereg("bench", "--lesson", "--runs", "11")
     assert code == 2 and "the lesson has 10 starts" in err
+
+
+def test_a_bad_lock_is_said_in_the_pages_words_not_the_clis_flag():
+    from app.tab.run import checked_lock
+    from core.errors import InputError
+
+    with pytest.raises(InputError) as bad:
+        checked_lock("rx,foo")
+    assert str(bad.value).startswith("Locked parameters: cannot lock foo") and "--lock" not in str(bad.value)
+    assert checked_lock(" rx,ry ") == "rx,ry"

@@ -5,7 +5,9 @@ Every method starts from the same seeded poses: the truth perturbed by a random 
 for the 4 ft corner, scaled to each scene's size (the paper's spread); 15 degrees and 25 mm on the
 bunny pairs. A run succeeds when its pose is within 1 degree and 1 % of the scene's size of the
 truth (bunny: 2 degrees and 2 mm), measured at the source's centroid.
-``--sweep``: app/sweep.py (app/commands/bench.py dispatches).
+``--sweep``: app/sweep.py (app/commands/bench.py dispatches). ``--lesson``: the lesson's starts on its
+bundled scene (core.scenes.LESSON) with ICP alone, annealing alone and the hybrid; a run is "stuck" when it
+ends above the threshold and off the truth.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ EXTRAS = {"hybrid+polish": dict(method="hybrid", polish=True),
 def scene_cases() -> list[Case]:
     cases = []
     for i, name in enumerate(SCENES):
+        if name not in SCENE_START:
+            continue  # the lesson's scene has its own starts (--lesson)
         target, source = make_scene(name, i)  # the bundled scenes (core.scenes uses seed + index)
         size = target.size
         cases.append(Case(name, source, target, true_transform(source, target), 5.0, SCENE_START[name], 1.0,
@@ -70,7 +74,8 @@ def run_method(case: Case, method: str, T0: np.ndarray, seed: int) -> dict:
     rot, tr = pose_error(res.transform, case.T_true, case.source.centroid)
     return {"error": res.error, "iterations": res.iterations.icp + res.iterations.sa, "icp": res.iterations.icp,
             "sa": res.iterations.sa, "seconds": res.seconds, "rot": rot, "trans": tr,
-            "ok": rot < case.ok_rot and tr < case.ok_trans, "T": res.transform, "threshold": res.threshold}
+            "ok": rot < case.ok_rot and tr < case.ok_trans, "T": res.transform, "threshold": res.threshold,
+            "local_minima": res.local_minima}
 
 
 def summarise(scene: str, method: str, runs: list[dict]) -> dict:
@@ -99,6 +104,52 @@ def truth_check(case: Case, runs: list[dict], seed: int = 0) -> dict:
     return {"runs_where_E_prefers_a_wrong_pose": wrong_preferred}
 
 
+LESSON_METHODS = ("icp", "sa", "hybrid")
+
+
+def lesson_case(assets: Path) -> Case:
+    from core.scenes import LESSON
+
+    source, target = LESSON.scans(assets)
+    return Case(f"{LESSON.scene} (lesson)", source, target, true_transform(source, target), 0.0, 0.0, 1.0,
+                0.01 * target.size, ProblemConfig())
+
+
+def lesson(runs: int | None, say) -> list[dict]:
+    """The lesson's rows (``rangereg bench --lesson``): each method from the first ``runs`` of its starts (all by
+    default), run k with seed k; each row adds the share of runs stuck above the threshold off the truth."""
+    from app.workbench import ASSETS
+    from core.scenes import LESSON
+
+    n = len(LESSON.starts) if runs is None else runs
+    if n > len(LESSON.starts):
+        raise InputError(f"--runs: the lesson has {len(LESSON.starts)} starts, not {n}")
+    case = lesson_case(ASSETS)
+    T0s = [LESSON.start(case.source, case.target, k) for k in range(n)]
+    rows = []
+    for method in LESSON_METHODS:
+        results = [run_method(case, method, T0, k) for k, T0 in enumerate(T0s)]
+        row = summarise(case.name, method, results)
+        row["stuck_rate"] = float(np.mean([not r["ok"] and r["error"] >= r["threshold"] for r in results]))
+        row["local_minima_per_run"] = [int(r["local_minima"]) for r in results]  # the paper's Table 3 column
+        row["error_over_threshold"] = [float(r["error"] / r["threshold"]) for r in results]
+        rows.append(row)
+        say(f"  {case.name:16s} {method:8s} success {row['success_rate']:.0%}  stuck {row['stuck_rate']:.0%}  "
+            f"iterations {row['mean_iterations']:.0f}  median {row['median_seconds']:.2f} s")
+    return rows
+
+
+def lesson_verdict(rows: list[dict]) -> str:
+    """The lesson's targets, each with its measured value."""
+    r = {row["method"]: row for row in rows}
+    share = r["hybrid"]["mean_iterations"] / max(r["sa"]["mean_iterations"], 1e-12)
+    checks = (("ICP alone success <= 0.2", r["icp"]["success_rate"] <= 0.2, f"{r['icp']['success_rate']:.2f}"),
+              ("hybrid success >= 0.9", r["hybrid"]["success_rate"] >= 0.9, f"{r['hybrid']['success_rate']:.2f}"),
+              ("hybrid's mean iterations <= 25 % of annealing's", share <= 0.25, f"{share:.1%}"),
+              ("hybrid median <= 5 s", r["hybrid"]["median_seconds"] <= 5, f"{r['hybrid']['median_seconds']:.2f} s"))
+    return "\n".join(f"{'met' if ok else 'MISSED'}: {what} ({value})" for what, ok, value in checks)
+
+
 def table(rows: list[dict]) -> str:
     head = ("| scene | method | mean E | mean iterations (ICP + SA) | success | median s | runs |\n"
             "|---|---|---|---|---|---|---|")
@@ -113,10 +164,17 @@ def table(rows: list[dict]) -> str:
 def main(a) -> int:
     if a.runs is not None and a.runs < 1:
         raise InputError(f"--runs must be at least 1, got {a.runs}")
+    say = lambda msg: sys.stderr.write(msg + "\n")  # noqa: E731
+    if getattr(a, "lesson", False):
+        rows = lesson(a.runs, say)
+        print(table(rows))
+        print(lesson_verdict(rows))
+        if a.json:
+            Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
+        return 0
     runs = a.runs or (2 if a.quick else 10)
     methods = ("hybrid", "icp", "basin-hopping") if a.quick else METHODS + tuple(EXTRAS)
     rows, notes = [], []
-    say = lambda msg: sys.stderr.write(msg + "\n")  # noqa: E731
     cases = scene_cases()
     bunny = bunny_cases(Path(a.bunny))
     if not bunny:

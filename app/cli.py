@@ -150,8 +150,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "no-guess (default all)")
     s.add_argument("--families", help="--sweep: which pairs, comma-separated of whole, crop-whole, crop-crop "
                    "(default all)")
+    s.add_argument("--lesson", action="store_true", help="the lesson's starts on its scene (ribbed) with ICP, "
+                   "annealing and the hybrid, and the lesson's targets")
     s.add_argument("--json", help="write the rows as JSON to this file")
-    s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
+    s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2; lesson: all 10)")
     s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "
                    "(default), N = a local Dask cluster of N processes")
     s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="--sweep: run the starts on an existing Dask cluster")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 TARGET_RGB = (60, 120, 220)
@@ -50,3 +52,52 @@ def axis_label(param: str, units: str = "") -> str:
 def squared_unit(units: str = "") -> str:
     """The unit of E, a mean squared distance: the scans' length unit squared."""
     return f"{unit_label('t', units)}²"
+
+
+# ---- numbers as people read them ------------------------------------------------------------------------------
+DIGITS = 4  # significant digits of every number the page, the PNG and the recording show
+
+
+def fmt(value: float | None, digits: int = DIGITS) -> str:
+    """``value`` with ``digits`` significant digits: positional from 1e-5 to 1e6 (0.0009285, 706.1, 12340),
+    else in exponent form (7.733e-09); "-" for None or NaN."""
+    if value is None or not np.isfinite(value):
+        return "-" if value is None or np.isnan(value) else ("inf" if value > 0 else "-inf")
+    v = float(f"{float(value):.{digits}g}")
+    if v == 0:
+        return "0"
+    if 1e-5 <= abs(v) < 1e6:
+        decimals = max(0, digits - 1 - int(np.floor(np.log10(abs(v)))))
+        text = f"{v:.{decimals}f}"
+        return text.rstrip("0").rstrip(".") if "." in text else text
+    return f"{v:.{digits - 1}e}"
+
+
+_LONG_NUMBER = re.compile(r"(?<![\w.])-?\d+\.\d{4,}(?:e[-+]?\d+)?|(?<![\w.])-?\d\.\d+e[-+]?\d+")
+
+
+def tidy(text: str, digits: int = DIGITS) -> str:
+    """``text`` with every number written to more than ``digits`` significant digits shortened to them
+    (core's messages print E with 6)."""
+    return _LONG_NUMBER.sub(lambda m: fmt(float(m.group(0)), digits), text)
+
+
+# ---- the legend: every colour the scene draws ---------------------------------------------------------------
+LEGEND = (("source", SOURCE_RGB), ("target", TARGET_RGB), ("source overlap", SOURCE_OVERLAP_RGB),
+          ("target overlap", TARGET_OVERLAP_RGB), ("ICP", PHASE_RGB["icp"]), ("annealing (SA)", PHASE_RGB["sa"]),
+          ("candidates", PHASE_RGB["candidates"]), ("local minimum", MINIMUM_RGB))
+
+
+def legend_html(entries=LEGEND) -> str:
+    """One line of coloured swatches and their names (the page's and the recording's legend)."""
+    items = "".join(f'<span style="white-space:nowrap;margin-right:10px"><span style="display:inline-block;'
+                    f'width:10px;height:10px;border-radius:2px;margin-right:4px;background:{hex_colour(rgb)}">'
+                    f'</span>{name}</span>' for name, rgb in entries)
+    return f'<div class="rangereg-legend" style="font-size:12px;line-height:1.6">{items}</div>'
+
+
+def log_values(sl) -> np.ndarray:
+    """(A, B) log10 E of a slice (a zero E, which has no log, at the smallest positive one): the scale of the page's
+    contour, the PNG and the terrain."""
+    v = np.asarray(sl.values, np.float64)
+    return np.log10(np.maximum(v, np.nanmin(v[v > 0]) if np.any(v > 0) else 1e-300))

@@ -1,6 +1,7 @@
 """Pictures for people (matplotlib, headless): the error-surface slice with a run's path on it.
 
-Drawn in the page's colours (app/figures.py): ICP legs green, annealing legs magenta.
+Drawn as the page draws it: log10 E in viridis (app/figures.log_values), ICP legs green, annealing legs magenta
+(app/figures.py), the slice's local minima as open red circles; every mark has its legend entry.
 """
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.figures import PHASE_LABEL, PHASE_RGB, axis_label, squared_unit, unit_fraction
+from app.figures import MINIMUM_RGB, PHASE_LABEL, PHASE_RGB, axis_label, log_values, squared_unit, unit_fraction
 from core.landscape import Slice
 
 
@@ -21,10 +22,15 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+
     fig, ax = plt.subplots(figsize=(7, 5.5), dpi=110)
     B, A = np.meshgrid(sl.axis_b, sl.axis_a)
-    cs = ax.contourf(A, B, sl.values, levels=30, cmap="viridis")
-    fig.colorbar(cs, ax=ax, label=f"robust error E ({squared_unit(units)})")
+    cs = ax.contourf(A, B, log_values(sl), levels=25, cmap="viridis")
+    fig.colorbar(cs, ax=ax, label=f"log10 E ({squared_unit(units)})")
+    minima = sl.minima()
+    if len(minima):
+        ax.plot(minima[:, 0], minima[:, 1], "o", mfc="none", mec=unit_fraction(MINIMUM_RGB), mew=1.8, ms=8,
+                label="minima of the slice")
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
         start = 0
@@ -38,9 +44,10 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
         for phase, name in PHASE_LABEL.items():
             if phase in phases:
                 ax.plot([], [], color=unit_fraction(PHASE_RGB[phase]), label=name)
-        ax.legend(loc="upper right", fontsize=8)
     if current is not None:
-        ax.plot(*current, "x", color="white", ms=10, mew=2, label="_current")
+        ax.plot(*current, "x", color="red", ms=10, mew=2, label="shown pose")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
     ax.set_xlabel(axis_label(sl.params[0], units))
     ax.set_ylabel(axis_label(sl.params[1], units))
     ax.set_title(title or "error surface slice")

@@ -4,7 +4,8 @@ One self-contained HTML file: viser's own built client (shipped in the viser whe
 ``client/build/index.html``) with the scene recording embedded as base64 (the client plays
 ``window.__VISER_EMBED_DATA__``, the format of viser's ``.viser`` files). The recording holds the
 scans, their frustums, the moving scan over time, the path growing as it moves (ICP green, SA
-magenta) and, when a slice was computed, the landscape as a 3-D height field with the path on it.
+magenta) and, when a slice was computed, the landscape as a 3-D height field with the path on it; a line of text
+follows the run (event k of n, its iteration, phase, E and temperature), beside a legend of the colours.
 
 viser records a scene through a server, so a throwaway one is started on a free loopback port for
 the few seconds it takes (it serves nobody: no browser is pointed at it).
@@ -21,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from app.access import free_port
-from app.figures import MINIMUM_RGB, PHASE_TABLE, SOURCE_RGB, TARGET_RGB
+from app.figures import LEGEND, MINIMUM_RGB, PHASE_LABEL, PHASE_TABLE, SOURCE_RGB, TARGET_RGB, fmt, squared_unit
 from app.tab.scene3d import set_lights
-from app.views import Display, Trail
+from app.views import Display, Trail, temperature_of
 from core.errors import InputError
 
 MAX_POINTS = 20000  # per scan in the recording: the file stays a few MB
@@ -31,6 +32,10 @@ FRAMES = 150  # poses the recording steps through (evenly over the run's events)
 SECONDS = 10.0  # how long the recording plays
 HOLD = 1.0  # seconds the start pose is held before the scan moves
 CAMERA_AT, CAMERA_LOOK_AT = (0.7, 1.3, 2.6), (0.7, 0.0, 0.0)  # both the scans and the terrain in view
+LEGEND_AT = (-0.95, 0.75, 0.0)  # page units: the legend's first entry, above and left of the scans; the next below
+LEGEND_STEP = 0.075
+INFO_AT = (-0.95, 0.95, 0.0)  # the line that follows the run, above the legend
+RECORDED_LEGEND = ("source", "target", "ICP", "annealing (SA)", "local minimum")
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +95,27 @@ def _draw_pair(scene, run: RunToRecord):
     return frame, size
 
 
+def _legend(scene) -> None:
+    """The colours of what the recording draws, each a swatch and its name (app.figures.LEGEND)."""
+    x, y, z = LEGEND_AT
+    for k, (name, rgb) in enumerate(e for e in LEGEND if e[0] in RECORDED_LEGEND):
+        at = (x, y - k * LEGEND_STEP, z)
+        scene.add_icosphere(f"/legend/{k}/swatch", radius=0.018, color=rgb, position=at)
+        scene.add_label(f"/legend/{k}/name", name, position=(x + 0.035, at[1], z), anchor="center-left")
+
+
+def event_line(run: RunToRecord, k: int) -> str:
+    """What the recording says at its k-th event (0: the start)."""
+    n = len(run.events)
+    if k == 0:
+        return f"event 0 of {n}: the start"
+    e = run.events[k - 1]
+    u = squared_unit(run.units)
+    temp = temperature_of(e)
+    return (f"event {k} of {n} · iteration {e.iteration} · {PHASE_LABEL.get(e.phase, e.phase)} · E = {fmt(e.error)} {u}"
+            + (f" · temperature {fmt(temp)} {u}" if np.isfinite(temp) else ""))
+
+
 def _part(scene, name: str, points: np.ndarray, phase: np.ndarray) -> None:
     """Line segments through ``points`` (K, 3), each coloured by the phase of its end (``phase`` (K,): rows of
     PHASE_TABLE)."""
@@ -125,6 +151,8 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
             path = PathOnSlice(run.slice_view.problem, run.slice_view.slice, run.T_start, run.events)
             path.update()
             on_terrain = on_surface(run.slice_view.slice, path.xy)
+        _legend(scene)
+        info = scene.add_label("/info", event_line(run, 0), position=INFO_AT, anchor="center-left")
         recorder = server.get_scene_serializer()
         # recorded after the snapshot: the camera messages are then part of the file
         server.initial_camera.look_at = CAMERA_LOOK_AT if terrain is not None else (0.0, 0.0, 0.0)
@@ -135,6 +163,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
         for i, k in enumerate(steps):
             T = run.T_start if k == 0 else run.events[k - 1].T
             frame.wxyz, frame.position = run.display.node_pose(T)
+            info.text = event_line(run, int(k))
             keep = np.unique(np.r_[np.linspace(last, k, min(k - last + 1, 40)).astype(int), k])
             _part(scene, f"/path/part{i}", pos[keep], phase[keep])
             mins = np.flatnonzero(minimum[last + 1:k + 1]) + last + 1

@@ -56,10 +56,13 @@ class Run:
         self._set("step")
 
     def next_phase(self) -> None:
-        """Run to the end of the current ICP or SA leg, then pause."""
+        """Run to the end of the current ICP or SA leg, then pause; paused where a leg ended (ICP's local minimum),
+        run the next leg to its end."""
         with self._cond:
             last = self.events[-1] if self.events else None
-            self._phase_at_request = (last.phase, last.leg) if last else ("icp", 1)
+            # None: the leg is the one the next event belongs to
+            self._phase_at_request = None if last is not None and last.local_minimum else (
+                (last.phase, last.leg) if last else ("icp", 1))
             self._mode = "phase"
             self._cond.notify_all()
 
@@ -82,6 +85,8 @@ class Run:
             if self._mode == "step":
                 self._mode = "paused"
             elif self._mode == "phase":
+                if self._phase_at_request is None:
+                    self._phase_at_request = (e.phase, e.leg)
                 phase, leg = self._phase_at_request
                 # the leg ended: ICP stopped in a local minimum, or a new leg began
                 if e.local_minimum or (e.phase, e.leg) != (phase, leg):

@@ -10,7 +10,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, PHASE_TABLE, axis_label, phase_code, squared_unit
+from app.figures import (
+    MINIMUM_RGB,
+    PHASE_LABEL,
+    PHASE_NAMES,
+    PHASE_RGB,
+    PHASE_TABLE,
+    axis_label,
+    log_values,
+    phase_code,
+    squared_unit,
+)
 from core.events import Event
 from core.landscape import Slice
 from core.scan import Scan
@@ -84,7 +94,9 @@ class Trail:
     """A run's events as arrays for drawing, extended incrementally (each event is converted once).
 
     pos: (K, 3) float32 node positions on the page; sa, minimum: (K,) bool; phase: (K,) rows of
-    app.figures.PHASE_TABLE (the path's colours); iteration, error: (K,).
+    app.figures.PHASE_TABLE (the path's colours); iteration, error: (K,); temperature: (K,) annealing's
+    temperature (E's units), NaN where there is none yet (ICP, and a leg's first simplex, measured before the
+    temperature is set from it).
     """
 
     def __init__(self, display: Display, events: list[Event]):
@@ -95,6 +107,7 @@ class Trail:
         self.minimum = np.zeros(0, bool)
         self.iteration = np.zeros(0)
         self.error = np.zeros(0)
+        self.temperature = np.zeros(0)
 
     def update(self) -> int:
         """Take in the events that arrived since the last call; returns how many there are now."""
@@ -109,6 +122,7 @@ class Trail:
             self.minimum = np.r_[self.minimum, [e.local_minimum for e in new]].astype(bool)
             self.iteration = np.r_[self.iteration, [e.iteration for e in new]]
             self.error = np.r_[self.error, [e.error for e in new]]
+            self.temperature = np.r_[self.temperature, [temperature_of(e) for e in new]]
             self.n = n
         return n
 
@@ -156,34 +170,61 @@ class Trail:
         phase = np.r_[-1, self.phase[keep]]  # -1: the shared start
         return it, *(np.where((phase == c) | (phase == -1), log_err, np.nan) for c in range(len(PHASE_NAMES)))
 
+    def chart(self, E0: float, threshold: float | None) -> tuple[np.ndarray, ...]:
+        """:meth:`plot`'s series, then log10 of the threshold (a line over every iteration; NaN when not known) and
+        of annealing's temperature (NaN where there is none), all in E's units: the data of app.tab.run's chart."""
+        it, *phases = self.plot(E0)
+        keep = np.unique(np.linspace(0, self.n - 1, min(self.n, MAX_PLOT_POINTS)).astype(int)) if self.n else []
+        temp = np.r_[np.nan, self.temperature[keep]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_temp = np.where(temp > 0, np.log10(temp), np.nan)
+        line = np.full(len(it), np.log10(threshold) if threshold is not None and threshold > 0 else np.nan)
+        # every series starts at the shared start's value: a series whose first value is NaN left uPlot's scale without
+        # a range, and the whole chart blank (a lone first point draws no line: it shows nothing of its own)
+        log_temp[0] = phases[0][0]
+        if np.isnan(line[0]):
+            line[0] = phases[0][0]
+        return it, *phases, line, log_temp
+
+
+def temperature_of(e: Event) -> float:
+    """An event's annealing temperature (E's units), NaN when it has none: ICP, or the first simplex of a leg,
+    whose moves are measured before the temperature is set from their spread (core.anneal reports 0 there)."""
+    return float(e.temperature) if e.temperature is not None and e.temperature > 0 else float("nan")
+
 
 def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None, current: np.ndarray | None,
-                 title: str, units: str = ""):
-    """A Plotly contour map of log10 E with the run's path and the current pose on it.
+                 title: str, units: str = "", minima: np.ndarray | None = None):
+    """A Plotly contour map of log10 E with the run's path, the current pose and the slice's local minima on it.
 
     path_xy: (K, 2) the run's poses in the slice's axes, phases: (K,) "icp"/"sa"; current: (2,); units:
-    the scans' length unit (axis labels).
+    the scans' length unit (axis labels); minima: (M, 2) the slice's local minima (default: ``sl.minima()``).
     """
     import plotly.graph_objects as go
 
-    z = np.log10(np.maximum(sl.values, np.nanmin(sl.values[sl.values > 0]) if np.any(sl.values > 0) else 1e-300))
-    fig = go.Figure(go.Contour(x=sl.axis_a, y=sl.axis_b, z=z.T, colorscale="Viridis", ncontours=25,
+    minima = sl.minima() if minima is None else minima
+    fig = go.Figure(go.Contour(x=sl.axis_a, y=sl.axis_b, z=log_values(sl).T, colorscale="Viridis", ncontours=25,
                                colorbar=dict(title=f"log10 E ({squared_unit(units)})", thickness=12)))
+    if len(minima):
+        fig.add_trace(go.Scatter(x=minima[:, 0], y=minima[:, 1], mode="markers", name="minima of the slice",
+                                 marker=dict(symbol="circle-open", color=f"rgb{MINIMUM_RGB}", size=9, line=dict(width=2))))
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
         for phase, name in PHASE_LABEL.items():
             mask = np.array([p == phase for p in phases])
+            if not mask.any():
+                continue
             xy = np.where(mask[:, None], path_xy, np.nan)
             fig.add_trace(go.Scatter(x=xy[:, 0], y=xy[:, 1], mode="lines", name=name,
                                      line=dict(color=f"rgb{PHASE_RGB[phase]}", width=2)))
         fig.add_trace(go.Scatter(x=path_xy[:1, 0], y=path_xy[:1, 1], mode="markers", name="start",
                                  marker=dict(color="white", size=10, line=dict(color="black", width=1))))
     if current is not None:
-        fig.add_trace(go.Scatter(x=[current[0]], y=[current[1]], mode="markers", name="current",
+        fig.add_trace(go.Scatter(x=[current[0]], y=[current[1]], mode="markers", name="shown pose",
                                  marker=dict(symbol="x", color="red", size=12)))
     fig.update_layout(title=dict(text=title, font=dict(size=12)), margin=dict(l=40, r=10, t=30, b=35),
                       xaxis_title=axis_label(sl.params[0], units), yaxis_title=axis_label(sl.params[1], units),
-                      legend=dict(orientation="h", y=-0.25), height=360)
+                      legend=dict(orientation="h", y=-0.25), height=380)
     return fig
 
 

@@ -448,24 +448,3 @@ def _with_viewpoint(scan: Scan, viewpoint: np.ndarray | None) -> Scan:
     v = vector3(viewpoint, f"{scan.source}: the viewpoint")
     check_viewpoint(scan.points, v, scan.grid, scan.faces, scan.source)
     return replace(scan, viewpoint=v)
-
-
-def load_scans(paths: Sequence[str | Path]) -> list[Scan]:
-    """The scans ``paths`` name, in order: every scan of an E57 given without ``#``, one scan for any
-    other path (core.io.load_scan). Names shared by scans of different files are made distinct by
-    the file's stem (``site:Scan 0``)."""
-    from .io import load_scan
-
-    scans: list[Scan] = []
-    for p in paths:
-        file, selector = split_selection(p)
-        if file.suffix.lower() == SUFFIX and selector is None:
-            scans += read_e57_all(file)
-        else:
-            scans.append(load_scan(p))
-    names = [s.name for s in scans]
-    clash = {n for n in names if names.count(n) > 1}
-    if clash:
-        scans = [replace(s, name=f"{Path(s.source.split('#')[0]).stem}:{s.name}") if s.name in clash and "e57" in s.meta
-                 else s for s in scans]
-    return scans

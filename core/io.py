@@ -5,12 +5,17 @@ Stanford ``.conf`` poses and our JSON sidecar (viewpoint, units, ground truth)."
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from . import e57, las
+from .e57 import SUFFIX as E57_SUFFIX
+from .e57 import read_e57, read_e57_all, split_selection
 from .errors import InputError
+from .las import SUFFIXES as LAS_SUFFIXES
+from .las import read_las
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
 from .scan import RangeGrid, Scan, clean_points
 from .sidefiles import (  # noqa: F401  (callers read side files through core.io too)
@@ -29,7 +34,7 @@ from .viewpoint import check_viewpoint, estimate_viewpoint
 
 POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
 MESH_FORMATS = (".obj", ".stl", ".off")
-SCANNER_FORMATS = (e57.SUFFIX, *las.SUFFIXES)  # files that carry their own units, poses or sensor origins
+SCANNER_FORMATS = (E57_SUFFIX, *LAS_SUFFIXES)  # files that carry their own units, poses or sensor origins
 FORMATS = POINT_FORMATS + MESH_FORMATS + SCANNER_FORMATS
 
 
@@ -39,7 +44,7 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     ``path`` may pick one scan of an E57 file: ``site.e57#3`` or ``site.e57#NAME`` (core.e57).
     Raises InputError with a message naming the file for anything unreadable or degenerate.
     """
-    path, selector = e57.split_selection(path)
+    path, selector = split_selection(path)
     what = str(path)
     if not path.exists():
         raise InputError(f"{what}: no such file")
@@ -51,10 +56,10 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
                          f"use one of {', '.join(FORMATS)}")
     if path.stat().st_size == 0:
         raise InputError(f"{what}: the file is empty")
-    if suffix == e57.SUFFIX:
-        return e57.read_e57(path, selector, viewpoint, name)
-    if suffix in las.SUFFIXES:
-        return las.read_las(path, viewpoint, name)
+    if suffix == E57_SUFFIX:
+        return read_e57(path, selector, viewpoint, name)
+    if suffix in LAS_SUFFIXES:
+        return read_las(path, viewpoint, name)
     stored_vp, grid, faces = None, None, None
     try:
         if suffix == ".ply":
@@ -260,3 +265,22 @@ def save_scan(path: str | Path, scan: Scan) -> None:
     else:
         write_ply(path, scan.points, scan.faces)
     write_sidecar(path, scan)
+
+
+def load_scans(paths: Sequence[str | Path]) -> list[Scan]:
+    """The scans ``paths`` name, in order: every scan of an E57 given without ``#``, one scan for any
+    other path (:func:`load_scan`). Names shared by scans of different files are made distinct by
+    the file's stem (``site:Scan 0``)."""
+    scans: list[Scan] = []
+    for p in paths:
+        file, selector = split_selection(p)
+        if file.suffix.lower() == E57_SUFFIX and selector is None:
+            scans += read_e57_all(file)
+        else:
+            scans.append(load_scan(p))
+    names = [s.name for s in scans]
+    clash = {n for n in names if names.count(n) > 1}
+    if clash:
+        scans = [replace(s, name=f"{Path(s.source.split('#')[0]).stem}:{s.name}") if s.name in clash and "e57" in s.meta
+                 else s for s in scans]
+    return scans

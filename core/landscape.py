@@ -31,6 +31,22 @@ class Slice:
         return (f"Slice({self.params[0]} x {self.params[1]}, {len(self.axis_a)} x {len(self.axis_b)}, "
                 f"E from {np.nanmin(self.values):.4g} to {np.nanmax(self.values):.4g})")
 
+    def minima(self) -> np.ndarray:
+        """(M, 2) the grid's local minima, (axis_a, axis_b) values: inner grid points lower than their eight
+        neighbours (paper Fig. 3's "local minima contained in a larger pit"), lowest first."""
+        v = np.where(np.isfinite(self.values), self.values, np.inf)
+        if min(v.shape) < 3:
+            return np.zeros((0, 2))
+        inner = v[1:-1, 1:-1]
+        lowest = np.ones(inner.shape, bool)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                if di or dj:
+                    lowest &= inner < v[1 + di:v.shape[0] - 1 + di, 1 + dj:v.shape[1] - 1 + dj]
+        i, j = np.nonzero(lowest)
+        order = np.argsort(inner[i, j])
+        return np.c_[self.axis_a[i[order] + 1], self.axis_b[j[order] + 1]]
+
 
 def parse_params(text: str) -> tuple[str, str]:
     names = tuple(t.strip() for t in text.split(","))

@@ -1,8 +1,10 @@
-"""A simulated range scanner and the paper's test scenes (corner, wing, bowl), in millimetres.
+"""A simulated range scanner and the paper's test scenes (corner, wing, bowl), and the lesson's ribbed corner,
+in millimetres.
 
 The scanner casts a (rows x cols) grid of rays from its pose over a field of view onto a scene
 mesh (Open3D raycasting), jitters the ray directions (non-uniform spacing), adds Gaussian range
-noise and replaces a fraction of the returns with spurious points on no surface. The sensor frame
+noise (optionally quantised to a range step) and replaces a fraction of the returns with spurious points on no
+surface. The sensor frame
 is an OpenGL camera's: x right, y up, looking along -z, so its range grid follows Stanford's
 convention (see :class:`core.scan.RangeGrid`). Points are written in the sensor frame; the scan's
 ``pose`` is the true ``T_world_sensor``.
@@ -22,7 +24,8 @@ FOOT = 304.8  # mm
 
 @dataclass(frozen=True)
 class Scanner:
-    """fov_deg: (horizontal, vertical) degrees; noise: range sigma (mm); outliers: fraction of returns."""
+    """fov_deg: (horizontal, vertical) degrees; noise: range sigma (mm); outliers: fraction of returns;
+    quantum: the range step the scanner reports in (mm; 0: none)."""
 
     rows: int = 80
     cols: int = 80
@@ -30,6 +33,7 @@ class Scanner:
     noise: float = 0.8
     outliers: float = 0.03
     jitter: float = 0.35  # ray direction jitter, in cells
+    quantum: float = 0.0
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -68,6 +72,8 @@ def scan_mesh(vertices: np.ndarray, faces: np.ndarray, T_world_sensor: np.ndarra
     hit = hit.astype(np.float64)
     ok = np.isfinite(hit)
     rng_ = hit + rng.normal(0.0, scanner.noise, hit.shape)
+    if scanner.quantum > 0:
+        rng_ = np.round(rng_ / scanner.quantum) * scanner.quantum
     spurious = ok & (rng.random(hit.shape) < scanner.outliers)
     rng_[spurious] = hit[spurious] * rng.uniform(0.6, 0.95, spurious.sum())
     points = dirs[ok] * rng_[ok, None]
@@ -100,6 +106,41 @@ def corner_mesh(size: float = 4 * FOOT) -> tuple[np.ndarray, np.ndarray]:
                       [0, 4, 5], [0, 5, 1],          # y = 0
                       [0, 3, 6], [0, 6, 4]])         # x = 0
     return verts, faces
+
+
+def folded_profile(amplitude: float, pitch: tuple[float, float], length: float):
+    """h(u): a triangle wave (folds) of ``amplitude`` (mm) whose pitch grows linearly from ``pitch[0]`` at u = 0
+    to ``pitch[1]`` at u = ``length`` (its phase is the integral of 1 / pitch), so no shift lines every fold up
+    with another."""
+    p0, p1 = pitch
+    k = (p1 - p0) / length
+
+    def h(u):
+        phase = np.log((p0 + k * u) / p0) / k if k else u / p0
+        return amplitude * (2 / np.pi) * np.arcsin(np.sin(2 * np.pi * phase))
+
+    return h
+
+
+def ribbed_corner_mesh(size: float = 4 * FOOT, amplitude: float = 30.0, pitch: tuple[float, float] = (80.0, 160.0),
+                       n: int = 241) -> tuple[np.ndarray, np.ndarray]:
+    """The corner of :func:`corner_mesh` with each face folded into ribs (:func:`folded_profile` across the
+    face, along its first in-plane axis: upright ribs on the walls, ribs along y on the floor), the lesson's
+    scene: its folds give E the small minima round the truth that the plain corner lacks (README, Lesson)."""
+    h = folded_profile(amplitude, pitch, size)
+    u = np.linspace(0.0, size, n)
+    U, V = np.meshgrid(u, u, indexing="ij")
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
+    grid = np.concatenate([np.c_[a.ravel(), b.ravel(), c.ravel()], np.c_[b.ravel(), d.ravel(), c.ravel()]])
+    verts, faces = [], []
+    for axis in range(3):  # the face normal to this axis, folded along it; its two other coordinates are (U, V)
+        P = np.zeros((n * n, 3))
+        others = [k for k in range(3) if k != axis]
+        P[:, others[0]], P[:, others[1]], P[:, axis] = U.ravel(), V.ravel(), h(U).ravel()
+        verts.append(P)
+        faces.append(grid + axis * n * n)
+    return np.concatenate(verts), np.concatenate(faces)
 
 
 def wing_mesh(size: float = 3 * FOOT) -> tuple[np.ndarray, np.ndarray]:
@@ -147,6 +188,10 @@ def _specs() -> dict[str, SceneSpec]:
                           Scanner(rows=60, cols=60, fov_deg=(26, 26), noise=0.8), 5.0, 250.0 * 3 / 4, 3 * FOOT),
         "bowl": SceneSpec(bowl_mesh, ((-150, -60, 900), (150, 60, 880)), ((-60, 0, 60), (60, 0, 60)),
                           Scanner(rows=75, cols=75, fov_deg=(36, 36), noise=0.5), 5.0, 250.0 * 600 / corner, 600.0),
+        # the lesson (app/lesson.py): the corner's views, denser, of the ribbed corner (folds +-30 mm)
+        "ribbed": SceneSpec(ribbed_corner_mesh, ((1750, 1150, 1350), (1150, 1750, 1300)),
+                            ((250, 520, 420), (520, 250, 420)), Scanner(rows=120, cols=120, fov_deg=(52, 52)),
+                            5.0, 250.0, corner),
     }
 
 

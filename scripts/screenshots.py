@@ -1,7 +1,11 @@
-"""The README's pictures of the workbench, taken in headless Chromium: docs/landscape.png, docs/residuals.png,
-docs/workbench.png.
+"""The README's pictures of the workbench, taken in headless Chromium: docs/lesson.png, docs/landscape.png,
+docs/residuals.png, docs/workbench.png.
 
-    python scripts/screenshots.py [BUNNY_DIR]
+    python scripts/screenshots.py [BUNNY_DIR] [--lesson-only]
+
+The first is the Lesson tab played to its end (the paper's Fig. 7 on the ribbed corner): the workbench in this
+process on its default scene, the lesson opened at its shown start, Next clicked through every step, the
+frustums hidden and Fit view pressed, so the scans, the terrain with the run's path and the E chart are in view.
 
 Serves bun045 -> bun000 (the Stanford bunny, metres) with the workbench in this process, starts from
 60 degrees off the files' pose about the vertical, computes the tx-ry slice around that start, shows it
@@ -33,6 +37,7 @@ SLICE = ("tx", "ry", "0.04", "75", "41")  # parameters, spans (m, deg) and steps
 LOOK_AT = (1.6, -0.3, 0.0)  # page units: the terrain's box is centred at app.tab.terrain.TERRAIN_AT; a little
 # right of its centre, so that the terrain sits left of the control panel
 CAMERA_AT = (1.3, 1.05, 1.25)  # in front of the terrain, 45 degrees above it, a little to the scans' side
+LESSON_VIEW = (1.2, 1.9, 2.4)  # the lesson's picture looks from here at LOOK_AT, then Fit view frames scans and terrain
 CLOSE_NOTICE_JS = """() => {
   const el = [...document.querySelectorAll('div')].find(d => d.innerText.startsWith('Software WebGL rendering'));
   let n = el; while (n && !n.querySelector('button')) n = n.parentElement;
@@ -65,8 +70,61 @@ def scans_camera(st) -> np.ndarray:
     return 1.5 * eye / max(np.linalg.norm(eye), 1e-9) + np.array([0.0, 0.3, 0.0])
 
 
+def lesson_shot(viewport: tuple[int, int] = (1600, 1000)) -> None:
+    """docs/lesson.png: the Lesson tab played to its end."""
+    from playwright.sync_api import sync_playwright
+
+    from app.access import free_port
+    from app.workbench import ServeOptions, Workbench
+    from benchmarks.browser import launch
+
+    port = free_port()
+    wb = Workbench(ServeOptions(port=port))
+    try:
+        with sync_playwright() as p:
+            browser = launch(p)
+            page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+            page.goto(f"http://127.0.0.1:{port}")
+            page.get_by_text("Initial E =").wait_for(timeout=120_000)
+            tab = next(iter(wb.tabs.values()))
+            page.get_by_role("tab", name="Lesson", exact=True).click()
+            page.get_by_role("button", name="Open the lesson", exact=True).click()
+            wait_for(lambda: tab.lesson.story is not None and tab.landscape.terrain is not None, 300, "the lesson")
+            nxt = page.get_by_role("button", name="Next", exact=True)
+            while tab.lesson.story.step not in ("below", "gave-up") or tab.state.running:
+                wait_for(lambda: nxt.is_enabled() or not tab.state.running and tab.lesson.story.step == "below", 300,
+                         "Next")
+                if nxt.is_enabled():
+                    nxt.click()
+                    time.sleep(0.3)  # the click reaches the server
+            wait_for(lambda: "from the truth" in tab.lesson.line, 120, "the lesson's end")
+            tab.scans.h.show.frustums.value = False
+            tab.apply_visibility()
+            page.evaluate(CLOSE_NOTICE_JS)
+            camera = tab.client.camera
+            camera.position = LESSON_VIEW  # the direction Fit view keeps: above and in front of scans and terrain
+            camera.look_at = LOOK_AT
+            wait_for(lambda: np.allclose(camera.position, LESSON_VIEW, atol=1e-3), 30, "the camera")
+            page.get_by_role("button", name="Fit view", exact=True).click()
+            wait_for(lambda: not np.allclose(camera.position, LESSON_VIEW, atol=1e-3), 30, "Fit view")
+            time.sleep(3.0)  # the terrain's labels settle
+            page.mouse.move(5, 5)
+            out = ROOT / "docs" / "lesson.png"
+            page.screenshot(path=str(out))
+            print(f"wrote {out}")
+            browser.close()
+    finally:
+        for tab in list(wb.tabs.values()):
+            tab.close()
+        wb.server.stop()
+
+
 def main() -> None:
-    folder = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data" / "bunny"
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    lesson_shot()
+    if "--lesson-only" in sys.argv:
+        return
+    folder = Path(args[0]) if args else ROOT.parent / "shared" / "data" / "bunny"
     with bunny_page(folder, (1600, 1000)) as (wb, _, page):
         tab = next(iter(wb.tabs.values()))
         st = tab.state

@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from core.e57 import choose, list_scans, load_scans, read_e57, read_e57_all, split_selection
+from core.e57 import choose, list_scans, read_e57, read_e57_all, split_selection
 from core.e57_write import world_poses, write_e57
 from core.errors import InputError
-from core.io import load_scan
+from core.io import load_scan, load_scans
 from core.scan import RangeGrid, Scan
 from core.surface import Surface
 from core.transforms import apply, from_params, invert, pose_error

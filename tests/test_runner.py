@@ -79,6 +79,15 @@ def test_next_phase_from_annealing_stops_where_the_next_leg_begins():
     assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("icp", 2)]
 
 
+def test_next_phase_from_a_local_minimum_runs_the_next_leg_to_its_end():
+    # paused where ICP stopped (the lesson's "annealing roams"): one click runs all of annealing's leg
+    run = Run(scripted(), mode="phase").start()
+    settle(run, 3)
+    run.next_phase()
+    settle(run, 8)
+    assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("icp", 2)]
+
+
 def test_resume_runs_to_the_end_and_reports_the_result():
     done = []
     run = Run(scripted(), mode="step", on_done=done.append).start()

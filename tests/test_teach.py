@@ -101,8 +101,11 @@ def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
     assert len(tab.pairs.pairs) == 3
     assert angle_deg(tab.pairs.pairs.align(st.source.points, st.target.points), st.T_truth) < 2.0
     wait_for(lambda: "pair 3: source" in page.locator("body").inner_text(), what="the pair list")
+    assert sorted(m.text for m in tab.pairs.markers if hasattr(m, "text")) == ["1", "1", "2", "2", "3", "3"]
     page.get_by_role("button", name="Align from pairs", exact=True).click()
     wait_for(lambda: angle_deg(st.T_init, st.T_truth) < 2.0, what="the initial pose")
+    wait_for(lambda: "Aligned from 3 pairs" in page.locator("body").inner_text(), what="the pairs cleared")
+    assert not tab.pairs.markers and not len(tab.pairs.pairs)  # the numbered markers went with them
     units = st.target.units
     assert f"({units})" in page.locator("body").inner_text()
     page.close()

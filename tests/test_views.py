@@ -125,14 +125,15 @@ def test_slice_figure_draws_both_legs_in_the_page_colours_and_the_current_pose()
         drawn = ~np.isnan(np.asarray(traces[name].x, float))
         assert drawn.any()
     assert np.array_equal(~np.isnan(np.asarray(traces["SA"].x, float)), [False, False, True, True, False])
-    assert (traces["current"].x[0], traces["current"].y[0]) == (0.0, 0.5)
+    assert (traces["shown pose"].x[0], traces["shown pose"].y[0]) == (0.0, 0.5)
+    assert (traces["minima of the slice"].x[0], traces["minima of the slice"].y[0]) == (0.0, 0.0)  # the bowl's floor
     assert (traces["start"].x[0], traces["start"].y[0]) == (0.9, 8.0)
     assert fig.layout.xaxis.title.text.startswith("tx") and "deg" in fig.layout.yaxis.title.text
 
 
-def test_slice_figure_without_a_run_shows_the_surface_and_the_pose_only():
+def test_slice_figure_without_a_run_shows_the_surface_its_minima_and_the_pose_only():
     fig = slice_figure(a_slice(), None, None, np.array([0.0, 0.0]), "t")
-    assert [t.name for t in fig.data if t.name] == ["current"]
+    assert [t.name for t in fig.data if t.name] == ["minima of the slice", "shown pose"]
 
 
 def test_the_png_draws_each_leg_in_the_page_colour():
@@ -191,3 +192,40 @@ def test_every_phase_core_emits_has_its_own_colour_in_every_path_the_page_draws(
     for k, p in enumerate(PHASE_RGB):
         ran = np.r_[True, [q == p for q in phases]]
         assert np.array_equal(~np.isnan(series[k]), ran)
+
+
+def test_every_chart_series_starts_with_a_number_so_uplot_can_range_it(display):
+    # a series whose first value was NaN (the temperature before any annealing) left the chart blank
+    trail = Trail(display, events(["icp"] * 3 + ["sa"] * 2))
+    trail.update()
+    for threshold in (0.5, None):
+        series = trail.chart(E0=7.0, threshold=threshold)
+        assert len(series) == 1 + len(PHASE_RGB) + 2 and all(np.isfinite(s[0]) for s in series)
+    *_, line, temp = trail.chart(E0=7.0, threshold=0.5)
+    assert np.allclose(line, np.log10(0.5)) and np.isnan(temp[1:4]).all()  # ICP has no temperature
+
+
+def test_the_recording_says_the_event_iteration_phase_E_and_temperature_and_shows_the_legend(display):
+    from app.figures import LEGEND
+    from app.recording import RECORDED_LEGEND, RunToRecord, _legend, event_line
+
+    evs = events(["icp"] * 2 + ["sa"] * 2)
+    run = RunToRecord(None, None, display, (), np.eye(4), evs, units="mm")
+    assert event_line(run, 0) == "event 0 of 4: the start"
+    assert event_line(run, 2) == "event 2 of 4 · iteration 2 · ICP · E = 0.5 mm²"  # ICP: no temperature
+    assert event_line(run, 4) == "event 4 of 4 · iteration 4 · SA · E = 0.25 mm² · temperature 0.5 mm²"
+
+    class Scene:
+        def __init__(self):
+            self.labels, self.colours = [], []
+
+        def add_icosphere(self, name, radius, color, position):
+            self.colours.append(color)
+
+        def add_label(self, name, text, position, anchor):
+            self.labels.append(text)
+
+    scene = Scene()
+    _legend(scene)
+    assert scene.labels == list(RECORDED_LEGEND)
+    assert scene.colours == [rgb for name, rgb in LEGEND if name in RECORDED_LEGEND]

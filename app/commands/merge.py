@@ -51,10 +51,10 @@ class DelayedLines:
 
 def run(a) -> int:
     from app.distributed import TaskRunner
-    from core.e57 import count_scans, load_scans, split_selection
+    from core.e57 import count_scans, split_selection
     from core.e57_write import world_poses, write_e57
     from core.fuse import double_layer_fraction
-    from core.io import load_conf
+    from core.io import load_conf, load_scans
     from core.merge import PAIR_MODES, merge
     from core.ply import write_ply
     from core.transforms import invert, pose_error

@@ -46,7 +46,11 @@ class ExportPanel:
         st.require_scans()
         with st.lock:
             T, r = st.T, st.result
-            extra = {"error": float(st.problem.error(T)), "source": st.source.name, "target": st.target.name,
+            # the run's own E when its pose is the one shown (the status and the Finished line say the same), else
+            # E at the shown pose on the page's overlap cut
+            E = r.error if r is not None and r.transform is not None and np.array_equal(T, r.transform) else (
+                float(st.problem.error(T)))
+            extra = {"error": float(E), "source": st.source.name, "target": st.target.name,
                      "convention": "maps SOURCE coordinates into TARGET's frame (T_target_source)"}
             name = f"{st.source.name}_to_{st.target.name}.json"
         if r is not None:

@@ -89,8 +89,9 @@ def parse_vector(text, what: str, n: int = 3) -> tuple[float, ...]:
 
 
 def show_number(v: float) -> str:
-    """A number for a text field: exact enough to apply again unchanged to ~1e-10."""
-    return f"{float(v):.10g}"
+    """A number for a text field: exact enough to apply again unchanged to ~1e-10; round-off (|v| < 1e-12, such as
+    a rotation of -2.8e-17 degrees) is shown as 0."""
+    return "0" if abs(float(v)) < 1e-12 else f"{float(v):.10g}"
 
 
 def show_vector(v) -> str:

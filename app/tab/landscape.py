@@ -25,6 +25,7 @@ from core.landscape import Slice, compute_slice, default_span, project
 from core.problem import Problem
 from core.transforms import PARAM_NAMES
 
+COVER = 1.15  # automatic spans reach this far past the run's start, so the contour shows where it began
 MAX_FIGURE_PATH = 600  # the contour's path is thinned to this many points: its figure is sent as JSON (2000 points
 # made 168 kB) and redrawn by Plotly in the browser; a 360-pixel plot shows no more
 
@@ -111,6 +112,7 @@ class LandscapePanel:
         # race): guards the terrain and the path; taken before the state's lock, never inside it
 
     def start(self) -> None:
+        """Compute the slice typed in the panel around the shown pose (automatic spans cover the run's start)."""
         st, h = self.state, self.h
         st.require_scans()
         params = (h.param_a.value, h.param_b.value)
@@ -119,15 +121,31 @@ class LandscapePanel:
         steps = parse_setting(h.steps.value, "steps", "Steps")
         typed = [parse_number(s.value, f"span {k}", Range(0)) for s, k in ((h.span_a, "A"), (h.span_b, "B"))]
         with st.lock:
+            problem, center, start = st.problem, (st.T if not st.running else st.T_init), st.run_start
+            reach = np.abs(project(problem, center, params, [start])[0])
+            # automatic spans: the initial uncertainty, widened to take in where the run started
+            spans = tuple(float(s) or max(default_span(problem, n), COVER * float(r))
+                          for s, n, r in zip(typed, params, reach))
+        self.compute_at(center, params, spans, steps)
+
+    def compute_at(self, center, params: tuple[str, str], spans: tuple[float, float], steps: int,
+                   terrain: bool = False, problem: Problem | None = None) -> None:
+        """Compute the slice of E over ``params`` (+- ``spans``, ``steps`` per axis) around pose ``center`` (4, 4) on
+        a worker thread; the panel's fields say what was asked. ``terrain``: show it as the 3-D terrain too;
+        ``problem``: the overlap cut to evaluate E on (default: the page's, under the initial guess)."""
+        st, h = self.state, self.h
+        if not all(np.isfinite(s) and s > 0 for s in spans):
+            raise InputError(f"spans must be positive numbers, got {spans}")
+        with st.lock:
             if st.slice_busy:
                 raise InputError("a slice is already being computed")
-            problem, pair = st.problem, st.pair
-            spans = tuple(float(s) or default_span(problem, n) for s, n in zip(typed, params))
-            if not all(np.isfinite(s) and s > 0 for s in spans):
-                raise InputError(f"spans must be positive numbers, got {spans}")
-            center = st.T if not st.running else st.T_init
+            problem, pair = problem or st.problem, st.pair
             st.slice_busy, st.slice_cancel = True, threading.Event()
             cancel = st.slice_cancel
+        h.param_a.value, h.param_b.value = params
+        h.steps.value = str(steps)
+        if terrain:
+            h.terrain.value = True
         h.progress.value, h.progress.visible = 0.0, True
         h.compute.disabled, h.cancel.disabled = True, False
         threading.Thread(target=self._work, args=(problem, pair, center, params, spans, steps, cancel), daemon=True,
@@ -194,7 +212,8 @@ class LandscapePanel:
         fig = slice_figure(*args, units=units)
         if self.h.plot is None:
             with self.h.folder:
-                self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2)
+                # first in its folder, above the slice's fields: the picture is what a class looks at
+                self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2, order=self.h.param_a.order - 0.5)
         else:
             self.h.plot.figure = fig
 
@@ -231,11 +250,14 @@ class LandscapePanel:
                 self.terrain = None
             return
         path = self._path(view, events, start)  # outside atomic(): a long run's first projection takes a while
+        appears = self.terrain is None or self.terrain.view is not view
         with tab.client.atomic():
-            if self.terrain is None or self.terrain.view is not view:
+            if appears:
                 if self.terrain is not None:
                     self.terrain.remove()
                 self.terrain = Terrain(tab.client.scene, view, units, start, events, path=path)
             elif self.terrain.path is not path:
                 self.terrain.path, self.terrain.drawn = path, -1
             self.terrain.update(T)
+        if appears:
+            tab.fit_view()  # a new terrain comes into view beside the scans

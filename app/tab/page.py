@@ -2,8 +2,9 @@
 
 Everything the page does calls core: loading (core.io), the overlap (core.problem), the runs
 (core.register through app.runner), the slice (core.landscape), the model (core.fuse). The panels
-sit in viser tabs (Run, Pose, Scans, Landscape, Model, Export), one module each; the tab's state
-and its threading contract are in app/tab/state.py; the refresher pushes a run's progress.
+sit in viser tabs (Run, Lesson, Pose, Scans, Landscape, Model, Export), one module each, under the status, the
+colour legend, Fit view and the E chart; the tab's state and its threading contract are in app/tab/state.py; the
+refresher pushes a run's progress.
 """
 
 from __future__ import annotations
@@ -13,20 +14,21 @@ import logging
 import numpy as np
 import viser
 
-from app.figures import squared_unit
+from app.figures import fmt, legend_html, squared_unit
 from app.tab import scene3d
 from app.tab.export import ExportPanel
 from app.tab.landscape import LandscapePanel
+from app.tab.lesson import LessonPanel
 from app.tab.model import ModelPanel
 from app.tab.pairs import PairsPanel
 from app.tab.pose import PosePanel
 from app.tab.refresher import Refresher
 from app.tab.replay import ReplayPanel
-from app.tab.run import RunPanel
+from app.tab.run import RunPanel, build_chart, chart_axes
 from app.tab.scans import ScansPanel
 from app.tab.settings import problem_config
 from app.tab.state import TabState
-from app.views import Display, Trail
+from app.views import Display, Trail, temperature_of
 from core.errors import InputError
 from core.frustum import KINDS, frustum_of
 from core.problem import prepare, relative_guess
@@ -47,9 +49,15 @@ class Tab:
         self._trail: Trail | None = None
         self.status = self.gui.add_markdown("Loading...")
         self.e_init = self.gui.add_markdown("")
+        self.legend = self.gui.add_html(legend_html())
+        self.fit = self.gui.add_button("Fit view", hint="frame the scans (and the terrain, when shown)")
+        self.fit.on_click(lambda e: self.guarded(self.fit_view))
+        chart = build_chart(self.gui)  # above the tabs: E shows whatever tab is open
         tabs = self.gui.add_tab_group()
         with tabs.add_tab("Run"):
-            self.run_panel = RunPanel(self)
+            self.run_panel = RunPanel(self, chart)
+        with tabs.add_tab("Lesson"):
+            self.lesson = LessonPanel(self)
         with tabs.add_tab("Pose"):
             self.pose = PosePanel(self)
             self.pairs = PairsPanel(self)
@@ -110,6 +118,8 @@ class Tab:
                 self.nodes.remove()
             self.nodes = scene3d.draw_pair(self.client, st, settings.frustum, self.scans.h.show.overlap.value)
         self.nodes.gizmo.on_update(lambda e: self.guarded(self.pose.dragged))
+        self.run_panel.h.plot.axes = chart_axes(target.units)
+        self.lesson.forget()
         self.scans.show_viewpoints(source, target)
         self.pose.lock(False)
         self.pose.name_units(target.units)
@@ -146,6 +156,7 @@ class Tab:
             st.T_init = T
             st.reset_run(T)
         self.reprepare()
+        self.lesson.forget()
         scene3d.move_source(self.nodes, st, T)
         self.clear_run_views()
         self.pose.show(T)
@@ -159,6 +170,16 @@ class Tab:
         if self._trail is None or self._trail.events is not events or self._trail.display is not self.state.display:
             self._trail = Trail(self.state.display, events)
         return self._trail
+
+    def fit_view(self) -> None:
+        """Point the camera so that the scans, and the terrain when it is shown, fill the view."""
+        if self.nodes is None:
+            return
+        with self.state.lock:
+            points = scene3d.shown_extent(self.state)
+        if self.landscape.terrain is not None:
+            points = np.r_[points, self.landscape.terrain.extent()]
+        scene3d.fit_camera(self.client, points)
 
     def recolour(self) -> None:
         if self.nodes is not None:
@@ -183,7 +204,7 @@ class Tab:
     def clear_run_views(self) -> None:
         with self.client.atomic():
             scene3d.clear_path(self.nodes)
-            self.run_panel.h.plot.data = Trail(self.state.display, []).plot(self.state.E0)
+            self.run_panel.h.plot.data = Trail(self.state.display, []).chart(self.state.E0, self.state.threshold)
         if self.landscape.terrain is not None:
             self.landscape.update_terrain()
 
@@ -191,29 +212,42 @@ class Tab:
         st = self.state
         trail = self.trail()
         guess = self.run_panel.guess_line()  # reads the settings' fields: outside the state's lock
+        lock = self.run_panel.lock_text()
         with st.lock:
             n = min(trail.n, len(st.events))
             last = st.events[n - 1] if n else None
-            running, E0 = st.running, st.E0
+            running, E0, result = st.running, st.E0, st.result
             state = "running" if running and not st.run.paused else ("paused" if running else "idle")
             n_icp, n_sa, n_min = trail.counts
-            thr = f"{st.threshold:.4g}" if st.threshold is not None else "auto"
+            thr = fmt(st.threshold) if st.threshold is not None else "auto"
             units = st.target.units if st.target is not None else ""
             e_unit = squared_unit(units)
+            if result is not None and not running:  # one final E: the result's, as the Finished line and the export
+                E_line = f"E = {fmt(result.error)} {e_unit} (the result)"
+            elif last is not None:
+                E_line = f"E = {fmt(last.error)} {e_unit}"
+            else:
+                E_line = f"E = {fmt(E0)} {e_unit} (initial)"
+            temp = temperature_of(last) if last is not None else float("nan")
+            if last is not None and last.phase == "sa" and not np.isfinite(temp):
+                T_line = "Temperature: set from the first simplex's spread of E"
+            else:
+                T_line = f"Temperature {fmt(temp)} {e_unit}" if np.isfinite(temp) else "Temperature - (annealing only)"
             lines = [f"**{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}** "
                      f"({units}) · overlap {st.problem.used.sum() if st.problem else 0} points",
-                     f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**",
+                     f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**"
+                     f" · {f'locked **{lock}**' if lock else 'nothing locked'}",
                      f"Iterations: ICP {n_icp}, SA {n_sa}"
                      + (f", candidates {trail.candidates}" if trail.candidates else "") + f" · local minima {n_min}",
-                     f"E = {last.error:.6g} {e_unit}" if last else f"E = {E0:.6g} {e_unit} (initial)",
-                     f"Temperature {last.temperature:.4g}" if last is not None and last.temperature is not None
-                     else "Temperature -",
-                     f"Threshold {thr} {e_unit}",
-                     guess]
+                     E_line, T_line, f"Threshold {thr} {e_unit}", guess]
             if st.finished_text and not running:
                 lines.append(st.finished_text)
-        self.status.content = "  \n".join(lines)
-        self.e_init.content = f"Initial E = {E0:.6g} {e_unit}"
+        if self.lesson.line:
+            lines.append(f"Lesson: {self.lesson.line}")
+        content = "  \n".join(lines)
+        if self.status.content != content:
+            self.status.content = content
+        self.e_init.content = f"Initial E = {fmt(E0)} {e_unit}"
 
     def close(self) -> None:
         """The browser tab went away: its run and its slice stop."""

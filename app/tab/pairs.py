@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 
-from app.figures import SOURCE_PICK_RGB, TARGET_PICK_RGB
+from app.figures import SOURCE_PICK_RGB, TARGET_PICK_RGB, fmt
 from core.errors import InputError
 from core.horn import weighted_horn
 from core.transforms import apply
@@ -154,11 +154,17 @@ class PairsPanel:
         self.show()
 
     def align(self) -> None:
+        """Horn's pose of the pairs becomes the initial guess; the pairs, their numbers and markers are cleared."""
         st = self.state
         st.require_scans()
         T = self.pairs.align(st.source.points, st.target.points)
+        res = self.pairs.residuals(st.source.points, st.target.points, T)
+        n = len(self.pairs)
         self.tab.set_initial(T)
-        self.show()
+        self.forget()
+        units = st.target.units if st.target.units != "unknown" else "units"
+        self.h.listing.content = (f"Aligned from {n} pairs (largest residual {fmt(float(res.max()))} {units}); "
+                                  "the pairs are cleared.")
 
     def forget(self) -> None:
         """No pairs (a new pair of scans, or Clear)."""
@@ -179,7 +185,7 @@ class PairsPanel:
             except InputError:
                 pass
         res = p.residuals(st.source.points, st.target.points, T)
-        lines = [f"pair {k + 1}: source {i} → target {j}: {r:.4g} {units}"
+        lines = [f"pair {k + 1}: source {i} → target {j}: {fmt(r)} {units}"
                  for k, (i, j, r) in enumerate(zip(p.source_index, p.target_index, res))]
         if p.pending is not None:
             lines.append(f"source {p.pending} picked: now click its partner on the target")
@@ -188,12 +194,24 @@ class PairsPanel:
         self._markers()
 
     def _markers(self) -> None:
+        """The picks as points, each numbered like its pair in the list (a pending source pick: its pair's number)."""
         st, p, scene = self.state, self.pairs, self.tab.client.scene
         d = st.display
         src = p.source_index + ([p.pending] if p.pending is not None else [])
         size = 6.0 * min(st.source.spacing, st.target.spacing) / d.size
         with self.tab.client.atomic():
-            scene.add_point_cloud("/source/picks", d.source_local(st.source.points[src]).reshape(-1, 3),
-                                  SOURCE_PICK_RGB, point_size=size, precision="float32")
-            scene.add_point_cloud("/target_picks", d.points(st.target.points[p.target_index]).reshape(-1, 3),
-                                  TARGET_PICK_RGB, point_size=size, precision="float32")
+            for node in self.markers:
+                node.remove()
+            self.markers = []
+            if not src:
+                return
+            at_source = d.source_local(st.source.points[src]).reshape(-1, 3)
+            at_target = d.points(st.target.points[p.target_index]).reshape(-1, 3)
+            self.markers.append(scene.add_point_cloud("/source/picks", at_source, SOURCE_PICK_RGB, point_size=size,
+                                                      precision="float32"))
+            self.markers.append(scene.add_point_cloud("/target_picks", at_target, TARGET_PICK_RGB, point_size=size,
+                                                      precision="float32"))
+            for k, xyz in enumerate(at_source):
+                self.markers.append(scene.add_label(f"/source/pick_numbers/{k}", str(k + 1), position=tuple(xyz)))
+            for k, xyz in enumerate(at_target):
+                self.markers.append(scene.add_label(f"/target_pick_numbers/{k}", str(k + 1), position=tuple(xyz)))

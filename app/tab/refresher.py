@@ -70,6 +70,7 @@ class Refresher:
                 log.exception("applying a worker's result failed; carrying on")
         if st.source is None or tab.nodes is None:
             return
+        tab.lesson.show()
         # the light view only while the scan moves: a paused run shows every point again
         light = running and not st.run.paused
         if light != tab.run_drawing:
@@ -108,10 +109,10 @@ class Refresher:
         with st.lock:
             if n and running and st.result is None:  # once the run's result is in, its pose is the one shown
                 st.T = st.events[n - 1].T
-            T, E0 = st.T, st.E0
+            T, E0, threshold = st.T, st.E0, st.threshold
         # the arrays first, the messages then: the batch is held back from the browser only while it is assembled
         path = (trail.segments(), trail.minima()) if moved else None
-        plot = trail.plot(E0) if plot_due else None
+        plot = trail.chart(E0, threshold) if plot_due else None
         with tab.client.atomic():
             if path is not None:
                 scene3d.move_source(tab.nodes, st, T, gizmo=False)

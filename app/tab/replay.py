@@ -18,8 +18,9 @@ import time
 
 import numpy as np
 
-from app.figures import squared_unit
+from app.figures import fmt, squared_unit
 from app.tab import scene3d
+from app.views import temperature_of
 from core.errors import InputError
 from core.events import Event
 from core.trace import NO_HEADER, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
@@ -36,8 +37,8 @@ def check_trace_fits(problem, events: list[Event], threshold: float, name: str =
     here = float(problem.error(best.T))
     slack = max(float(threshold), 0.0)
     if not (best.error / TRACE_SLACK - slack <= here <= TRACE_SLACK * best.error + slack):
-        raise InputError(f"{name} does not fit these scans: at its best pose it recorded E = {best.error:.4g}, "
-                         f"these scans give E = {here:.4g}")
+        raise InputError(f"{name} does not fit these scans: at its best pose it recorded E = {fmt(best.error)}, "
+                         f"these scans give E = {fmt(here)}")
 
 
 def read_checked(text: str, name: str, source, target, problem, threshold: float) -> Trace:
@@ -134,11 +135,11 @@ class ReplayPanel:
                 " (the trace's own guess)" if self.start() is not self.state.T_init else "") + about
             return
         e = self.events[k - 1]
-        temp = f"{e.temperature:.4g}" if e.temperature is not None else "-"
+        u = squared_unit(self.state.target.units)
+        temp = f"{fmt(temperature_of(e))} {u}" if np.isfinite(temperature_of(e)) else "-"
         mark = " · **local minimum**" if e.local_minimum else ""
-        self.info.content = (f"Event {k} of {n} · phase **{e.phase.upper()}** (leg {e.leg}) · "
-                             f"E = {e.error:.6g} {squared_unit(self.state.target.units)} · temperature {temp}{mark}"
-                             + about)
+        self.info.content = (f"Event {k} of {n} · iteration {e.iteration} · phase **{e.phase.upper()}** (leg {e.leg}) · "
+                             f"E = {fmt(e.error)} {u} · temperature {temp}{mark}" + about)
 
     def start(self) -> np.ndarray:
         """Event 0's pose: the loaded trace's own guess (its header), else the page's initial guess."""

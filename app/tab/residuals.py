@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
-from app.figures import unit_label
+from app.figures import fmt, unit_label
 from core.transforms import apply
 
 BINS = 40
@@ -63,13 +63,18 @@ def histogram_figure(r: Residuals, units: str):
     counts, _ = np.histogram(np.minimum(r.distances, edges[-1]), edges)
     centre, width = 0.5 * (edges[1:] + edges[:-1]), np.diff(edges)
     fig = go.Figure()
+    # each bar's colour as an rgb() string: numbers mapped through a colour scale made Plotly's legend log an
+    # "Invalid color specifier" per bar on every draw; the colour bar is a trace of its own, with no points
+    rgb = colour_map(centre, top)
     for name, mask, opacity in ((f"inliers (d < √t): {r.inliers.sum()}", centre < r.cap, 1.0),
                                 (f"outliers (d ≥ √t): {(~r.inliers).sum()}", centre >= r.cap, 0.45)):
-        fig.add_trace(go.Bar(x=centre[mask], y=counts[mask], width=width[mask], name=name, opacity=opacity,
-                             marker=dict(color=centre[mask], colorscale="Viridis", cmin=0.0, cmax=top,
-                                         showscale=opacity == 1.0, colorbar=dict(title=f"d ({unit})", thickness=12))))
-    fig.add_vline(x=r.cap, line=dict(color="red", dash="dash"), annotation_text=f"cap √t = {r.cap:.3g} {unit}")
-    title = f"Distance to the target surface ({unit}); last bar: ≥ {edges[-1]:.3g}"
+        fig.add_trace(go.Bar(x=centre[mask].tolist(), y=counts[mask].tolist(), width=width[mask].tolist(), name=name,
+                             opacity=opacity, marker=dict(color=[f"rgb({a},{b},{c})" for a, b, c in rgb[mask]])))
+    fig.add_trace(go.Scatter(x=[None], y=[None], mode="markers", showlegend=False, hoverinfo="skip",
+                             marker=dict(colorscale="Viridis", cmin=0.0, cmax=top, color="rgba(0,0,0,0)",
+                                         showscale=True, colorbar=dict(title=f"d ({unit})", thickness=12))))
+    fig.add_vline(x=r.cap, line=dict(color="red", dash="dash"), annotation_text=f"cap √t = {fmt(r.cap, 3)} {unit}")
+    title = f"Distance to the target surface ({unit}); last bar: ≥ {fmt(edges[-1], 3)}"
     fig.update_layout(title=dict(text=title, font=dict(size=12), y=0.98),
                       xaxis_title=f"distance ({unit})", yaxis_title="source points", bargap=0.0, height=320,
                       margin=dict(l=45, r=10, t=60, b=35), showlegend=True, legend=dict(orientation="h", x=0.0, y=1.12))
@@ -110,7 +115,7 @@ class ResidualsPanel:
         self.tab.recolour()
         fig = histogram_figure(r, units)
         unit = unit_label("t", units)
-        self.summary.content = (f"Median distance {np.median(r.distances):.4g} {unit}; cap √t {r.cap:.4g} {unit}; "
+        self.summary.content = (f"Median distance {fmt(np.median(r.distances))} {unit}; cap √t {fmt(r.cap)} {unit}; "
                                 f"inliers (d < √t) {r.inliers.mean():.0%}, outliers {1 - r.inliers.mean():.0%}")
         if self.plot is None:
             with self.folder:

@@ -8,7 +8,7 @@ import numpy as np
 import viser
 import viser.uplot as uplot
 
-from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, hex_colour
+from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, fmt, hex_colour, squared_unit, tidy
 from app.options import Settings
 from app.runner import Run
 from app.tab.settings import (
@@ -51,13 +51,40 @@ def _series(label: str, phase: str, size: int) -> uplot.Series:
 
 
 # E spans decades: the chart draws log10 E (Trail.plot) on linear axes, whose ticks uPlot spaces itself (its own
-# log axis, distr 3, stacked a tick on every 1-9 of each decade and printed E below 0.01 as '0')
+# log axis, distr 3, stacked a tick on every 1-9 of each decade and printed E below 0.01 as '0'). The threshold is a
+# dashed line; annealing's temperature is in E's units, so it shares E's axis: an uphill move of about the
+# temperature is what annealing may still take
 CHART_SCALES = {"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)}
-CHART_AXES = (uplot.Axis(), uplot.Axis(size=50, space=28))
 CHART_TITLE = "log10 E against iteration"
+THRESHOLD_RGB = (200, 30, 30)
+TEMPERATURE_RGB = (110, 110, 110)
 
 
-def build(gui: viser.GuiApi) -> RunHandles:
+def chart_axes(units: str = "") -> tuple:
+    """The chart's axes, labelled in the scans' units: iteration, and log10 of E, the threshold and annealing's
+    temperature."""
+    return (uplot.Axis(label="iteration", size=34),
+            uplot.Axis(label=f"log10 E, temperature ({squared_unit(units)})", size=50, space=28))
+
+
+CHART_AXES = chart_axes()
+
+
+def build_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
+    """E against iteration, coloured by phase, with the threshold and the temperature (Trail.chart's series)."""
+    return gui.add_uplot(
+        data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES), np.ones(1), np.ones(1)),  # no first value may be NaN
+        # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
+        series=(uplot.Series(label="iteration"), *(_series(PHASE_LABEL[p], p, 5 if p == "icp" else 3)
+                                                   for p in PHASE_NAMES),
+                uplot.Series(label="threshold", stroke=hex_colour(THRESHOLD_RGB), width=1.5, dash=(6.0, 4.0),
+                             points=uplot.Series_Points(show=False)),
+                uplot.Series(label="temperature", stroke=hex_colour(TEMPERATURE_RGB), width=1.5, dash=(2.0, 3.0),
+                             points=uplot.Series_Points(show=False))),
+        scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=2.0)
+
+
+def build(gui: viser.GuiApi, plot: viser.GuiUplotHandle) -> RunHandles:
     run = {label: gui.add_button(label) for label in RUN_BUTTONS}
     step = gui.add_button("Step", hint="one ICP iteration or one annealing move, then pause")
     next_phase = gui.add_button("Next phase", hint="run to the end of this ICP or SA leg, then pause")
@@ -68,12 +95,6 @@ def build(gui: viser.GuiApi) -> RunHandles:
     lock = gui.add_text(LOCK_LABEL, "", hint="what the search may not move, e.g. rx,ry,tz (a turntable about "
                         "y: rx,rz,tx,ty,tz), rotation, translation, or turntable:px,py,pz,dx,dy,dz (an axis in the "
                         "target's frame, its units); empty: all six free")
-    plot = gui.add_uplot(
-        data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES)),
-        # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
-        series=(uplot.Series(label="iteration"), *(_series(PHASE_LABEL[p], p, 5 if p == "icp" else 3)
-                                                   for p in PHASE_NAMES)),
-        scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=1.6)
     with gui.add_folder("Settings", expand_by_default=False):
         numbers = {name: gui.add_text(f.label, f.initial, hint=f.full_hint(name)) for name, f in NUMBERS.items()}
         settings = SettingsHandles(
@@ -100,9 +121,10 @@ def page_advice(r) -> str:
 
 
 class RunPanel:
-    def __init__(self, tab):
+    def __init__(self, tab, chart: viser.GuiUplotHandle):
+        """``chart``: the E chart, built above the panel's tabs (build_chart) so that it shows whatever tab is open."""
         self.tab, self.state = tab, tab.state
-        self.h = h = build(tab.gui)
+        self.h = h = build(tab.gui, chart)
         guarded = tab.guarded
         for label, method in RUN_BUTTONS.items():
             h.run[label].on_click(lambda e, m=method: guarded(self.start, m))
@@ -139,6 +161,18 @@ class RunPanel:
             return f"Guess (Run global): {guess_text(self.settings(), st.T_init, st.source, st.target)}"
         except InputError as exc:
             return f"Guess: - ({exc})"
+
+    def use_lesson_settings(self, seed: int) -> None:
+        """The lesson's run (app/tab/lesson.py): the defaults, as ``rangereg bench --lesson`` runs, with its seed."""
+        h = self.h.settings
+        for name, field_ in NUMBERS.items():
+            h.numbers[name].value = str(seed) if name == "seed" else field_.initial
+        h.frustum.value, h.coarse_to_fine.value, h.polish.value, h.lock.value = FRUSTUM, False, False, ""
+        h.no_guess.value = False
+
+    def lock_text(self) -> str:
+        """The locked parameters as typed ("" when all six are free)."""
+        return self.h.settings.lock.value.strip()
 
     def start(self, method: str, mode: str = "run") -> None:
         st = self.state
@@ -177,8 +211,8 @@ class RunPanel:
                 return
             r = run.result
             st.T, st.threshold = r.transform, r.threshold
-            st.finished_text = (f"**Finished**: E = {r.error:.6g}; trust {'yes' if r.below_threshold else 'no'}: "
-                                f"{r.trust_text}; stopped: {r.stop_text}; {r.seconds:.2f} s{page_advice(r)}")
+            st.finished_text = (f"**Finished**: E = {fmt(r.error)}; trust {'yes' if r.below_threshold else 'no'}: "
+                                f"{tidy(r.trust_text)}; stopped: {tidy(r.stop_text)}; {r.seconds:.2f} s{page_advice(r)}")
 
         self.state.hand(apply)
 

@@ -196,7 +196,9 @@ class ScansPanel:
             self.tab.load_pair(scan, st.target)
         else:
             self.tab.load_pair(st.source, scan)
-        self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points", error=False)
+        estimated = "; no sidecar came with it, so its viewpoint is estimated (Scans: Source/Target viewpoint)" if (
+            scan.viewpoint_estimated) else ""
+        self.tab.notify("Loaded", f"{upload.name}: {len(scan.points)} points{estimated}", error=False)
 
     def offer_e57(self, scans: list[Scan]) -> None:
         """List an uploaded E57's scans in the two dropdowns (source #1, target #0) and show them."""

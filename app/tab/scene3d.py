@@ -36,6 +36,10 @@ LIGHT_SIZE_MAX = 3.0  # the subset's points are drawn sqrt(N / RUN_POINTS) times
 # (chosen by eye on screenshots of the bunny page: 2.5-3 x reads as the surface, larger as blobs; size costs nothing)
 AMBIENT = 1.0  # the ambient light's intensity, in place of the environment map's fill (set_lights; chosen by eye on
 # the terrain, the residual colours and the merged model: no face goes black)
+MARKER = 0.02  # page units (the target's size is 1): the local minima's markers, the same on every scene (a point's
+# spacing made them vanish on the bunny and blot the corner)
+VIEW_DIRECTION = (0.55, 0.45, 1.0)  # Fit view looks from here (normalised) when the camera has no direction yet
+FIT_MARGIN = 1.1  # Fit view leaves this much room round what it frames
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
 
@@ -162,7 +166,8 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     gizmo = scene.add_transform_controls("/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
                                          translation_limits=((-1e6, 1e6),) * 3)
     path = scene.add_line_segments("/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
-    minima = scene.add_point_cloud("/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=4 * size, precision="float32")
+    minima = scene.add_point_cloud("/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
+                                   point_shape="circle")
     # look from behind the target's sensor, so both scans and their frustums are in view
     eye = d.points(tgt.viewpoint).astype(np.float64)
     eye = 1.5 * eye / max(np.linalg.norm(eye), 1e-9) + np.array([0.0, 0.3, 0.0])
@@ -228,6 +233,50 @@ def draw_path(nodes: SceneNodes, segments: tuple[np.ndarray, np.ndarray], minima
     """The path's segments and colours ((S, 2, 3) each, from Trail.segments) and its minima ((M, 3), Trail.minima)."""
     nodes.path.points, nodes.path.colors = segments
     nodes.minima.points = minima
+
+
+def shown_extent(state: TabState) -> np.ndarray:
+    """(16, 3) page points: the corners of the target's box and of the source's box at the shown pose (what Fit view
+    frames; the frustums reach far beyond the scans and are left out)."""
+    d = state.display
+
+    def corners(lo, hi):
+        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+    tgt, src = state.target.points, state.source.points
+    lo_t, hi_t = np.percentile(tgt, 1, axis=0), np.percentile(tgt, 99, axis=0)  # spurious returns left out
+    lo_s, hi_s = np.percentile(src, 1, axis=0), np.percentile(src, 99, axis=0)
+    moved = corners(lo_s, hi_s) @ state.T[:3, :3].T + state.T[:3, 3]
+    return np.r_[d.points(corners(lo_t, hi_t)), d.points(moved)].astype(np.float64)
+
+
+def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:
+    """Point the camera at (K, 3) page points so that all fit the view, looking the way it looks now: the nearest
+    distance at which every point lies inside both the vertical and the horizontal field of view."""
+    cam = client.camera
+    centre = 0.5 * (points.min(0) + points.max(0))
+    try:  # the camera as the browser last reported it
+        way = np.asarray(cam.position, np.float64) - np.asarray(cam.look_at, np.float64)
+        fov, aspect = float(cam.fov), float(cam.aspect)  # fov: vertical, radians
+    except (AssertionError, ZeroDivisionError):  # nothing reported yet
+        way, fov, aspect = np.zeros(3), np.radians(50.0), 1.0
+    if not np.linalg.norm(way) > 1e-9:
+        way = np.asarray(VIEW_DIRECTION, np.float64)
+    way = way / np.linalg.norm(way)
+    up = np.array([0.0, 1.0, 0.0])
+    right = np.cross(up, way)
+    if np.linalg.norm(right) < 1e-9:  # looking straight down or up
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(way, right)
+    rel = points - centre
+    x, y, toward = np.abs(rel @ right), np.abs(rel @ up), rel @ way
+    tan_v = np.tan(fov / 2) / FIT_MARGIN
+    tan_h = tan_v * aspect
+    distance = float(np.max(toward + np.maximum(x / tan_h, y / tan_v)))
+    distance = max(distance, 1e-3)
+    cam.position = tuple(centre + distance * way)  # first: a new position moves the look-at point along with it
+    cam.look_at = tuple(centre)
 
 
 def clear_path(nodes: SceneNodes) -> None:

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from app.figures import MINIMUM_RGB, PHASE_TABLE, axis_label, phase_code
+from app.figures import MINIMUM_RGB, PHASE_TABLE, axis_label, fmt, log_values, phase_code, squared_unit
+from app.tab.scene3d import MARKER
 from app.views import phase_ends, thin
 from core.landscape import Slice, project
 
@@ -22,15 +23,15 @@ TERRAIN_AT = (1.4, -0.4, 0.0)  # page units: right of the scans (the page scales
 TERRAIN_SIZE = 1.0  # width and depth of the box; its height is HEIGHT
 HEIGHT = 0.5
 LIFT = 0.01  # the path floats this far above the surface, so the surface never hides it
+TICK_OFFSET = 0.1  # the tick values sit this far outside the box, the axis names farther: off the surface
+SLICE_MINIMUM_RGB = (255, 120, 120)  # the slice's own minima on the terrain: the minima's red, lighter
 MAX_TERRAIN_PATH = 300  # points drawn at most, plus phase ends and minima (the projection keeps every event; see
 # app/views.MAX_PATH_POINTS for what a segment costs a software-rendered page)
 
 
 def heights(sl: Slice) -> np.ndarray:
     """(A, B) heights in page units: log10 E mapped to [0, HEIGHT]."""
-    v = np.asarray(sl.values, np.float64)
-    floor = np.nanmin(v[v > 0]) if np.any(v > 0) else 1e-300
-    z = np.log10(np.maximum(v, floor))
+    z = log_values(sl)
     span = max(float(np.nanmax(z) - np.nanmin(z)), 1e-12)
     return (z - np.nanmin(z)) / span * HEIGHT
 
@@ -58,6 +59,34 @@ def surface(sl: Slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     faces = np.r_[np.c_[k, k + 1, k + nb], np.c_[k + 1, k + nb + 1, k + nb]].astype(np.int32)
     rgba = (matplotlib.colormaps["viridis"](h.ravel() / HEIGHT) * 255).astype(np.uint8)
     return vertices, faces, rgba
+
+
+def log_range(sl: Slice) -> tuple[float, float]:
+    """(lowest, highest) log10 E of the slice: the heights 0 and HEIGHT."""
+    z = log_values(sl)
+    return float(np.nanmin(z)), float(np.nanmax(z))
+
+
+def ticks(axis: np.ndarray, count: int = 5) -> np.ndarray:
+    """About ``count`` round values inside ``axis``'s range (the terrain's tick labels)."""
+    lo, hi = float(axis[0]), float(axis[-1])
+    raw = (hi - lo) / max(count - 1, 1)
+    step = 10 ** np.floor(np.log10(raw)) if raw > 0 else 1.0
+    step *= min((m for m in (1, 2, 2.5, 5, 10) if m * step >= raw), default=10)
+    return np.arange(np.ceil(lo / step) * step, hi + 1e-9 * step, step)
+
+
+def colour_bar(width: float = 0.04, rows: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(V, 3) vertices, (F, 3) faces and (V, 3) uint8 viridis colours of an upright strip HEIGHT high: the terrain's
+    colour scale (its heights are log10 E, coloured as the surface)."""
+    import matplotlib
+
+    y = np.linspace(0.0, HEIGHT, rows + 1)
+    vertices = np.c_[np.r_[np.zeros(rows + 1), np.full(rows + 1, width)], np.r_[y, y], np.zeros(2 * rows + 2)]
+    k = np.arange(rows)
+    faces = np.r_[np.c_[k, k + rows + 1, k + 1], np.c_[k + 1, k + rows + 1, k + rows + 2]].astype(np.int32)
+    rgb = (matplotlib.colormaps["viridis"](np.r_[y, y] / HEIGHT)[:, :3] * 255).astype(np.uint8)
+    return vertices.astype(np.float32), faces, rgb
 
 
 def height_lookup(sl: Slice) -> RegularGridInterpolator:
@@ -148,14 +177,47 @@ class Terrain:
         # no shadows: the page's lights cast none (app/tab/page.py), and the surface is sent once per slice
         self.surface = scene.add_mesh_trimesh("/terrain/surface", mesh, cast_shadow=False, receive_shadow=False)
         half = 0.5 * TERRAIN_SIZE
-        scene.add_label("/terrain/label_a", axis_label(sl.params[0], units), position=(0.0, 0.0, half + 0.08))
-        scene.add_label("/terrain/label_b", axis_label(sl.params[1], units), position=(half + 0.08, 0.0, 0.0))
-        scene.add_label("/terrain/label_e", "log10 E (up)", position=(-half, HEIGHT + 0.05, -half))
+        self._axes(scene, sl, units)
         self.segments = scene.add_line_segments("/terrain/path", np.zeros((0, 2, 3), np.float32), (0, 0, 0),
                                                 thickness=3.0, thickness_units="screen")
         self.minima_node = scene.add_point_cloud("/terrain/minima", np.zeros((0, 3), np.float32), MINIMUM_RGB,
-                                                 point_size=0.015, precision="float32")
+                                                 point_size=MARKER, precision="float32", point_shape="circle")
+        xy = sl.minima()
+        self.slice_minima = scene.add_point_cloud("/terrain/slice_minima", on_surface(sl, xy, self.path.lookup),
+                                                  SLICE_MINIMUM_RGB, point_size=0.5 * MARKER, precision="float32",
+                                                  point_shape="circle")
         self.current = scene.add_icosphere("/terrain/current", radius=0.02, color=(255, 255, 255))
+        self.half = half
+
+    def _axes(self, scene, sl: Slice, units: str) -> None:
+        """Tick values along two edges of the box and the axis names beyond them (off the surface), and on a
+        colour bar at its back corner the log10 E of the heights (the surface's colours)."""
+        half, out = 0.5 * TERRAIN_SIZE, TICK_OFFSET
+        for k, v in enumerate(ticks(sl.axis_a)):
+            x, _ = to_box(sl, np.array([[v, sl.axis_b[0]]]))
+            scene.add_label(f"/terrain/ticks_a/{k}", fmt(v, 3), anchor="center-center", position=(float(x[0]), 0.0, half + out))
+        for k, v in enumerate(ticks(sl.axis_b)):
+            _, z = to_box(sl, np.array([[sl.axis_a[0], v]]))
+            scene.add_label(f"/terrain/ticks_b/{k}", fmt(v, 3), anchor="center-center", position=(half + out, 0.0, float(z[0])))
+        scene.add_label("/terrain/label_a", axis_label(sl.params[0], units), position=(0.0, 0.0, half + 2.6 * out))
+        scene.add_label("/terrain/label_b", axis_label(sl.params[1], units), position=(half + 3.2 * out, 0.0, 0.0))
+        lo, hi = log_range(sl)
+        import trimesh
+
+        vertices, faces, rgb = colour_bar()
+        scene.add_mesh_trimesh("/terrain/colour_bar", trimesh.Trimesh(vertices, faces, vertex_colors=rgb, process=False),
+                               position=(-half - out, 0.0, -half), cast_shadow=False, receive_shadow=False)
+        for k, f in enumerate((0.0, 0.5, 1.0)):
+            scene.add_label(f"/terrain/ticks_e/{k}", fmt(lo + f * (hi - lo), 3), anchor="center-right",
+                            position=(-half - 2.2 * out, f * HEIGHT, -half))
+        scene.add_label("/terrain/label_e", f"log10 E ({squared_unit(units)})",
+                        position=(-half - out, HEIGHT + out, -half))
+
+    def extent(self) -> np.ndarray:
+        """(8, 3) page points: the corners of the terrain's box (Fit view frames them)."""
+        x0, y0, z0 = TERRAIN_AT
+        h = 0.5 * TERRAIN_SIZE + 3 * TICK_OFFSET
+        return np.array([[x0 + sx * h, y0 + y, z0 + sz * h] for sx in (-1, 1) for sz in (-1, 1) for y in (0, HEIGHT)])
 
     def update(self, T_shown: np.ndarray, path: bool = True) -> None:
         """Draw the shown pose, and (``path``) the events that arrived since the path was last drawn."""

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .files import BINARY_FACTOR, HEADER_LIMIT, TEXT_FACTOR, check_memory, open_regular, stat_regular
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
 from .scan import RangeGrid, Scan, clean_points
 from .sidefiles import (  # noqa: F401  (callers read side files through core.io too)
@@ -37,16 +38,14 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     """
     path = Path(path)
     what = str(path)
-    if not path.exists():
-        raise InputError(f"{what}: no such file")
-    if path.is_dir():
-        raise InputError(f"{what}: is a folder, not a scan file")
+    st = stat_regular(path, what, "a scan file")  # a FIFO, a device, a folder, a link loop: refused unread
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise InputError(f"{what}: unsupported format {suffix or '(no extension)'!r}; "
                          f"use one of {', '.join(FORMATS)}")
-    if path.stat().st_size == 0:
+    if st.st_size == 0:
         raise InputError(f"{what}: the file is empty")
+    check_memory(st.st_size, BINARY_FACTOR if suffix in (".ply", ".pcd", ".stl") else TEXT_FACTOR, what, st)
     stored_vp, grid, faces = None, None, None
     try:
         if suffix == ".ply":
@@ -105,12 +104,15 @@ def _load_ply(path: Path):
     if "vertex" not in data:
         raise InputError(f"{path}: the PLY file has no vertex element")
     v = data["vertex"]
-    if not all(k in v for k in "xyz"):
+    if not all(k in v and not isinstance(v[k], tuple) for k in "xyz"):
         raise InputError(f"{path}: the PLY vertices have no x, y, z properties")
     pts = np.c_[v["x"], v["y"], v["z"]].astype(np.float64)
+    if len(pts) == 0:
+        rest = ", ".join(f"{len(next(iter(e.values()), ()))} {n} rows" for n, e in data.items() if n != "vertex" and e)
+        raise InputError(f"{path}: the PLY file holds no vertices (element vertex 0){'; only ' + rest if rest else ''}")
     grid_idx = None
     if "range_grid" in data:
-        counts, flat = next(iter(data["range_grid"].values()))
+        counts, flat = _list_property(data["range_grid"], "range_grid", path)
         rows, cols = int(info.get("num_rows", 0)), int(info.get("num_cols", 0))
         if rows * cols != len(counts):
             raise InputError(f"{path}: range_grid has {len(counts)} cells but the header says {rows} x {cols}")
@@ -123,12 +125,21 @@ def _load_ply(path: Path):
         grid_idx = g.reshape(rows, cols)
     faces = None
     if "face" in data and data["face"]:
-        counts, flat = next(iter(data["face"].values()))
+        counts, flat = _list_property(data["face"], "face", path)
         faces = _triangulate_polygons(counts, flat)
         if faces.size and (faces.max() >= len(pts) or faces.min() < 0):
             bad = faces.max() if faces.max() >= len(pts) else faces.min()
             raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
     return pts, grid_idx, faces
+
+
+def _list_property(element: dict, name: str, path: Path):
+    """(counts, flat) of the vertex-index list of a face or range_grid element; refused when it has none."""
+    lists = {k: v for k, v in element.items() if isinstance(v, tuple)}
+    if not lists:
+        raise InputError(f"{path}: element {name} has no list property (such as "
+                         f"'property list uchar int vertex_indices'), found {', '.join(element) or 'no property'}")
+    return lists.get("vertex_indices", lists.get("vertex_index", next(iter(lists.values()))))
 
 
 def _triangulate_polygons(counts, flat) -> np.ndarray:
@@ -152,11 +163,12 @@ _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("
 
 
 def _load_pcd(path: Path):
-    raw = path.read_bytes()
+    with open_regular(path, str(path), "a scan file") as f:
+        raw = f.read()
     header, pos = {}, 0
     while True:
         nl = raw.find(b"\n", pos)
-        if nl < 0:
+        if nl < 0 or pos > HEADER_LIMIT:
             raise InputError(f"{path}: not a PCD file (no DATA line)")
         line = raw[pos:nl].decode("ascii", errors="replace").strip()
         pos = nl + 1
@@ -206,7 +218,9 @@ def _load_pcd(path: Path):
 
 def _load_text(path: Path) -> np.ndarray:
     rows = []
-    for lineno, line in enumerate(path.read_text(errors="strict").splitlines(), 1):
+    with open_regular(path, str(path), "a scan file") as f:
+        text = f.read().decode("utf-8")
+    for lineno, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if not s or s[0] in "#/%":
             continue
@@ -229,7 +243,7 @@ def _load_mesh(path: Path):
     import trimesh
 
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)
+        mesh = trimesh.load(str(path), force="mesh", process=False)  # a regular file: load_scan checked it
     except Exception as exc:  # trimesh raises many kinds on corrupt files
         raise InputError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)

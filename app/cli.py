@@ -1,23 +1,110 @@
 """The ``rangereg`` command line: the parser and the dispatch. Each command's body is in ``app.commands``.
 
 Every transform maps SOURCE coordinates into TARGET's frame (``T_target_source``). Bad input gives
-one line on stderr and exit status 2, checked before the work starts where it can be.
+one line on stderr and exit status 2, checked before the work starts where it can be. SIGINT, SIGTERM
+and SIGHUP end any command with one line and status 130, 143 or 129 (128 + the signal), after every
+``finally`` has run (temporary files removed, workers stopped). This module imports only the standard
+library at its top, so that the handlers are in place before numpy and the engine load.
 """
 
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import os
+import signal
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from app.options import KNOBS, check_value
-from core.errors import InputError
-
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal asking the command to stop, raised in the main thread so that every ``finally`` runs.
+    A KeyboardInterrupt, so that ``except Exception`` never swallows it."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+    @property
+    def status(self) -> int:
+        return 128 + self.signum
+
+    @property
+    def text(self) -> str:
+        return f"interrupted ({signal.Signals(self.signum).name})"
+
+
+class _Handlers:
+    """The signal handlers of one ``main`` call: the first signal raises :class:`Interrupted`; a second one
+    while the first is being cleaned up ends the process at once, with the same one line."""
+
+    def __init__(self, command: list):
+        self.command, self.first, self.saved = command, None, {}
+
+    def __call__(self, signum, frame):
+        if self.first is None:
+            self.first = Interrupted(signum)
+            raise self.first
+        _error(self.command[0], self.first.text)
+        os._exit(self.first.status)
+
+    def __enter__(self):
+        try:
+            for s in SIGNALS:
+                self.saved[s] = signal.signal(s, self)
+        except ValueError:  # not the main thread (an in-process caller): leave the signals alone
+            pass
+        return self
+
+    def __exit__(self, *exc):
+        for s, h in self.saved.items():
+            signal.signal(s, h)
+
+
+def _names_as_bytes(exc):
+    """Encoding error handler for stdout and stderr: a file name's undecodable bytes (carried as
+    surrogates, PEP 383) are written back as the bytes they were; any other character that the stream
+    cannot encode is written as a backslash escape."""
+    if isinstance(exc, UnicodeEncodeError):
+        bad = exc.object[exc.start:exc.end]
+        if all(0xDC80 <= ord(c) <= 0xDCFF for c in bad):
+            return bytes(ord(c) - 0xDC00 for c in bad), exc.end
+        return codecs.backslashreplace_errors(exc)
+    raise exc
+
+
+codecs.register_error("rangereg.names", _names_as_bytes)
+
+
+def _streams_ready() -> bool:
+    """Make the standard streams safe to use; False when stdout is closed (``>&-``). A closed descriptor
+    0, 1 or 2 is pointed at /dev/null, so that no file this process opens later takes its number."""
+    closed = []
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            closed.append(fd)
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None and stream is getattr(sys, f"__{'stdout' if stream is sys.stdout else 'stderr'}__"):
+            try:
+                stream.reconfigure(errors="rangereg.names")
+            except (AttributeError, ValueError):
+                pass
+    ready = 1 not in closed and sys.stdout is not None
+    if sys.stdout is None:
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - what is printed goes nowhere
+    if 2 in closed or sys.stderr is None:
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - nowhere to say anything; the status says it
+    return ready
 
 
 class _Parser(argparse.ArgumentParser):
@@ -28,6 +115,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _knob(name: str):
     """An argparse type checking ``app.options.KNOBS[name]`` (the one place each range is written)."""
+    from app.options import KNOBS, check_value
 
     def parse(text: str):
         v = check_value(KNOBS[name], text)
@@ -39,17 +127,25 @@ def _knob(name: str):
     return parse
 
 
-def _vec3(text: str) -> np.ndarray:
+def _vec3(text: str):
+    import numpy as np
+
+    from core.scan import check_coordinates
+
     try:
         v = np.array([float(t) for t in text.replace(" ", "").split(",")])
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected x,y,z numbers, got {text!r}") from None
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise argparse.ArgumentTypeError(f"expected three finite numbers x,y,z, got {text!r}")
+    problem = check_coordinates(v)
+    if problem:
+        raise argparse.ArgumentTypeError(f"{problem}, got {text!r}")
     return v
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from app.options import KNOBS
     from core.frustum import KINDS
     from core.problem import ProblemConfig
     from core.register import METHODS, Config
@@ -191,34 +287,78 @@ def _quiet_stdout() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; returns the exit status (0, 2 for bad input, 130 when interrupted)."""
+    """Run one command; returns the exit status (0; 2 for bad input; 128 + the signal when interrupted)."""
+    command: list = [None]
+    with _Handlers(command) as handlers:
+        try:
+            if not _streams_ready():
+                _error(None, "standard output is closed (>&-): the result would be lost; "
+                             "send it to a file or to /dev/null")
+                return 2
+            return _run(argv, command)
+        except BaseException as exc:
+            # A signal may surface as another exception: raised inside a C extension's import it
+            # becomes an ImportError. Once one has arrived, it is what ends the command.
+            stop = handlers.first or (Interrupted(signal.SIGINT) if isinstance(exc, KeyboardInterrupt) else None)
+            if stop is None:
+                return _failed(command[0], exc)
+            _error(command[0], stop.text)
+            if argv is None:  # the entry point: end here (see _exit_now)
+                _exit_now(stop.status)
+            return stop.status
+
+
+def _exit_now(status: int) -> None:
+    """End the process at once, after the command's own cleanup has run (its ``finally`` blocks: temporary
+    files removed, workers stopped): a signal that landed inside a library's import leaves it half made,
+    and its exit handlers then print (Open3D's memory statistics, on stdout) and change the status."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    os._exit(status)
+
+
+def _run(argv: list[str] | None, command: list) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
         return exc.code if isinstance(exc.code, int) else 2
-    try:
-        status = importlib.import_module(f"app.commands.{args.command}").run(args)
-        sys.stdout.flush()
-        return status
-    except BrokenPipeError:  # the reader went away (`| head`): nothing more to say
+    command[0] = args.command
+    status = importlib.import_module(f"app.commands.{args.command}").run(args)
+    sys.stdout.flush()
+    return status
+
+
+def _failed(command: str | None, exc: BaseException) -> int:
+    """The one line and the status for a command that raised ``exc``; anything unexpected is raised again."""
+    from core.errors import InputError
+
+    if isinstance(exc, BrokenPipeError):  # the reader went away (`| head`): nothing more to say
         _quiet_stdout()
         return 1
-    except InputError as exc:
-        _error(args.command, str(exc))
-    except OSError as exc:  # a file the core reads that the OS refuses; a full stdout (see _error)
-        _error(args.command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
-    except KeyboardInterrupt:
-        _error(None, "interrupted")
-        return 130
+    if isinstance(exc, InputError):
+        _error(command, str(exc))
+    elif isinstance(exc, OSError):  # a file the core reads that the OS refuses; a full stdout (see _error)
+        _error(command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
+    elif isinstance(exc, MemoryError):
+        _error(command, "out of memory: the input needs more memory than this machine has free")
+    else:
+        raise exc
     return 2
 
 
 def _error(command: str | None, message: str) -> None:
     try:
         sys.stdout.flush()  # the result printed before a late failure comes first
-    except OSError:
+    except (OSError, ValueError, AttributeError):
         _quiet_stdout()
-    sys.stderr.write(f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n")
+    try:
+        sys.stderr.write(f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):  # stderr gone too: the status says it
+        pass
 
 
 if __name__ == "__main__":

@@ -14,6 +14,22 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 
+# The largest coordinate (in the scan's units) a scan, a viewpoint or a span may have. At 1e12, float64
+# still resolves 2e-4 units (eps 2.2e-16 x 1e12), finer than any scanner's noise in the units we meet
+# (mm, m); differences of such points, their squares and products of three stay below 1e37, under
+# float32's 3.4e38 (Open3D's ray casting and the PLY files we write hold float32), so no step overflows.
+# A point at 1e300 squares to inf: numpy then warns and every distance is meaningless.
+MAX_COORDINATE = 1e12
+
+
+def check_coordinates(values) -> str | None:
+    """Why ``values`` (any shape) hold a number beyond :data:`MAX_COORDINATE`, or None."""
+    a = np.abs(np.asarray(values, dtype=np.float64))
+    finite = a[np.isfinite(a)]
+    if finite.size and finite.max() > MAX_COORDINATE:
+        return f"{finite.max():.3g} is beyond what the geometry can use (|coordinate| <= {MAX_COORDINATE:.0e})"
+    return None
+
 
 @dataclass(frozen=True, eq=False)
 class RangeGrid:
@@ -98,6 +114,12 @@ def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{what}: expected x y z points, got an array of shape {pts.shape}")
     keep = np.all(np.isfinite(pts), axis=1)
+    far = keep & np.any(np.abs(np.where(keep[:, None], pts, 0)) > MAX_COORDINATE, axis=1)
+    if far.any():
+        first = int(np.flatnonzero(far)[0])
+        raise InputError(f"{what}: {int(far.sum())} of {len(pts)} points lie beyond +-{MAX_COORDINATE:.0e} units "
+                         f"(point {first} is {np.round(pts[first], 6).tolist()}); coordinates that large "
+                         "leave no precision for the geometry")
     pts = pts[keep]
     dropped = int((~keep).sum())
     note = f" ({dropped} NaN/inf points dropped)" if dropped else ""

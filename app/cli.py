@@ -40,17 +40,48 @@ class Interrupted(KeyboardInterrupt):
 
 class _Handlers:
     """The signal handlers of one ``main`` call: the first signal raises :class:`Interrupted`; a second one
-    while the first is being cleaned up ends the process at once, with the same one line."""
+    while the first is being cleaned up ends the process at once, with the same one line.
 
-    def __init__(self, command: list):
-        self.command, self.first, self.saved = command, None, {}
+    ``whole_process`` (the entry point): from the first signal on, this process's stderr goes to
+    /dev/null, so that the libraries' complaints while the command unwinds (Dask's closing connections,
+    a half-imported module) do not reach the user; the one line goes to the stderr saved here."""
+
+    def __init__(self, command: list, whole_process: bool):
+        self.command, self.whole_process, self.first, self.saved = command, whole_process, None, {}
+        self.stderr_fd: int | None = None
 
     def __call__(self, signum, frame):
         if self.first is None:
             self.first = Interrupted(signum)
+            if self.whole_process:
+                self._mute_stderr()
             raise self.first
-        _error(self.command[0], self.first.text)
+        self.say(self.first.text)
         os._exit(self.first.status)
+
+    def _mute_stderr(self) -> None:
+        try:
+            self.stderr_fd = os.dup(2)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+        except OSError:
+            self.stderr_fd = None
+
+    def say(self, message: str) -> None:
+        """The interrupted command's one line, on the stderr the command started with."""
+        if self.stderr_fd is None:
+            _error(self.command[0], message)
+            return
+        try:
+            sys.stdout.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+        line = f"rangereg{' ' + self.command[0] if self.command[0] else ''}: error: {message}\n"
+        try:
+            os.write(self.stderr_fd, line.encode(errors="rangereg.names"))
+        except OSError:
+            pass
 
     def __enter__(self):
         try:
@@ -235,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--json", help="write the rows as JSON to this file")
     s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
-    s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "
+    s.add_argument("--workers", type=_knob("workers"), help="--sweep: starts at once: 1 = in this process "
                    "(default), N = a local Dask cluster of N processes")
     s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="--sweep: run the starts on an existing Dask cluster")
     s.add_argument("--bunny", default=str(Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"),
@@ -289,7 +320,7 @@ def _quiet_stdout() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns the exit status (0; 2 for bad input; 128 + the signal when interrupted)."""
     command: list = [None]
-    with _Handlers(command) as handlers:
+    with _Handlers(command, whole_process=argv is None) as handlers:
         try:
             if not _streams_ready():
                 _error(None, "standard output is closed (>&-): the result would be lost; "
@@ -302,21 +333,32 @@ def main(argv: list[str] | None = None) -> int:
             stop = handlers.first or (Interrupted(signal.SIGINT) if isinstance(exc, KeyboardInterrupt) else None)
             if stop is None:
                 return _failed(command[0], exc)
-            _error(command[0], stop.text)
+            handlers.say(stop.text)
             if argv is None:  # the entry point: end here (see _exit_now)
                 _exit_now(stop.status)
             return stop.status
 
 
 def _exit_now(status: int) -> None:
-    """End the process at once, after the command's own cleanup has run (its ``finally`` blocks: temporary
-    files removed, workers stopped): a signal that landed inside a library's import leaves it half made,
-    and its exit handlers then print (Open3D's memory statistics, on stdout) and change the status."""
+    """End the process after an interruption, once the command's own cleanup has run (its ``finally``
+    blocks: temporary files removed, workers stopped): the exit handlers run (child processes ended,
+    multiprocessing's semaphores released) but not the C++ static destructors, since a signal that landed
+    inside a library's import leaves it half made and its destructors then print (Open3D's memory
+    statistics, on stdout) and change the status."""
+    import atexit
+
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError, AttributeError):
             pass
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        atexit._run_exitfuncs()
+    except BaseException:  # noqa: BLE001 - nothing more to say; the status says it
+        pass
     os._exit(status)
 
 

@@ -210,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
         s.add_argument("--seed", type=_knob("seed"), default=0, help="seed of every random choice (default 0)")
         s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), default=pc.rotation_uncertainty_deg,
-                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180]; 180: "
+                       metavar="DEG", help="how far off the guess may be in rotation, 0.01 to 180; 180: "
                        f"no guess at all (register's default method takes it) (default {pc.rotation_uncertainty_deg:g} deg)")
         s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",
                        help="how far off the guess may be in translation (default 15 %% of the target's size)")

@@ -45,7 +45,9 @@ class Knob:
 KNOBS: dict[str, Knob] = {
     "seed": Knob("--seed", int, 0, 2**32 - 1),  # as numpy's legacy seeds; exact in every JSON and page field
     "max_points": Knob("--max-points", int, 3, 100_000),  # paper: 165-341; one E over 300 points: 0.24 ms
-    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0, 180, low_open=True),  # beyond 180: the other way
+    # beyond 180: the other way; below 0.01 deg a scan 1000 spacings wide turns by < 0.1 spacing at its edge (the
+    # noise), and the annealing simplex, scaled by it, collapses
+    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0.01, 180),
     "translation_uncertainty": Knob("--translation-uncertainty", float, 0, None, low_open=True),
     "threshold": Knob("--threshold", float, 0, None),
     "t_start": Knob("--t-start", float, 0, None, low_open=True),

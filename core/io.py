@@ -84,8 +84,8 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     vp, estimated = (stored_vp, False)
     if side.get("viewpoint") is not None:
         vp = side["viewpoint"]
-    elif vp is not None and viewpoint is None and not np.all(np.isfinite(vp)):
-        raise InputError(f"{what}: the stored VIEWPOINT {vp.tolist()} is not finite")
+    elif vp is not None and viewpoint is None:
+        vp = vector3(vp, f"{what}: the stored VIEWPOINT")
     if viewpoint is not None:
         vp, estimated = vector3(viewpoint, f"{what}: the viewpoint"), False
         check_viewpoint(points, vp, grid, faces, what)
@@ -197,9 +197,7 @@ def _load_pcd(path: Path):
         arr = np.frombuffer(raw, dtype=dt, count=n, offset=pos)
         pts = np.c_[arr["x"], arr["y"], arr["z"]].astype(np.float64)
     elif mode == "binary_compressed":
-        import open3d as o3d
-
-        pts = np.asarray(o3d.io.read_point_cloud(str(path), format="pcd").points, dtype=np.float64)
+        pts = _load_compressed_pcd(path, raw, pos, n, sum(s * c for s, c in zip(sizes, counts)))
         n = len(pts)
     else:
         raise InputError(f"{path}: unsupported PCD DATA mode {mode!r}")
@@ -216,8 +214,32 @@ def _load_pcd(path: Path):
     return pts, vp, grid_idx
 
 
+def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> np.ndarray:
+    """(n, 3) points of a PCD's LZF-compressed body at ``raw[pos:]`` (two uint32 sizes, then the data),
+    decompressed by Open3D once its sizes agree with the header; Open3D's warnings stay off the console."""
+    import open3d as o3d
+
+    if len(raw) < pos + 8:
+        raise InputError(f"{path}: the file ends before its compressed data starts")
+    packed, unpacked = (int(v) for v in np.frombuffer(raw, "<u4", 2, pos))
+    if unpacked != n * row:
+        raise InputError(f"{path}: the compressed data says it unpacks to {unpacked} bytes, but the header's "
+                         f"{n} points of {row} bytes take {n * row}")
+    if pos + 8 + packed > len(raw):
+        raise InputError(f"{path}: the file ends inside the compressed data ({packed} bytes announced, "
+                         f"{len(raw) - pos - 8} present)")
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        pts = np.asarray(o3d.io.read_point_cloud(str(path), format="pcd").points, dtype=np.float64)
+    if n and not len(pts):
+        raise InputError(f"{path}: the compressed data is corrupt (it does not decompress as LZF)")
+    return pts
+
+
 def _load_text(path: Path) -> np.ndarray:
-    rows = []
+    """(N, 3) from lines of x y z (more columns ignored). In a Leica ``.pts`` a line holding one whole
+    number is the count of the rows that follow it (a file may hold several such blocks)."""
+    rows, announced = [], []
+    pts = path.suffix.lower() == ".pts"
     with open_regular(path, str(path), "a scan file") as f:
         text = f.read().decode("utf-8")
     for lineno, line in enumerate(text.splitlines(), 1):
@@ -225,6 +247,9 @@ def _load_text(path: Path) -> np.ndarray:
         if not s or s[0] in "#/%":
             continue
         tok = re.split(r"[,;\s]+", s)
+        if pts and len(tok) == 1 and tok[0].isdigit():
+            announced.append((lineno, int(tok[0]), len(rows)))
+            continue
         try:
             vals = [float(t) for t in tok[:3]]
         except ValueError:
@@ -234,6 +259,10 @@ def _load_text(path: Path) -> np.ndarray:
         if len(vals) < 3:
             raise InputError(f"{path}: line {lineno} has {len(vals)} numbers, expected x y z")
         rows.append(vals)
+    for k, (lineno, count, first) in enumerate(announced):
+        held = (announced[k + 1][2] if k + 1 < len(announced) else len(rows)) - first
+        if held != count:
+            raise InputError(f"{path}: line {lineno} announces {count} points but {held} rows follow it")
     if not rows:
         raise InputError(f"{path}: holds no x y z lines")
     return np.asarray(rows, dtype=np.float64)

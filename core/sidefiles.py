@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 from .files import CONF_LIMIT, SIDECAR_LIMIT, TRANSFORM_LIMIT, read_bytes
-from .scan import Scan
+from .scan import Scan, check_coordinates
 
 
 def sidecar_path(path: Path) -> Path:
@@ -59,6 +59,7 @@ def check_sidecar(data: dict, what: str) -> dict:
             out[key] = check_rigid(T, f"{what}: {key!r}")
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        _near(out[key][:3, 3], f"{what}: {key!r}'s translation")
     units = data.get("units")
     if units is not None and (not isinstance(units, str) or not units.strip()):
         raise InputError(f"{what}: 'units' should be a name such as \"mm\" or \"m\", found {_short(units)}")
@@ -74,7 +75,15 @@ def vector3(value, what: str) -> np.ndarray:
         raise InputError(f"{what} should be three numbers x, y, z, found {_short(value)}")
     if not np.all(np.isfinite(v)):
         raise InputError(f"{what} {v.tolist()} is not finite")
+    _near(v, what)
     return v
+
+
+def _near(values, what: str) -> None:
+    """Refuse coordinates (a point, a translation) beyond core.scan.MAX_COORDINATE."""
+    problem = check_coordinates(values)
+    if problem:
+        raise InputError(f"{what}: {problem}")
 
 
 def _short(value) -> str:
@@ -106,6 +115,7 @@ def load_conf(path: str | Path) -> dict[str, np.ndarray]:
         T = np.eye(4)
         T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
         T[:3, 3] = (tx, ty, tz)
+        _near(T[:3, 3], f"{path}: line {lineno}'s translation")
         name = Path(tok[1]).stem
         if name in poses:
             raise InputError(f"{path}: line {lineno} gives a second pose for {name} (first on line {lines[name]}); "
@@ -190,9 +200,11 @@ def transform_from_text(text: str, what: str) -> np.ndarray:
     if values.size != 16:
         raise InputError(f"{what}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
     try:
-        return check_rigid(values.reshape(4, 4), what)
+        T = check_rigid(values.reshape(4, 4), what)
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    _near(T[:3, 3], f"{what}: its translation")
+    return T
 
 
 def write_transform(path: str | Path, T: np.ndarray, **extra) -> None:

@@ -94,7 +94,7 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     scan = Scan(points=points, viewpoint=vp, name=name or path.stem, units=units,
                 viewpoint_estimated=estimated, grid=grid, faces=faces,
                 pose=None if pose is None else np.asarray(pose, dtype=np.float64),
-                guess=side.get("guess"),
+                guess=side.get("guess"), meta={"units_stated": bool(side.get("units"))},
                 dropped=dropped, source=str(path))
     return scan
 

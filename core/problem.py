@@ -18,7 +18,7 @@ from .error import RobustError
 from .errors import InputError
 from .frustum import KINDS, Overlap
 from .noise import NORMAL_NEIGHBOURS
-from .scan import Scan
+from .scan import Scan, scale_mismatch
 from .surface import Surface
 from .transforms import apply, check_rigid, delta_between, invert, perturb
 
@@ -101,6 +101,11 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
                              f"(the noise level is measured on neighbourhoods of 2 x {NORMAL_NEIGHBOURS} points)")
         if s.flatness < 1e-3:
             raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
+    mismatch = scale_mismatch(source, target)
+    if mismatch and not (source.meta.get("units_stated") and target.meta.get("units_stated")
+                         and source.units == target.units):
+        raise InputError(f"{mismatch}; no rigid pose joins scans in different units: scale one, or state the "
+                         "same \"units\" in both sidecars if they are alike")
     surface = surface if surface is not None else Surface.from_scan(target)
     t_unc = config.translation_uncertainty_for(target.size)
     r_unc = np.radians(config.rotation_uncertainty_deg)

@@ -62,7 +62,7 @@ class Scan:
     guess: np.ndarray | None = None  # rough T_world_scan (e.g. odometry)
     dropped: int = 0  # non-finite points dropped on loading
     source: str = ""  # the file it came from
-    meta: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)  # e.g. "units_stated": the units come from the file, not a guess
 
     def __repr__(self) -> str:
         grid = "x".join(map(str, self.grid.shape)) if self.grid is not None else "no"
@@ -135,3 +135,28 @@ def flatness(points: np.ndarray) -> float:
     """Smallest over largest principal spread of (N, 3) points: ~0 for a plane."""
     s = np.linalg.svd(points[:: max(1, len(points) // 20000)] - points.mean(0), compute_uv=False)
     return float(s[2] / s[0])
+
+
+# Two scans whose sizes and point spacings both differ by this factor or more, and by the same factor
+# (within SAME_FACTOR), look like one kind of data in two units (metres and centimetres: 100; metres and
+# millimetres: 1000). A small part scanned finely inside a large scene differs in size far more than in
+# spacing, so it passes.
+UNITS_APART = 100.0
+SAME_FACTOR = 3.0
+
+
+def scale_mismatch(a: Scan, b: Scan) -> str | None:
+    """Why ``a`` and ``b`` look like the same kind of data in units about 100 x or more apart (their sizes
+    and point spacings differ by the same large factor), or None."""
+    sizes, spacings = a.size / b.size if b.size else 0.0, a.spacing / b.spacing if b.spacing else 0.0
+    if not (sizes > 0 and spacings > 0 and np.isfinite(sizes) and np.isfinite(spacings)):
+        return None
+    ls, lp = np.log10(sizes), np.log10(spacings)
+    if min(abs(ls), abs(lp)) < np.log10(UNITS_APART) or ls * lp < 0 or abs(ls - lp) > np.log10(SAME_FACTOR):
+        return None
+    small, big = (a, b) if ls < 0 else (b, a)
+    factor = float(10 ** abs((ls + lp) / 2))
+    guess = {2: " (centimetres and metres?)", 3: " (millimetres and metres?)"}.get(round(np.log10(factor)), "")
+    return (f"{small.name} looks about {factor:.0f} x smaller than {big.name} (size {small.size:.4g} vs "
+            f"{big.size:.4g}, point spacing {small.spacing:.4g} vs {big.spacing:.4g}): the same kind of scan in "
+            f"other units{guess}")

@@ -3,6 +3,7 @@ and the initial guess read (cheap checks first, so a typo never waits for a scan
 
 from __future__ import annotations
 
+import sys
 from argparse import Namespace
 
 import numpy as np
@@ -30,8 +31,12 @@ def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     """(source, target, T_init (4, 4) T_target_source): ``--init`` if given, else the scans' stored guesses."""
     from core.io import load_scan
     from core.problem import relative_guess
+    from core.scan import scale_mismatch
 
     T_init = parse_init(a.init) if a.init is not None else None
     source = load_scan(a.source, viewpoint=a.viewpoint_source)
     target = load_scan(a.target, viewpoint=a.viewpoint_target)
+    mismatch = scale_mismatch(source, target)
+    if mismatch and source.units == target.units:  # stated alike (else core.problem refuses the pair)
+        sys.stderr.write(f"warning: {mismatch}, though both sidecars say {source.units}\n")
     return source, target, T_init if T_init is not None else relative_guess(source, target)

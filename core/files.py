@@ -113,6 +113,18 @@ def stat_regular(path: str | os.PathLike, what: str, expected: str = "a regular 
     return st
 
 
+def check_folder(path: str | os.PathLike, what: str) -> os.stat_result:
+    """The ``os.stat`` of ``path`` when it is a folder; else one InputError naming what it is."""
+    path = Path(path)
+    try:
+        st = _stat(path, what)
+    except InputError as exc:
+        raise InputError(str(exc).replace("no such file", "no such folder")) from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{what}: is {'a file' if stat.S_ISREG(st.st_mode) else kind(st.st_mode)}, not a folder")
+    return st
+
+
 def check_size(size: int, limit: int, what: str, expected: str, st: os.stat_result | None = None,
                why: str = "") -> None:
     """Refuse ``size`` bytes above ``limit``; ``st`` names a sparse file as such; ``why`` says where the limit comes from."""

@@ -326,7 +326,10 @@ def main(argv: list[str] | None = None) -> int:
                 _error(None, "standard output is closed (>&-): the result would be lost; "
                              "send it to a file or to /dev/null")
                 return 2
-            return _run(argv, command)
+            status = _run(argv, command)
+            if handlers.first is not None:  # a command that ends quietly on a signal (serve) still says it
+                raise handlers.first
+            return status
         except BaseException as exc:
             # A signal may surface as another exception: raised inside a C extension's import it
             # becomes an ImportError. Once one has arrived, it is what ends the command.
@@ -396,8 +399,12 @@ def _error(command: str | None, message: str) -> None:
         sys.stdout.flush()  # the result printed before a late failure comes first
     except (OSError, ValueError, AttributeError):
         _quiet_stdout()
+    line = f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n"
     try:
-        sys.stderr.write(f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n")
+        try:
+            sys.stderr.write(line)
+        except UnicodeEncodeError:  # a stream that cannot take a file name's bytes (see _names_as_bytes)
+            sys.stderr.write(line.encode("ascii", "backslashreplace").decode("ascii"))
         sys.stderr.flush()
     except (OSError, ValueError):  # stderr gone too: the status says it
         pass

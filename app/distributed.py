@@ -250,6 +250,7 @@ def _ctrl_c_is_ours() -> Iterator[None]:
     Ctrl-C (which the terminal sends to every process of its group) reaches only this process, whose
     cleanup stops the workers in order (no traceback from each). Neither a blocked mask (the spawn clears
     it) nor ignoring SIGINT here for the start (a Ctrl-C in those seconds would be lost) would do."""
+    import multiprocessing
     import multiprocessing.spawn as spawn
     import shlex
     import tempfile
@@ -266,6 +267,12 @@ def _ctrl_c_is_ours() -> Iterator[None]:
         spawn.set_executable(shell)
         try:
             yield
+        except BaseException:  # interrupted while the cluster started: no object to close it by, so its
+            for p in multiprocessing.active_children():  # worker processes are ended here
+                p.terminate()
+            for p in multiprocessing.active_children():
+                p.join(2)
+            raise
         finally:  # the workers run by now; one restarted later starts as any process would
             spawn.set_executable(before)
 

@@ -38,14 +38,8 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     """
     path = Path(path)
     what = str(path)
-    st = stat_regular(path, what, "a scan file")  # a FIFO, a device, a folder, a link loop: refused unread
+    check_scan_file(path)
     suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise InputError(f"{what}: unsupported format {suffix or '(no extension)'!r}; "
-                         f"use one of {', '.join(FORMATS)}")
-    if st.st_size == 0:
-        raise InputError(f"{what}: the file is empty")
-    check_memory(st.st_size, BINARY_FACTOR if suffix in (".ply", ".pcd", ".stl") else TEXT_FACTOR, what, st)
     stored_vp, grid, faces = None, None, None
     try:
         if suffix == ".ply":
@@ -99,6 +93,22 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     return scan
 
 
+def check_scan_file(path: str | Path) -> None:
+    """What can be known of a scan file without reading it: a regular file (not a FIFO, a device, a folder,
+    a link loop), of a known format, not empty, and small enough for the memory free now (core.files).
+    Raises InputError naming the file."""
+    path = Path(path)
+    what = str(path)
+    st = stat_regular(path, what, "a scan file")
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise InputError(f"{what}: unsupported format {suffix or '(no extension)'!r}; "
+                         f"use one of {', '.join(FORMATS)}")
+    if st.st_size == 0:
+        raise InputError(f"{what}: the file is empty")
+    check_memory(st.st_size, BINARY_FACTOR if suffix in (".ply", ".pcd", ".stl") else TEXT_FACTOR, what, st)
+
+
 def _load_ply(path: Path):
     data, info = read_ply(path)
     if "vertex" not in data:
@@ -108,12 +118,12 @@ def _load_ply(path: Path):
         raise InputError(f"{path}: the PLY vertices have no x, y, z properties")
     pts = np.c_[v["x"], v["y"], v["z"]].astype(np.float64)
     if len(pts) == 0:
-        rest = ", ".join(f"{len(next(iter(e.values()), ()))} {n} rows" for n, e in data.items() if n != "vertex" and e)
+        rest = ", ".join(f"{_rows(e)} {n} rows" for n, e in data.items() if n != "vertex" and e)
         raise InputError(f"{path}: the PLY file holds no vertices (element vertex 0){'; only ' + rest if rest else ''}")
     grid_idx = None
     if "range_grid" in data:
         counts, flat = _list_property(data["range_grid"], "range_grid", path)
-        rows, cols = int(info.get("num_rows", 0)), int(info.get("num_cols", 0))
+        rows, cols = (_whole(info.get(k, "0"), k, path) for k in ("num_rows", "num_cols"))
         if rows * cols != len(counts):
             raise InputError(f"{path}: range_grid has {len(counts)} cells but the header says {rows} x {cols}")
         g = np.full(len(counts), -1, dtype=np.int64)
@@ -131,6 +141,18 @@ def _load_ply(path: Path):
             bad = faces.max() if faces.max() >= len(pts) else faces.min()
             raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
     return pts, grid_idx, faces
+
+
+def _whole(text: str, name: str, path: Path) -> int:
+    if not text.isdigit():
+        raise InputError(f"{path}: obj_info {name} {text!r} is not a whole number")
+    return int(text)
+
+
+def _rows(element: dict) -> int:
+    """The rows of a read PLY element (a list property is (counts, flat))."""
+    first = next(iter(element.values()))
+    return len(first[0]) if isinstance(first, tuple) else len(first)
 
 
 def _list_property(element: dict, name: str, path: Path):
@@ -186,8 +208,15 @@ def _load_pcd(path: Path):
     types = header.get("TYPE", ["F"] * len(fields))
     counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
     mode = header["DATA"][0].lower()
+    row = sum(s * c for s, c in zip(sizes, counts))
+    if mode == "binary" and pos + n * row > len(raw):
+        raise InputError(f"{path}: the header says {n} points of {row} bytes ({n * row} bytes) but "
+                         f"{len(raw) - pos} bytes follow it")
     if mode == "ascii":
         text = raw[pos:].decode("ascii").split()
+        if len(text) != n * sum(counts):
+            raise InputError(f"{path}: the header says {n} points of {sum(counts)} numbers but {len(text)} numbers "
+                             "follow it")
         arr = np.array(text, dtype=np.float64).reshape(n, sum(counts))
         offs = np.cumsum([0] + counts)
         pts = np.c_[[arr[:, offs[fields.index(a)]] for a in "xyz"]].T
@@ -197,7 +226,7 @@ def _load_pcd(path: Path):
         arr = np.frombuffer(raw, dtype=dt, count=n, offset=pos)
         pts = np.c_[arr["x"], arr["y"], arr["z"]].astype(np.float64)
     elif mode == "binary_compressed":
-        pts = _load_compressed_pcd(path, raw, pos, n, sum(s * c for s, c in zip(sizes, counts)))
+        pts = _load_compressed_pcd(path, raw, pos, n, row)
         n = len(pts)
     else:
         raise InputError(f"{path}: unsupported PCD DATA mode {mode!r}")

@@ -13,10 +13,18 @@ from core.sidefiles import names_a_file
 
 
 def inputs(a: Namespace) -> list[str]:
-    """Every file the command reads (never to be overwritten by an output)."""
+    """Every file the command reads (never to be overwritten by an output), checked as far as it can be
+    without reading a scan: the scans' kinds, formats and sizes, and ``--init`` read (once: it may be a
+    pipe) into ``a.init_transform``."""
+    from core.io import check_scan_file
+
+    for scan in (a.source, a.target):
+        check_scan_file(scan)
     files = [a.source, a.target]
-    if getattr(a, "init", None) and names_a_file(a.init):
-        files.append(a.init)
+    if getattr(a, "init", None) is not None:
+        a.init_transform = parse_init(a.init)
+        if names_a_file(a.init):
+            files.append(a.init)
     if getattr(a, "trace_in", None) is not None:
         files.append(a.trace_in)
     return files
@@ -33,7 +41,9 @@ def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     from core.problem import relative_guess
     from core.scan import scale_mismatch
 
-    T_init = parse_init(a.init) if a.init is not None else None
+    T_init = getattr(a, "init_transform", None)
+    if T_init is None and a.init is not None:
+        T_init = parse_init(a.init)
     source = load_scan(a.source, viewpoint=a.viewpoint_source)
     target = load_scan(a.target, viewpoint=a.viewpoint_target)
     mismatch = scale_mismatch(source, target)

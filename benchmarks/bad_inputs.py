@@ -48,7 +48,7 @@ class Case:
     stdout_ok: bool = False  # a late write failure prints the result first; an accepted input prints its result
     status: int = 2  # the exit status the contract asks for
     signal: int | None = None  # sent once ``when`` holds (Ctrl-C: to the process group, as a terminal does)
-    when: tuple = ("delay", 0.0)  # ("delay", s) | ("file", glob in the case's folder) | ("children", n)
+    when: tuple = ("delay", 0.0)  # ("delay", s) | ("file", glob in its folder) | ("children", n[, s after])
     pipe: bytes | None = None  # fed through an anonymous pipe named by "{pipe}" in args (as <(...) does)
     stdout_closed: bool = False  # run as `rangereg ... >&-`
     bound: float | None = None  # seconds it may take, when not the table's (an accepted input runs a registration)
@@ -434,6 +434,10 @@ CASES += [
       when=("delay", 4.0)),
     C("merge 2 workers ctrl-c", "merge src.ply tgt.ply c3.ply --workers 2 --out m.ply", "interrupted (SIGINT)",
       status=130, signal=SIGINT, when=("children", 2)),
+    C("merge 2 workers ctrl-c at work", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m.ply",
+      "interrupted (SIGINT)", status=130, signal=SIGINT, when=("children", 2, 8.0)),
+    C("merge 2 workers SIGTERM at work", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m2.ply",
+      "interrupted (SIGTERM)", status=143, signal=SIGTERM, when=("children", 2, 8.0)),
     C("serve SIGTERM", f"serve --port {_FREE_PORTS[0]}", "interrupted (SIGTERM)", status=143, stdout_ok=True,
       signal=SIGTERM, when=("delay", 6.0)),
     C("serve SIGHUP", f"serve --port {_FREE_PORTS[1]}", "interrupted (SIGHUP)", status=129, stdout_ok=True,
@@ -772,9 +776,24 @@ def _children(pid: int) -> int:
     return n
 
 
+def _group(pgid: int) -> list[int]:
+    """Live processes (not zombies: an orphan's exit status waits for a reaper) of process group ``pgid``."""
+    live = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == pgid and fields[0] != "Z":
+                live.append(int(entry))
+    return live
+
+
 def _await(case: Case, proc: subprocess.Popen, work: Path, timeout: float) -> None:
     """Wait until the case's moment to signal: a delay, a file (glob) in its folder, or worker processes."""
-    kind, arg = case.when
+    kind, arg, *after = case.when
     t0 = time.perf_counter()
     while proc.poll() is None and time.perf_counter() - t0 < timeout:
         if kind == "delay" and time.perf_counter() - t0 >= arg:
@@ -783,7 +802,7 @@ def _await(case: Case, proc: subprocess.Popen, work: Path, timeout: float) -> No
             time.sleep(0.5)  # into the work the file announces
             return
         if kind == "children" and _children(proc.pid) >= arg:
-            time.sleep(1.5)  # the cluster takes its first tasks
+            time.sleep(after[0] if after else 1.5)  # the cluster starting, or (later) at work
             return
         time.sleep(0.05)
 
@@ -830,15 +849,13 @@ def _run(case: Case, work: Path, env: dict, timeout: float) -> tuple[int | None,
         out, err = proc.communicate()
         return None, out or b"", err, time.perf_counter() - t0
     seconds = time.perf_counter() - t0
-    if case.signal is not None:  # the group's other processes (workers) must be gone too
-        try:
-            os.killpg(proc.pid, 0)
-            time.sleep(1.0)
-            os.killpg(proc.pid, 0)
+    if case.signal is not None:  # the group's other processes (workers) must be gone too, within a second
+        deadline = time.perf_counter() + 1.0
+        while _group(proc.pid) and time.perf_counter() < deadline:
+            time.sleep(0.05)
+        if _group(proc.pid):
             err += b"\n(processes of its group still running after it ended)"
             os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
     return proc.returncode, (out or b"").decode(errors="replace"), err.decode(errors="replace"), seconds
 
 

@@ -372,6 +372,8 @@ CASES += [
     C("one point at 1e300 register", "register far1.xyz tgt.ply", "1 of 1600 points lie beyond"),
     C("every point at 1e300", "info farall.xyz", "1600 of 1600 points"),
     C("a scan 1e13 away", "info far13.xyz", "lie beyond"),
+    C("a scan 1e-300 across", "info micro.xyz", "span only"),
+    C("a scan 1e-150 across register", "register micro150.xyz micro150.xyz", "span only"),
     C("ply double at 1e300", "info far_double.ply", "lie beyond"),
     C("viewpoint source 1e300", f"{R} --viewpoint-source 1e300,0,0", "beyond what the geometry can use"),
     C("viewpoint target 1e13", f"{R} --viewpoint-target 0,1e13,0", "beyond what the geometry can use"),
@@ -593,6 +595,8 @@ def write_round_two(f: Path) -> None:
     np.savetxt(f / "far1.xyz", np.r_[cap[:7], [[1e300, 0, 0]], cap[8:]])
     np.savetxt(f / "farall.xyz", cap * 1e300)
     np.savetxt(f / "far13.xyz", cap + 1e13)
+    np.savetxt(f / "micro.xyz", cap * 1e-300)
+    np.savetxt(f / "micro150.xyz", cap * 1e-150)
     ply("far_double.ply", head.format(fmt="ascii") + "element vertex 4\nproperty double x\nproperty double y\n"
         "property double z\nend_header\n0 0 0\n1 0 0\n0 1 1\n1e300 1 1\n")
     side = {"side_vp_far": {"viewpoint": [1e300, 0, 0]},

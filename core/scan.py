@@ -20,6 +20,11 @@ from .errors import InputError
 # float32's 3.4e38 (Open3D's ray casting and the PLY files we write hold float32), so no step overflows.
 # A point at 1e300 squares to inf: numpy then warns and every distance is meaningless.
 MAX_COORDINATE = 1e12
+# The smallest extent (the longest side of the bounding box, in the scan's units) a scan may have. The geometry takes
+# squares and fourth powers of distances a thousandth of the extent and less (spacings, noise floors): from
+# 1e-9 they stay above 1e-60, far from float64's smallest normal number (2.2e-308); a scan spanning 1e-150
+# squares its spacing to 0 and every error and threshold to 0. No range scan is smaller than 1e-9 of its unit.
+MIN_EXTENT = 1e-9
 
 
 def check_coordinates(values) -> str | None:
@@ -128,6 +133,10 @@ def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]
     s = np.linalg.svd(pts[:: max(1, len(pts) // 20000)] - pts.mean(0), compute_uv=False)
     if s[0] == 0 or s[1] / s[0] < 1e-6:
         raise InputError(f"{what}: all {len(pts)} points lie on a line (or one spot){note}; cannot make a surface")
+    extent = float(np.ptp(pts, axis=0).max())  # the longest side: a norm would square it to 0
+    if extent < MIN_EXTENT:
+        raise InputError(f"{what}: the points span only {extent:.3g} units, too small for the geometry (at least "
+                         f"{MIN_EXTENT:g}: its squared distances vanish); give them in a smaller unit")
     return pts, keep
 
 

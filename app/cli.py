@@ -56,6 +56,7 @@ class _Handlers:
             if self.whole_process:
                 self._mute_stderr()
             raise self.first
+        _discard_open_outputs()
         self.say(self.first.text)
         os._exit(self.first.status)
 
@@ -336,10 +337,21 @@ def main(argv: list[str] | None = None) -> int:
             stop = handlers.first or (Interrupted(signal.SIGINT) if isinstance(exc, KeyboardInterrupt) else None)
             if stop is None:
                 return _failed(command[0], exc)
+            _discard_open_outputs()
             handlers.say(stop.text)
             if argv is None:  # the entry point: end here (see _exit_now)
                 _exit_now(stop.status)
             return stop.status
+
+
+def _discard_open_outputs() -> None:
+    """Temporary files of outputs still being written (a trace) go, whatever the command was doing."""
+    outputs = sys.modules.get("app.outputs")
+    if outputs is not None:
+        try:
+            outputs.discard_open()
+        except Exception:  # noqa: BLE001 - the one line and the status still matter more
+            pass
 
 
 def _exit_now(status: int) -> None:

@@ -105,8 +105,10 @@ def _probe_writable(folder: Path, flag: str, p: Path) -> None:
     # os.access says yes to root even on a read-only mount: create (and remove) a file to know
     try:
         fd, probe = tempfile.mkstemp(prefix=".rangereg-", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
+        try:
+            os.close(fd)
+        finally:  # even when a signal lands here
+            os.unlink(probe)
     except OSError as exc:
         raise InputError(f"{flag} {p}: cannot write in {folder} ({exc.strerror or exc})") from None
 
@@ -178,6 +180,7 @@ class TraceFile:
         self.target, self.flag, self.error = Path(target), flag, None
         self._cm = atomic_path(self.target)
         self._tmp = self._cm.__enter__()
+        _OPEN.add(self)
         self._file = open(self._tmp, "w")  # noqa: SIM115 - closed in commit/discard
 
     def write(self, line: str) -> None:
@@ -194,6 +197,7 @@ class TraceFile:
                 raise self.error
             self._file.close()
             self._cm.__exit__(None, None, None)
+            _OPEN.discard(self)
         except OSError as exc:
             self.discard()
             raise InputError(f"{self.flag} {self.target}: cannot write it ({exc.strerror or exc})") from None
@@ -204,3 +208,14 @@ class TraceFile:
             self._file.close()
         with contextlib.suppress(Exception):
             self._cm.__exit__(InputError, InputError("discarded"), None)
+        _OPEN.discard(self)
+
+
+_OPEN: set[TraceFile] = set()  # traces being written: an interrupted command discards them (discard_open)
+
+
+def discard_open() -> None:
+    """Drop every trace still being written (its temporary file removed, an existing trace kept): for a
+    command interrupted between a trace's start and the block that would discard it."""
+    for trace in list(_OPEN):
+        trace.discard()

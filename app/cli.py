@@ -3,140 +3,21 @@
 Every transform maps SOURCE coordinates into TARGET's frame (``T_target_source``). Bad input gives
 one line on stderr and exit status 2, checked before the work starts where it can be. SIGINT, SIGTERM
 and SIGHUP end any command with one line and status 130, 143 or 129 (128 + the signal), after every
-``finally`` has run (temporary files removed, workers stopped). This module imports only the standard
-library at its top, so that the handlers are in place before numpy and the engine load.
+``finally`` has run (temporary files removed, workers stopped: app.process). This module imports only
+the standard library at its top, so that the handlers are in place before numpy and the engine load.
 """
 
 from __future__ import annotations
 
 import argparse
-import codecs
 import importlib
-import os
 import signal
 import sys
 from pathlib import Path
 
+from app.process import Handlers, Interrupted, discard_open_outputs, error_line, exit_now, quiet_stdout, streams_ready
+
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-class Interrupted(KeyboardInterrupt):
-    """A signal asking the command to stop, raised in the main thread so that every ``finally`` runs.
-    A KeyboardInterrupt, so that ``except Exception`` never swallows it."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-    @property
-    def status(self) -> int:
-        return 128 + self.signum
-
-    @property
-    def text(self) -> str:
-        return f"interrupted ({signal.Signals(self.signum).name})"
-
-
-class _Handlers:
-    """The signal handlers of one ``main`` call: the first signal raises :class:`Interrupted`; a second one
-    while the first is being cleaned up ends the process at once, with the same one line.
-
-    ``whole_process`` (the entry point): from the first signal on, this process's stderr goes to
-    /dev/null, so that the libraries' complaints while the command unwinds (Dask's closing connections,
-    a half-imported module) do not reach the user; the one line goes to the stderr saved here."""
-
-    def __init__(self, command: list, whole_process: bool):
-        self.command, self.whole_process, self.first, self.saved = command, whole_process, None, {}
-        self.stderr_fd: int | None = None
-
-    def __call__(self, signum, frame):
-        if self.first is None:
-            self.first = Interrupted(signum)
-            if self.whole_process:
-                self._mute_stderr()
-            raise self.first
-        _discard_open_outputs()
-        self.say(self.first.text)
-        os._exit(self.first.status)
-
-    def _mute_stderr(self) -> None:
-        try:
-            self.stderr_fd = os.dup(2)
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, 2)
-            os.close(null)
-        except OSError:
-            self.stderr_fd = None
-
-    def say(self, message: str) -> None:
-        """The interrupted command's one line, on the stderr the command started with."""
-        if self.stderr_fd is None:
-            _error(self.command[0], message)
-            return
-        try:
-            sys.stdout.flush()
-        except (OSError, ValueError, AttributeError):
-            pass
-        line = f"rangereg{' ' + self.command[0] if self.command[0] else ''}: error: {message}\n"
-        try:
-            os.write(self.stderr_fd, line.encode(errors="rangereg.names"))
-        except OSError:
-            pass
-
-    def __enter__(self):
-        try:
-            for s in SIGNALS:
-                self.saved[s] = signal.signal(s, self)
-        except ValueError:  # not the main thread (an in-process caller): leave the signals alone
-            pass
-        return self
-
-    def __exit__(self, *exc):
-        for s, h in self.saved.items():
-            signal.signal(s, h)
-
-
-def _names_as_bytes(exc):
-    """Encoding error handler for stdout and stderr: a file name's undecodable bytes (carried as
-    surrogates, PEP 383) are written back as the bytes they were; any other character that the stream
-    cannot encode is written as a backslash escape."""
-    if isinstance(exc, UnicodeEncodeError):
-        bad = exc.object[exc.start:exc.end]
-        if all(0xDC80 <= ord(c) <= 0xDCFF for c in bad):
-            return bytes(ord(c) - 0xDC00 for c in bad), exc.end
-        return codecs.backslashreplace_errors(exc)
-    raise exc
-
-
-codecs.register_error("rangereg.names", _names_as_bytes)
-
-
-def _streams_ready() -> bool:
-    """Make the standard streams safe to use; False when stdout is closed (``>&-``). A closed descriptor
-    0, 1 or 2 is pointed at /dev/null, so that no file this process opens later takes its number."""
-    closed = []
-    for fd in (0, 1, 2):
-        try:
-            os.fstat(fd)
-        except OSError:
-            closed.append(fd)
-            null = os.open(os.devnull, os.O_RDWR)
-            if null != fd:
-                os.dup2(null, fd)
-                os.close(null)
-    for stream in (sys.stdout, sys.stderr):
-        if stream is not None and stream is getattr(sys, f"__{'stdout' if stream is sys.stdout else 'stderr'}__"):
-            try:
-                stream.reconfigure(errors="rangereg.names")
-            except (AttributeError, ValueError):
-                pass
-    ready = 1 not in closed and sys.stdout is not None
-    if sys.stdout is None:
-        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - what is printed goes nowhere
-    if 2 in closed or sys.stderr is None:
-        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - nowhere to say anything; the status says it
-    return ready
 
 
 class _Parser(argparse.ArgumentParser):
@@ -309,22 +190,13 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _quiet_stdout() -> None:
-    """After a closed pipe (``| head``): point stdout at devnull so the interpreter's flush at exit is
-    silent (the recipe of Python's signal module documentation)."""
-    try:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):  # a stdout with no file behind it (in-process callers)
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns the exit status (0; 2 for bad input; 128 + the signal when interrupted)."""
     command: list = [None]
-    with _Handlers(command, whole_process=argv is None) as handlers:
+    with Handlers(command, whole_process=argv is None) as handlers:
         try:
-            if not _streams_ready():
-                _error(None, "standard output is closed (>&-): the result would be lost; "
+            if not streams_ready():
+                error_line(None, "standard output is closed (>&-): the result would be lost; "
                              "send it to a file or to /dev/null")
                 return 2
             status = _run(argv, command)
@@ -337,44 +209,11 @@ def main(argv: list[str] | None = None) -> int:
             stop = handlers.first or (Interrupted(signal.SIGINT) if isinstance(exc, KeyboardInterrupt) else None)
             if stop is None:
                 return _failed(command[0], exc)
-            _discard_open_outputs()
+            discard_open_outputs()
             handlers.say(stop.text)
-            if argv is None:  # the entry point: end here (see _exit_now)
-                _exit_now(stop.status)
+            if argv is None:  # the entry point: end here (app.process.exit_now says why)
+                exit_now(stop.status)
             return stop.status
-
-
-def _discard_open_outputs() -> None:
-    """Temporary files of outputs still being written (a trace) go, whatever the command was doing."""
-    outputs = sys.modules.get("app.outputs")
-    if outputs is not None:
-        try:
-            outputs.discard_open()
-        except Exception:  # noqa: BLE001 - the one line and the status still matter more
-            pass
-
-
-def _exit_now(status: int) -> None:
-    """End the process after an interruption, once the command's own cleanup has run (its ``finally``
-    blocks: temporary files removed, workers stopped): the exit handlers run (child processes ended,
-    multiprocessing's semaphores released) but not the C++ static destructors, since a signal that landed
-    inside a library's import leaves it half made and its destructors then print (Open3D's memory
-    statistics, on stdout) and change the status."""
-    import atexit
-
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError, AttributeError):
-            pass
-    try:
-        null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(null, 1)
-        os.dup2(null, 2)
-        atexit._run_exitfuncs()
-    except BaseException:  # noqa: BLE001 - nothing more to say; the status says it
-        pass
-    os._exit(status)
 
 
 def _run(argv: list[str] | None, command: list) -> int:
@@ -393,33 +232,17 @@ def _failed(command: str | None, exc: BaseException) -> int:
     from core.errors import InputError
 
     if isinstance(exc, BrokenPipeError):  # the reader went away (`| head`): nothing more to say
-        _quiet_stdout()
+        quiet_stdout()
         return 1
     if isinstance(exc, InputError):
-        _error(command, str(exc))
-    elif isinstance(exc, OSError):  # a file the core reads that the OS refuses; a full stdout (see _error)
-        _error(command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
+        error_line(command, str(exc))
+    elif isinstance(exc, OSError):  # a file the core reads that the OS refuses; a full stdout (error_line)
+        error_line(command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
     elif isinstance(exc, MemoryError):
-        _error(command, "out of memory: the input needs more memory than this machine has free")
+        error_line(command, "out of memory: the input needs more memory than this machine has free")
     else:
         raise exc
     return 2
-
-
-def _error(command: str | None, message: str) -> None:
-    try:
-        sys.stdout.flush()  # the result printed before a late failure comes first
-    except (OSError, ValueError, AttributeError):
-        _quiet_stdout()
-    line = f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n"
-    try:
-        try:
-            sys.stderr.write(line)
-        except UnicodeEncodeError:  # a stream that cannot take a file name's bytes (see _names_as_bytes)
-            sys.stderr.write(line.encode("ascii", "backslashreplace").decode("ascii"))
-        sys.stderr.flush()
-    except (OSError, ValueError):  # stderr gone too: the status says it
-        pass
 
 
 if __name__ == "__main__":

@@ -51,7 +51,8 @@ class Case:
     when: tuple = ("delay", 0.0)  # ("delay", s) | ("file", glob in its folder) | ("children", n[, s after])
     pipe: bytes | None = None  # fed through an anonymous pipe named by "{pipe}" in args (as <(...) does)
     stdout_closed: bool = False  # run as `rangereg ... >&-`
-    bound: float | None = None  # seconds it may take, when not the table's (an accepted input runs a registration)
+    bound: float | None = None  # seconds it may take, when not the table's: an accepted input, or a write that
+    # fails only after the work (/dev/full), runs the whole registration or slice first
 
 
 def C(name: str, cmdline: str | list[str], expect: str, stdout_ok: bool = False, **kw) -> Case:
@@ -142,8 +143,8 @@ CASES: list[Case] = [
     C("trace same as out", f"{R} --trace same.json --out same.json", "same file"),
     C("trace kept on bad seed", f"{R} --trace keep.jsonl --seed -1", "--seed"),
     C("trace kept when the run fails", [*R.split(), "--init", FAR, "--trace", "keep.jsonl"], "do not overlap"),
-    C("out /dev/full after the run", f"{R} --method icp --out /dev/full", "No space left", stdout_ok=True),
-    C("trace /dev/full after the run", f"{R} --method icp --trace /dev/full --json", "No space left", stdout_ok=True),
+    C("out /dev/full after the run", f"{R} --method icp --out /dev/full", "No space left", stdout_ok=True, bound=30.0),
+    C("trace /dev/full after the run", f"{R} --method icp --trace /dev/full --json", "No space left", stdout_ok=True, bound=30.0),
     # --- scan files
     C("scan missing", "register nope.ply tgt.ply", "no such file"),
     C("scan a folder", "register folder.ply tgt.ply", "folder"),
@@ -214,7 +215,7 @@ CASES: list[Case] = [
     C("slice png folder", f"{S} --png folder.ply", "folder"),
     C("slice png missing folder", f"{S} --png nowhere/s.png", "does not exist"),
     C("slice png kept on bad steps", f"{S} --png keep.png --steps 0", ">= 2"),
-    C("slice png /dev/full after the work", f"{S} --png /dev/full --steps 5", "No space left", stdout_ok=True),
+    C("slice png /dev/full after the work", f"{S} --png /dev/full --steps 5", "No space left", stdout_ok=True, bound=30.0),
     C("slice npz suffix", f"{S} --png s.png --npz s.png", "suffix"),
     C("slice center choice", f"{S} --png s.png --center middle", "invalid choice"),
     C("slice center end without trace", f"{S} --png s.png --center end", "--trace"),

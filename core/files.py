@@ -23,7 +23,10 @@ import os
 import select
 import stat
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import BinaryIO
 
 from .errors import InputError
 
@@ -152,32 +155,24 @@ def read_bytes(path: str | os.PathLike, what: str, limit: int, expected: str = "
     return data
 
 
-class open_regular:  # noqa: N801 - used as a function: ``with open_regular(path, what) as f``
+@contextmanager
+def open_regular(path: str | os.PathLike, what: str, expected: str = "a regular file") -> Iterator[BinaryIO]:
     """``open(path, "rb")`` of a regular file: opened without blocking and checked again on the open file."""
-
-    def __init__(self, path: str | os.PathLike, what: str, expected: str = "a regular file"):
-        self.path, self.what, self.expected = Path(path), what, expected
-
-    def __enter__(self):
-        stat_regular(self.path, self.what, self.expected)
-        try:
-            fd = _open_fd(self.path)
-        except OSError as exc:
-            _stat(self.path, self.what)  # a loop or a vanished file: say which
-            raise InputError(f"{self.what}: cannot read {self.expected} ({exc.strerror or exc})") from None
-        try:
-            st = os.fstat(fd)
-            _refuse_kind(self.path, st, self.what, self.expected)
-            os.set_blocking(fd, True)
-        except BaseException:
-            os.close(fd)
-            raise
-        self.file = os.fdopen(fd, "rb")
-        self.stat = st
-        return self.file
-
-    def __exit__(self, *exc) -> None:
-        self.file.close()
+    path = Path(path)
+    stat_regular(path, what, expected)
+    try:
+        fd = _open_fd(path)
+    except OSError as exc:
+        _stat(path, what)  # a loop or a vanished file: say which
+        raise InputError(f"{what}: cannot read {expected} ({exc.strerror or exc})") from None
+    try:
+        _refuse_kind(path, os.fstat(fd), what, expected)
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    with os.fdopen(fd, "rb") as f:
+        yield f
 
 
 def _open_fd(path: Path) -> int:

@@ -1,21 +1,21 @@
 """The ``rangereg`` command line: the parser and the dispatch. Each command's body is in ``app.commands``.
 
 Every transform maps SOURCE coordinates into TARGET's frame (``T_target_source``). Bad input gives
-one line on stderr and exit status 2, checked before the work starts where it can be.
+one line on stderr and exit status 2, checked before the work starts where it can be. SIGINT, SIGTERM
+and SIGHUP end any command with one line and status 130, 143 or 129 (128 + the signal), after every
+``finally`` has run (temporary files removed, workers stopped: app.process). This module imports only
+the standard library at its top, so that the handlers are in place before numpy and the engine load.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-import os
+import signal
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from app.options import KNOBS, check_value
-from core.errors import InputError
+from app.process import Handlers, Interrupted, discard_open_outputs, error_line, exit_now, quiet_stdout, streams_ready
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 
@@ -28,6 +28,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _knob(name: str):
     """An argparse type checking ``app.options.KNOBS[name]`` (the one place each range is written)."""
+    from app.options import KNOBS, check_value
 
     def parse(text: str):
         v = check_value(KNOBS[name], text)
@@ -39,17 +40,25 @@ def _knob(name: str):
     return parse
 
 
-def _vec3(text: str) -> np.ndarray:
+def _vec3(text: str):
+    import numpy as np
+
+    from core.scan import check_coordinates
+
     try:
         v = np.array([float(t) for t in text.replace(" ", "").split(",")])
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected x,y,z numbers, got {text!r}") from None
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise argparse.ArgumentTypeError(f"expected three finite numbers x,y,z, got {text!r}")
+    problem = check_coordinates(v)
+    if problem:
+        raise argparse.ArgumentTypeError(f"{problem}, got {text!r}")
     return v
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from app.options import KNOBS
     from core.frustum import KINDS
     from core.problem import ProblemConfig
     from core.register import METHODS, Config
@@ -84,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
         s.add_argument("--seed", type=_knob("seed"), default=0, help="seed of every random choice (default 0)")
         s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), metavar="DEG",
-                       help="how far off the guess may be in rotation, (0, 180], about the scan frame's origin (where "
+                       help="how far off the guess may be in rotation, 0.01 to 180, about the scan frame's origin (where "
                        "a 4x4 --init's rotation acts: the global method adds the move this implies at the scans' "
                        f"centroid to the translation); default {pc.rotation_uncertainty_deg:g} deg; 180: any rotation. "
                        "The global method takes no --init, no stored rough poses and neither uncertainty flag as no "
@@ -154,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "annealing and the hybrid, and the lesson's targets")
     s.add_argument("--json", help="write the rows as JSON to this file")
     s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2; lesson: all 10)")
-    s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "
+    s.add_argument("--workers", type=_knob("workers"), help="--sweep: starts at once: 1 = in this process "
                    "(default), N = a local Dask cluster of N processes")
     s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="--sweep: run the starts on an existing Dask cluster")
     s.add_argument("--bunny", default=str(Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"),
@@ -198,44 +207,59 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _quiet_stdout() -> None:
-    """After a closed pipe (``| head``): point stdout at devnull so the interpreter's flush at exit is
-    silent (the recipe of Python's signal module documentation)."""
-    try:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):  # a stdout with no file behind it (in-process callers)
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; returns the exit status (0, 2 for bad input, 130 when interrupted)."""
+    """Run one command; returns the exit status (0; 2 for bad input; 128 + the signal when interrupted)."""
+    command: list = [None]
+    with Handlers(command, whole_process=argv is None) as handlers:
+        try:
+            if not streams_ready():
+                error_line(None, "standard output is closed (>&-): the result would be lost; "
+                             "send it to a file or to /dev/null")
+                return 2
+            status = _run(argv, command)
+            if handlers.first is not None:  # a command that ends quietly on a signal (serve) still says it
+                raise handlers.first
+            return status
+        except BaseException as exc:
+            # A signal may surface as another exception: raised inside a C extension's import it
+            # becomes an ImportError. Once one has arrived, it is what ends the command.
+            stop = handlers.first or (Interrupted(signal.SIGINT) if isinstance(exc, KeyboardInterrupt) else None)
+            if stop is None:
+                return _failed(command[0], exc)
+            discard_open_outputs()
+            handlers.say(stop.text)
+            if argv is None:  # the entry point: end here (app.process.exit_now says why)
+                exit_now(stop.status)
+            return stop.status
+
+
+def _run(argv: list[str] | None, command: list) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
         return exc.code if isinstance(exc.code, int) else 2
-    try:
-        status = importlib.import_module(f"app.commands.{args.command}").run(args)
-        sys.stdout.flush()
-        return status
-    except BrokenPipeError:  # the reader went away (`| head`): nothing more to say
-        _quiet_stdout()
+    command[0] = args.command
+    status = importlib.import_module(f"app.commands.{args.command}").run(args)
+    sys.stdout.flush()
+    return status
+
+
+def _failed(command: str | None, exc: BaseException) -> int:
+    """The one line and the status for a command that raised ``exc``; anything unexpected is raised again."""
+    from core.errors import InputError
+
+    if isinstance(exc, BrokenPipeError):  # the reader went away (`| head`): nothing more to say
+        quiet_stdout()
         return 1
-    except InputError as exc:
-        _error(args.command, str(exc))
-    except OSError as exc:  # a file the core reads that the OS refuses; a full stdout (see _error)
-        _error(args.command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
-    except KeyboardInterrupt:
-        _error(None, "interrupted")
-        return 130
+    if isinstance(exc, InputError):
+        error_line(command, str(exc))
+    elif isinstance(exc, OSError):  # a file the core reads that the OS refuses; a full stdout (error_line)
+        error_line(command, f"{exc.filename}: {exc.strerror}" if exc.filename else f"{exc.strerror or exc}")
+    elif isinstance(exc, MemoryError):
+        error_line(command, "out of memory: the input needs more memory than this machine has free")
+    else:
+        raise exc
     return 2
-
-
-def _error(command: str | None, message: str) -> None:
-    try:
-        sys.stdout.flush()  # the result printed before a late failure comes first
-    except OSError:
-        _quiet_stdout()
-    sys.stderr.write(f"rangereg{' ' + command if command else ''}: error: {' '.join(message.split())}\n")
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -54,6 +55,40 @@ QUIET_CLUSTER = {
     "distributed.admin.system-monitor.interval": "2s",
     "distributed.admin.tick.interval": "200ms",
 }
+
+
+PROBE_SECONDS = 3.0  # a scheduler that accepts no connection in this time is refused (a LAN answers in ms)
+
+
+def reach_scheduler(address: str, timeout: float = PROBE_SECONDS) -> None:
+    """Raise InputError unless ``address`` (tcp://HOST:PORT) is well formed and something accepts a TCP
+    connection there within ``timeout`` seconds (Dask's own client would retry for its whole timeout)."""
+    from urllib.parse import urlsplit
+
+    shape = f"--scheduler must look like tcp://HOST:PORT, got {address!r}"
+    if not isinstance(address, str) or not address.startswith("tcp://"):
+        raise InputError(shape)
+    try:
+        parts = urlsplit(address)
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        raise InputError(shape) from None
+    if not host or port is None or port == 0 or parts.path not in ("", "/"):
+        raise InputError(shape)
+    why = None
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except socket.gaierror:
+        why = f"no host named {host}"
+    except ConnectionRefusedError:
+        why = "connection refused: nothing listens there"
+    except TimeoutError:
+        why = f"no answer within {timeout:g} s"
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+    if why is not None:
+        raise InputError(f"cannot reach the Dask scheduler at {address} ({why}); start it with "
+                         "'dask scheduler' (and workers with 'dask worker ADDRESS') or leave --scheduler out")
 
 
 def default_workers() -> int:
@@ -100,8 +135,7 @@ class TaskRunner:
                  progress: Callable[[str], None] | None = None, connect_timeout: float = 10.0,
                  threads: int | None = None):
         if scheduler is not None:
-            if not isinstance(scheduler, str) or not scheduler.startswith("tcp://") or ":" not in scheduler[6:]:
-                raise InputError(f"--scheduler must look like tcp://HOST:PORT, got {scheduler!r}")
+            reach_scheduler(scheduler)  # before any work: a run never claims a cluster it did not reach
         workers = default_workers() if workers is None else workers
         if not isinstance(workers, int) or workers < 1:
             raise InputError(f"--workers must be a whole number >= 1, got {workers!r}")
@@ -142,10 +176,10 @@ class TaskRunner:
             # the thread limits go into the environment before the worker's Python starts, so that its
             # BLAS and OpenMP read them
             env = {f"distributed.nanny.pre-spawn-environ.{k}": str(self.stream_threads) for k in _THREAD_VARS}
-            with dask.config.set({**env, **QUIET_CLUSTER}):
+            with dask.config.set({**env, **QUIET_CLUSTER}), _ctrl_c_is_ours():
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                             host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                                            silence_logs=logging.ERROR)
+                                            silence_logs=logging.CRITICAL)  # a task error comes back as its exception
             self.client = Client(self.cluster)
         # Import the engine (numpy, scipy, Open3D: 1-2 s per worker, 5-6 s under load) in every worker
         # now, at the cluster's start, so that the first map measures its tasks, not the imports.
@@ -207,6 +241,40 @@ class TaskRunner:
         finally:
             for fut in futures:
                 fut.release()
+
+
+@contextmanager
+def _ctrl_c_is_ours() -> Iterator[None]:
+    """While the local cluster starts: its worker processes are started through a two-line shell that sets
+    SIGINT to be ignored before it runs Python, which then installs no KeyboardInterrupt handler. So a
+    Ctrl-C (which the terminal sends to every process of its group) reaches only this process, whose
+    cleanup stops the workers in order (no traceback from each). Neither a blocked mask (the spawn clears
+    it) nor ignoring SIGINT here for the start (a Ctrl-C in those seconds would be lost) would do."""
+    import multiprocessing
+    import multiprocessing.spawn as spawn
+    import shlex
+    import tempfile
+
+    before = spawn.get_executable()
+    if os.name != "posix" or not os.path.exists("/bin/sh"):
+        yield
+        return
+    with tempfile.TemporaryDirectory(prefix="rangereg-workers-") as tmp:
+        shell = os.path.join(tmp, "python")
+        with open(shell, "w") as f:
+            f.write(f"#!/bin/sh\ntrap '' INT\nexec {shlex.quote(os.fsdecode(before))} \"$@\"\n")
+        os.chmod(shell, 0o755)
+        spawn.set_executable(shell)
+        try:
+            yield
+        except BaseException:  # interrupted while the cluster started: no object to close it by, so its
+            for p in multiprocessing.active_children():  # worker processes are ended here
+                p.terminate()
+            for p in multiprocessing.active_children():
+                p.join(2)
+            raise
+        finally:  # the workers run by now; one restarted later starts as any process would
+            spawn.set_executable(before)
 
 
 @contextmanager

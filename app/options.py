@@ -45,7 +45,9 @@ class Knob:
 KNOBS: dict[str, Knob] = {
     "seed": Knob("--seed", int, 0, 2**32 - 1),  # as numpy's legacy seeds; exact in every JSON and page field
     "max_points": Knob("--max-points", int, 3, 100_000),  # paper: 165-341; one E over 300 points: 0.24 ms
-    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0, 180, low_open=True),  # beyond 180: the other way
+    # beyond 180: the other way; below 0.01 deg a scan 1000 spacings wide turns by < 0.1 spacing at its edge (the
+    # noise), and the annealing simplex, scaled by it, collapses
+    "rotation_uncertainty": Knob("--rotation-uncertainty", float, 0.01, 180),
     "translation_uncertainty": Knob("--translation-uncertainty", float, 0, None, low_open=True),
     "threshold": Knob("--threshold", float, 0, None),
     "t_start": Knob("--t-start", float, 0, None, low_open=True),
@@ -228,21 +230,16 @@ def parse_lock(value, label: str = "--lock"):
         raise InputError(f"{label}: {exc}") from None
 
 
-def read_text_file(path: str | Path, what: str, limit: int = 1 << 30) -> str:
-    """The text of a small side file (``--init``, ``.conf``, a trace), every failure as InputError."""
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{what} {p}: no such file")
-    if p.is_dir():
-        raise InputError(f"{what} {p}: is a folder, not a file")
+def read_text_file(path: str | Path, what: str, limit: int | None = None, pipe: bool = False) -> str:
+    """The UTF-8 text of a side file (``--init``, ``.conf``, a trace) given by flag ``what``: a regular file
+    of at most ``limit`` bytes (or, with ``pipe``, a pipe read once: core.files), every failure as InputError."""
+    from core.files import TRACE_LIMIT, read_bytes
+
+    data = read_bytes(path, f"{what} {path}", TRACE_LIMIT if limit is None else limit, "a text file", pipe)
     try:
-        if p.is_file() and p.stat().st_size > limit:
-            raise InputError(f"{what} {p}: too large ({p.stat().st_size} bytes) for this kind of file")
-        return p.read_bytes().decode("utf-8")
+        return data.decode("utf-8")
     except UnicodeDecodeError:
-        raise InputError(f"{what} {p}: not a text file") from None
-    except OSError as exc:
-        raise InputError(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
+        raise InputError(f"{what} {path}: not a text file") from None
 
 
 _SEPARATORS = re.compile(r"[,;\s\[\]]+")
@@ -250,25 +247,26 @@ _SEPARATORS = re.compile(r"[,;\s\[\]]+")
 
 def parse_init(text: str) -> np.ndarray:
     """``--init``: 16 numbers (row-major T_target_source, spaces or commas) given inline, or a file
-    holding them (or JSON with ``transform``). Returns a checked rigid (4, 4) float64 matrix
-    (core.io.parse_transform; here only the flag's name and a folder/binary-file check are added)."""
-    from core.io import parse_transform
+    holding them (or JSON with ``transform``), read once: a pipe (``--init <(...)``) is read as it comes
+    (core.files). Returns a checked rigid (4, 4) float64 matrix."""
+    from core.files import TRANSFORM_LIMIT
+    from core.sidefiles import names_a_file, parse_transform, transform_from_text
 
     if text is None or not str(text).strip():
         raise InputError("--init: expected 16 numbers or a file, got nothing")
-    from core.sidefiles import names_a_file
-
     p = Path(text)
-    if names_a_file(text):
-        read_text_file(p, "--init")  # a folder, an unreadable or binary file: one clear line
-    elif len([t for t in _SEPARATORS.split(str(text).strip()) if t]) < 2:
+    if names_a_file(text) or p.is_symlink():  # a file, a pipe, a link (even a broken or looping one)
+        content = read_text_file(p, "--init", TRANSFORM_LIMIT, pipe=True)
+        try:
+            return transform_from_text(content.strip(), str(p))
+        except InputError as exc:
+            raise InputError(f"--init: {exc}") from None
+    if len([t for t in _SEPARATORS.split(str(text).strip()) if t]) < 2:
         raise InputError(f"--init {text}: no such file (and not 16 numbers)")
     try:
         return parse_transform(str(text))
     except InputError as exc:
         raise InputError(f"--init: {exc}") from None
-    except OSError as exc:
-        raise InputError(f"--init {p}: cannot read it ({exc.strerror or exc})") from None
 
 
 def parse_numbers(text: str, flag: str, count: int, positive: bool = True) -> tuple[float, ...]:

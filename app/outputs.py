@@ -35,7 +35,10 @@ def _same(a: Path, b: Path) -> bool:
             return os.path.samefile(a, b)
     except OSError:
         pass
-    return a.resolve() == b.resolve()
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):  # a link loop (its reader says so): not the same as anything
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def check_output(text: str | os.PathLike | None, flag: str, suffixes: tuple[str, ...] = (),
@@ -103,8 +106,10 @@ def _probe_writable(folder: Path, flag: str, p: Path) -> None:
     # os.access says yes to root even on a read-only mount: create (and remove) a file to know
     try:
         fd, probe = tempfile.mkstemp(prefix=".rangereg-", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
+        try:
+            os.close(fd)
+        finally:  # even when a signal lands here
+            os.unlink(probe)
     except OSError as exc:
         raise InputError(f"{flag} {p}: cannot write in {folder} ({exc.strerror or exc})") from None
 
@@ -176,6 +181,7 @@ class TraceFile:
         self.target, self.flag, self.error = Path(target), flag, None
         self._cm = atomic_path(self.target)
         self._tmp = self._cm.__enter__()
+        _OPEN.add(self)
         self._file = open(self._tmp, "w")  # noqa: SIM115 - closed in commit/discard
 
     def write(self, line: str) -> None:
@@ -192,6 +198,7 @@ class TraceFile:
                 raise self.error
             self._file.close()
             self._cm.__exit__(None, None, None)
+            _OPEN.discard(self)
         except OSError as exc:
             self.discard()
             raise InputError(f"{self.flag} {self.target}: cannot write it ({exc.strerror or exc})") from None
@@ -202,6 +209,17 @@ class TraceFile:
             self._file.close()
         with contextlib.suppress(Exception):
             self._cm.__exit__(InputError, InputError("discarded"), None)
+        _OPEN.discard(self)
+
+
+_OPEN: set[TraceFile] = set()  # traces being written: an interrupted command discards them (discard_open)
+
+
+def discard_open() -> None:
+    """Drop every trace still being written (its temporary file removed, an existing trace kept): for a
+    command interrupted between a trace's start and the block that would discard it."""
+    for trace in list(_OPEN):
+        trace.discard()
 
 
 @contextlib.contextmanager

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from core.e57 import split_selection
 from core.errors import InputError
+from core.files import TRACE_LIMIT, read_bytes, stat_regular
 from core.io import load_scan
 from core.scan import Scan
 from core.scenes import scene_paths
@@ -56,9 +57,8 @@ def _load_cached(path: str, mtime: float) -> Scan:
 
 def _load(path: Path) -> Scan:
     path, selector = split_selection(path)  # one scan of an E57: site.e57#K or site.e57#NAME
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    return _load_cached(str(path.resolve()) + ("" if selector is None else f"#{selector}"), path.stat().st_mtime)
+    st = stat_regular(path, str(path), "a scan file")  # a FIFO, a device, a link loop: refused unread
+    return _load_cached(str(path.resolve()) + ("" if selector is None else f"#{selector}"), st.st_mtime)
 
 
 def check_port(host: str, port: int) -> None:
@@ -110,7 +110,6 @@ class Workbench:
         # 11-14 floating)
         self.server.gui.main_panel.dock_right()
         self.server.gui.main_panel.set_width(PANEL_WIDTH)
-        self._refuse_big_uploads()
         self.tabs: dict = {}
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -121,10 +120,7 @@ class Workbench:
         from core.problem import prepare, relative_guess
         from core.register import estimate_threshold
 
-        try:
-            content = Path(path).read_bytes()
-        except OSError as exc:
-            raise InputError(f"--trace {path}: {exc.strerror}") from None
+        content = read_bytes(path, f"--trace {path}", TRACE_LIMIT, "a text file")
         source, target = self.first_pair
         problem = prepare(source, target, relative_guess(source, target), seed=0)
         read_checked(content.decode("utf-8", errors="replace"), f"--trace {path}", source, target, problem,
@@ -167,33 +163,22 @@ class Workbench:
             raise InputError(f"{relative}: outside the data folder")
         return _load(path)
 
-    def _refuse_big_uploads(self) -> None:
-        """Drop an upload over the cap as soon as it announces its size, before its bytes arrive.
+    def _guard_uploads(self, client) -> None:
+        """The client's uploads held to the cap while they arrive (app.access.UploadGuard): viser buffers them
+        in the client's own GUI state. The tab checks the size again when one completes."""
+        from app.access import UploadGuard
 
-        viser buffers uploads in memory; its upload state is private, so this is best effort, and
-        the tab checks the size again when an upload completes.
-        """
-        from viser import _messages
+        def refuse(client_id, text: str) -> None:
+            tab = self.tabs.get(client_id)
+            if tab is not None:
+                tab.notify("Upload refused", text)
 
-        gui = self.server.gui
-        states = getattr(gui, "_current_file_upload_states", None)
-        iface = getattr(gui, "_websock_interface", None)
-        if states is None or iface is None:
-            return
-
-        def on_start(client_id, message) -> None:
-            if message.size_bytes > self.upload_cap:
-                states.pop(message.transfer_uuid, None)
-                tab = self.tabs.get(client_id)
-                if tab is not None:
-                    tab.notify("Upload refused", f"{message.filename}: {message.size_bytes / 1e6:.0f} MB is over "
-                                   f"the upload cap ({self.upload_cap_mb:g} MB)")
-
-        iface.register_handler(_messages.FileTransferStartUpload, on_start)
+        UploadGuard(self.upload_cap, refuse).install(client.gui)
 
     def _connect(self, client) -> None:
         from app.tab.page import Tab
 
+        self._guard_uploads(client)
         tab = Tab(self, client)
         self.tabs[client.client_id] = tab
         try:

@@ -180,6 +180,8 @@ def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig
         w = (terms.d2 < terms.t).astype(float) if config.unweighted else terms.weights
         if np.count_nonzero(w) < 3:
             w = terms.weights
+        if np.count_nonzero(w) < 3:  # fewer than three pairs carry weight: no rigid step is defined
+            break
         v, T_new = steps.propose(terms, w)
         if inside is not None and not inside(T_new):
             break

@@ -14,6 +14,7 @@ import numpy as np
 from .e57 import SUFFIX as E57_SUFFIX
 from .e57 import read_e57, read_e57_all, split_selection
 from .errors import InputError
+from .files import BINARY_FACTOR, HEADER_LIMIT, TEXT_FACTOR, check_memory, open_regular, stat_regular
 from .las import SUFFIXES as LAS_SUFFIXES
 from .las import read_las
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
@@ -46,16 +47,8 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     """
     path, selector = split_selection(path)
     what = str(path)
-    if not path.exists():
-        raise InputError(f"{what}: no such file")
-    if path.is_dir():
-        raise InputError(f"{what}: is a folder, not a scan file")
+    check_scan_file(path)
     suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        raise InputError(f"{what}: unsupported format {suffix or '(no extension)'!r}; "
-                         f"use one of {', '.join(FORMATS)}")
-    if path.stat().st_size == 0:
-        raise InputError(f"{what}: the file is empty")
     if suffix == E57_SUFFIX:
         return read_e57(path, selector, viewpoint, name)
     if suffix in LAS_SUFFIXES:
@@ -98,8 +91,8 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     vp, estimated = (stored_vp, False)
     if side.get("viewpoint") is not None:
         vp = side["viewpoint"]
-    elif vp is not None and viewpoint is None and not np.all(np.isfinite(vp)):
-        raise InputError(f"{what}: the stored VIEWPOINT {vp.tolist()} is not finite")
+    elif vp is not None and viewpoint is None:
+        vp = vector3(vp, f"{what}: the stored VIEWPOINT")
     if viewpoint is not None:
         vp, estimated = vector3(viewpoint, f"{what}: the viewpoint"), False
         check_viewpoint(points, vp, grid, faces, what)
@@ -108,9 +101,27 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     scan = Scan(points=points, viewpoint=vp, name=name or path.stem, units=units,
                 viewpoint_estimated=estimated, grid=grid, faces=faces,
                 pose=None if pose is None else np.asarray(pose, dtype=np.float64),
-                guess=side.get("guess"),
+                guess=side.get("guess"), meta={"units_stated": bool(side.get("units"))},
                 dropped=dropped, source=str(path))
     return scan
+
+
+def check_scan_file(path: str | Path) -> None:
+    """What can be known of a scan file without reading it: a regular file (not a FIFO, a device, a folder,
+    a link loop), of a known format, not empty, and small enough for the memory free now (core.files).
+    ``path`` may pick one scan of an E57 file (``site.e57#3``): the file is checked. Raises InputError
+    naming the file."""
+    path, _ = split_selection(path)
+    what = str(path)
+    st = stat_regular(path, what, "a scan file")
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise InputError(f"{what}: unsupported format {suffix or '(no extension)'!r}; "
+                         f"use one of {', '.join(FORMATS)}")
+    if st.st_size == 0:
+        raise InputError(f"{what}: the file is empty")
+    # E57 and LAS hold binary records; a LAZ decompresses about as much as text parses
+    check_memory(st.st_size, BINARY_FACTOR if suffix in (".ply", ".pcd", ".stl", ".e57", ".las") else TEXT_FACTOR, what, st)
 
 
 def _load_ply(path: Path):
@@ -118,13 +129,16 @@ def _load_ply(path: Path):
     if "vertex" not in data:
         raise InputError(f"{path}: the PLY file has no vertex element")
     v = data["vertex"]
-    if not all(k in v for k in "xyz"):
+    if not all(k in v and not isinstance(v[k], tuple) for k in "xyz"):
         raise InputError(f"{path}: the PLY vertices have no x, y, z properties")
     pts = np.c_[v["x"], v["y"], v["z"]].astype(np.float64)
+    if len(pts) == 0:
+        rest = ", ".join(f"{_rows(e)} {n} rows" for n, e in data.items() if n != "vertex" and e)
+        raise InputError(f"{path}: the PLY file holds no vertices (element vertex 0){'; only ' + rest if rest else ''}")
     grid_idx = None
     if "range_grid" in data:
-        counts, flat = next(iter(data["range_grid"].values()))
-        rows, cols = int(info.get("num_rows", 0)), int(info.get("num_cols", 0))
+        counts, flat = _list_property(data["range_grid"], "range_grid", path)
+        rows, cols = (_whole(info.get(k, "0"), k, path) for k in ("num_rows", "num_cols"))
         if rows * cols != len(counts):
             raise InputError(f"{path}: range_grid has {len(counts)} cells but the header says {rows} x {cols}")
         g = np.full(len(counts), -1, dtype=np.int64)
@@ -136,12 +150,33 @@ def _load_ply(path: Path):
         grid_idx = g.reshape(rows, cols)
     faces = None
     if "face" in data and data["face"]:
-        counts, flat = next(iter(data["face"].values()))
+        counts, flat = _list_property(data["face"], "face", path)
         faces = _triangulate_polygons(counts, flat)
         if faces.size and (faces.max() >= len(pts) or faces.min() < 0):
             bad = faces.max() if faces.max() >= len(pts) else faces.min()
             raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
     return pts, grid_idx, faces
+
+
+def _whole(text: str, name: str, path: Path) -> int:
+    if not text.isdigit():
+        raise InputError(f"{path}: obj_info {name} {text!r} is not a whole number")
+    return int(text)
+
+
+def _rows(element: dict) -> int:
+    """The rows of a read PLY element (a list property is (counts, flat))."""
+    first = next(iter(element.values()))
+    return len(first[0]) if isinstance(first, tuple) else len(first)
+
+
+def _list_property(element: dict, name: str, path: Path):
+    """(counts, flat) of the vertex-index list of a face or range_grid element; refused when it has none."""
+    lists = {k: v for k, v in element.items() if isinstance(v, tuple)}
+    if not lists:
+        raise InputError(f"{path}: element {name} has no list property (such as "
+                         f"'property list uchar int vertex_indices'), found {', '.join(element) or 'no property'}")
+    return lists.get("vertex_indices", lists.get("vertex_index", next(iter(lists.values()))))
 
 
 def _triangulate_polygons(counts, flat) -> np.ndarray:
@@ -165,11 +200,12 @@ _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("
 
 
 def _load_pcd(path: Path):
-    raw = path.read_bytes()
+    with open_regular(path, str(path), "a scan file") as f:
+        raw = f.read()
     header, pos = {}, 0
     while True:
         nl = raw.find(b"\n", pos)
-        if nl < 0:
+        if nl < 0 or pos > HEADER_LIMIT:
             raise InputError(f"{path}: not a PCD file (no DATA line)")
         line = raw[pos:nl].decode("ascii", errors="replace").strip()
         pos = nl + 1
@@ -187,8 +223,15 @@ def _load_pcd(path: Path):
     types = header.get("TYPE", ["F"] * len(fields))
     counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
     mode = header["DATA"][0].lower()
+    row = sum(s * c for s, c in zip(sizes, counts))
+    if mode == "binary" and pos + n * row > len(raw):
+        raise InputError(f"{path}: the header says {n} points of {row} bytes ({n * row} bytes) but "
+                         f"{len(raw) - pos} bytes follow it")
     if mode == "ascii":
         text = raw[pos:].decode("ascii").split()
+        if len(text) != n * sum(counts):
+            raise InputError(f"{path}: the header says {n} points of {sum(counts)} numbers but {len(text)} numbers "
+                             "follow it")
         arr = np.array(text, dtype=np.float64).reshape(n, sum(counts))
         offs = np.cumsum([0] + counts)
         pts = np.c_[[arr[:, offs[fields.index(a)]] for a in "xyz"]].T
@@ -198,9 +241,7 @@ def _load_pcd(path: Path):
         arr = np.frombuffer(raw, dtype=dt, count=n, offset=pos)
         pts = np.c_[arr["x"], arr["y"], arr["z"]].astype(np.float64)
     elif mode == "binary_compressed":
-        import open3d as o3d
-
-        pts = np.asarray(o3d.io.read_point_cloud(str(path), format="pcd").points, dtype=np.float64)
+        pts = _load_compressed_pcd(path, raw, pos, n, row)
         n = len(pts)
     else:
         raise InputError(f"{path}: unsupported PCD DATA mode {mode!r}")
@@ -217,13 +258,42 @@ def _load_pcd(path: Path):
     return pts, vp, grid_idx
 
 
+def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> np.ndarray:
+    """(n, 3) points of a PCD's LZF-compressed body at ``raw[pos:]`` (two uint32 sizes, then the data),
+    decompressed by Open3D once its sizes agree with the header; Open3D's warnings stay off the console."""
+    import open3d as o3d
+
+    if len(raw) < pos + 8:
+        raise InputError(f"{path}: the file ends before its compressed data starts")
+    packed, unpacked = (int(v) for v in np.frombuffer(raw, "<u4", 2, pos))
+    if unpacked != n * row:
+        raise InputError(f"{path}: the compressed data says it unpacks to {unpacked} bytes, but the header's "
+                         f"{n} points of {row} bytes take {n * row}")
+    if pos + 8 + packed > len(raw):
+        raise InputError(f"{path}: the file ends inside the compressed data ({packed} bytes announced, "
+                         f"{len(raw) - pos - 8} present)")
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        pts = np.asarray(o3d.io.read_point_cloud(str(path), format="pcd").points, dtype=np.float64)
+    if n and not len(pts):
+        raise InputError(f"{path}: the compressed data is corrupt (it does not decompress as LZF)")
+    return pts
+
+
 def _load_text(path: Path) -> np.ndarray:
-    rows = []
-    for lineno, line in enumerate(path.read_text(errors="strict").splitlines(), 1):
+    """(N, 3) from lines of x y z (more columns ignored). In a Leica ``.pts`` a line holding one whole
+    number is the count of the rows that follow it (a file may hold several such blocks)."""
+    rows, announced = [], []
+    pts = path.suffix.lower() == ".pts"
+    with open_regular(path, str(path), "a scan file") as f:
+        text = f.read().decode("utf-8")
+    for lineno, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if not s or s[0] in "#/%":
             continue
         tok = re.split(r"[,;\s]+", s)
+        if pts and len(tok) == 1 and tok[0].isdigit():
+            announced.append((lineno, int(tok[0]), len(rows)))
+            continue
         try:
             vals = [float(t) for t in tok[:3]]
         except ValueError:
@@ -233,6 +303,10 @@ def _load_text(path: Path) -> np.ndarray:
         if len(vals) < 3:
             raise InputError(f"{path}: line {lineno} has {len(vals)} numbers, expected x y z")
         rows.append(vals)
+    for k, (lineno, count, first) in enumerate(announced):
+        held = (announced[k + 1][2] if k + 1 < len(announced) else len(rows)) - first
+        if held != count:
+            raise InputError(f"{path}: line {lineno} announces {count} points but {held} rows follow it")
     if not rows:
         raise InputError(f"{path}: holds no x y z lines")
     return np.asarray(rows, dtype=np.float64)
@@ -242,7 +316,7 @@ def _load_mesh(path: Path):
     import trimesh
 
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)
+        mesh = trimesh.load(str(path), force="mesh", process=False)  # a regular file: load_scan checked it
     except Exception as exc:  # trimesh raises many kinds on corrupt files
         raise InputError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)

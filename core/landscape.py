@@ -84,6 +84,21 @@ def project(problem: Problem, T_center: np.ndarray, params: tuple[str, str], pos
     return x[:, [PARAM_NAMES.index(p) for p in params]]
 
 
+def check_spans(params: tuple[str, str], spans: tuple[float, float]) -> None:
+    """Refuse half-widths that are not positive, a rotation's beyond 180 degrees (it would go round again)
+    or a translation's beyond core.scan.MAX_COORDINATE units (no precision left for the geometry)."""
+    from .scan import MAX_COORDINATE
+
+    for name, s in zip(params, spans):
+        if not (np.isfinite(s) and s > 0):
+            raise InputError(f"the half-width of {name} must be a positive number, got {s:g}")
+        if name.startswith("r") and s > 180:
+            raise InputError(f"the half-width of {name} is {s:g} deg, more than 180 (a rotation beyond goes round again)")
+        if name.startswith("t") and s > MAX_COORDINATE:
+            raise InputError(f"the half-width of {name} is {s:g} units, beyond what the geometry can use "
+                             f"(<= {MAX_COORDINATE:.0e})")
+
+
 def compute_slice(problem: Problem, T_center: np.ndarray, params: tuple[str, str], spans: tuple[float, float],
                   steps: int = 61, progress: Callable[[float], None] | None = None) -> Slice:
     """E on a ``steps`` x ``steps`` grid over +-spans of two parameters around ``T_center``."""
@@ -91,8 +106,7 @@ def compute_slice(problem: Problem, T_center: np.ndarray, params: tuple[str, str
         raise InputError(f"steps must be at least 2, got {steps}")
     if steps > 1001:
         raise InputError(f"steps must be at most 1001, got {steps}")
-    if not all(np.isfinite(s) and s > 0 for s in spans):
-        raise InputError(f"spans must be positive numbers, got {spans}")
+    check_spans(params, spans)
     a = np.linspace(-spans[0], spans[0], steps)
     b = np.linspace(-spans[1], spans[1], steps)
     values = np.empty((steps, steps))

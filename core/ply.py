@@ -7,6 +7,7 @@ comes back as ``(counts, flat_values)``.
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -23,57 +24,117 @@ class PlyError(ValueError):
     pass
 
 
-def _parse_header(raw: bytes):
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise PlyError("not a PLY file (no 'ply' magic or no end_header)")
-    nl = raw.find(b"\n", end)
-    body_start = nl + 1 if nl >= 0 else len(raw)
-    lines = raw[:end].decode("ascii", errors="replace").splitlines()
+_BOM = b"\xef\xbb\xbf"
+
+
+def _parse_header(raw: bytes, whole: bool = True):
+    """(format, elements [[name, count, props]], obj_info, comments, body start) of a PLY's first bytes.
+
+    ``end_header`` ends the header only as a line of its own (not inside a comment); a UTF-8 byte-order
+    mark before the magic (an editor's) is skipped. ``whole``: ``raw`` is the whole file (else its first
+    :data:`core.files.HEADER_LIMIT` bytes)."""
+    skip = len(_BOM) if raw.startswith(_BOM) else 0
+    pos, lines = skip, []
+    while True:
+        nl = raw.find(b"\n", pos)
+        line = raw[pos:nl if nl >= 0 else len(raw)].decode("ascii", errors="replace").strip()
+        if not lines and line != "ply":
+            raise PlyError("not a PLY file (no 'ply' magic on its first line)")
+        if line == "end_header":
+            body_start = nl + 1 if nl >= 0 else len(raw)
+            break
+        if nl < 0:
+            raise PlyError("not a PLY file (no end_header line)" if whole else
+                           f"not a PLY file (no end_header line in its first {len(raw) >> 20} MB)")
+        lines.append(line)
+        pos = nl + 1
     fmt, elements, obj_info, comments = None, [], {}, []
     for line in lines[1:]:
         tok = line.split()
         if not tok:
             continue
         if tok[0] == "format":
+            if len(tok) < 2:
+                raise PlyError(f"header line {line!r} names no format")
             fmt = tok[1]
         elif tok[0] == "element":
             if len(tok) != 3:
-                raise PlyError(f"header line {line.strip()!r} should be 'element NAME COUNT'")
+                raise PlyError(f"header line {line!r} should be 'element NAME COUNT'")
             try:
                 count = int(tok[2])
             except ValueError:
-                raise PlyError(f"header line {line.strip()!r}: the count {tok[2]!r} is not a whole number") from None
+                raise PlyError(f"header line {line!r}: the count {tok[2]!r} is not a whole number") from None
             if count < 0:
-                raise PlyError(f"header line {line.strip()!r}: a negative count of {tok[1]} rows")
+                raise PlyError(f"header line {line!r}: a negative count of {tok[1]} rows")
+            if any(e[0] == tok[1] for e in elements):
+                raise PlyError(f"element {tok[1]} is declared twice in the header")
             elements.append([tok[1], count, []])
         elif tok[0] == "property":
             if not elements:
                 raise PlyError("property before any element")
+            if len(tok) != (5 if len(tok) > 1 and tok[1] == "list" else 3):
+                raise PlyError(f"header line {line!r} should be 'property TYPE NAME' or "
+                               "'property list COUNT_TYPE TYPE NAME'")
+            name, props = tok[-1], elements[-1][2]
+            if any(q[0] == name for q in props):
+                raise PlyError(f"element {elements[-1][0]} declares property {name} twice")
             if tok[1] == "list":
                 if tok[2] not in _TYPES or tok[3] not in _TYPES:
-                    raise PlyError(f"unknown list property types in {line.strip()!r}")
-                elements[-1][2].append((tok[4], "list", _TYPES[tok[2]], _TYPES[tok[3]]))
+                    raise PlyError(f"unknown list property types in {line!r}")
+                props.append((name, "list", _TYPES[tok[2]], _TYPES[tok[3]]))
             else:
                 if tok[1] not in _TYPES:
                     raise PlyError(f"unknown property type {tok[1]!r}")
-                elements[-1][2].append((tok[2], _TYPES[tok[1]]))
+                props.append((name, _TYPES[tok[1]]))
         elif tok[0] == "obj_info" and len(tok) >= 3:
             obj_info[tok[1]] = tok[2]
         elif tok[0] == "comment":
             comments.append(line[8:])
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise PlyError(f"unsupported PLY format {fmt!r}")
+    for name, count, props in elements:
+        if count and not props:
+            raise PlyError(f"element {name} has {count} rows but declares no property")
     return fmt, elements, obj_info, comments, body_start
 
 
-def read_ply(path: Path) -> tuple[dict, dict]:
-    """Read a PLY file -> ({element: {property: array or (counts, values)}}, obj_info)."""
-    raw = Path(path).read_bytes()
-    try:
-        fmt, elements, obj_info, _, start = _parse_header(raw)
-    except (KeyError, IndexError) as exc:
-        raise PlyError(f"malformed PLY header ({exc})") from None
+def _check_counts(fmt: str, elements, body: int) -> None:
+    """Refuse a header whose counts need more bytes than the file holds (each row at its smallest: a list
+    of no items), before anything is allocated for them. Elements of scalars only are measured exactly
+    by the readers (with the rows the file does hold); this bounds the ones with lists."""
+    need = 0
+    for name, count, props in elements:
+        if fmt == "ascii":  # a number and a separator at least
+            row = 2 * len(props)
+        else:
+            row = sum(np.dtype(p[1] if len(p) == 2 else p[2]).itemsize for p in props)
+        if any(len(p) == 4 for p in props) and need + count * row > body + 1:
+            raise PlyError(f"the file ends inside element {name!r}: the header says {count} {name} rows "
+                           f"(element {name} {count}, at least {row} bytes each) but only {max(body - need, 0)} "
+                           "bytes are left for them")
+        need += count * row
+
+
+def read_ply(path: Path, what: str | None = None) -> tuple[dict, dict]:
+    """Read a PLY file -> ({element: {property: array or (counts, values)}}, obj_info).
+
+    Only a regular file is read (core.files); the header is read first and its counts checked against
+    the file's size before the body is read. ``what``: the file in messages (default the path)."""
+    from .files import HEADER_LIMIT, TEXT_FACTOR, check_memory, open_regular
+
+    what = what or str(path)
+    with open_regular(path, what, "a scan file") as f:
+        head = f.read(HEADER_LIMIT)
+        size = os.fstat(f.fileno()).st_size
+        fmt, elements, obj_info, _, start = _parse_header(head, whole=len(head) < HEADER_LIMIT)
+        _check_counts(fmt, elements, size - start)
+        if fmt == "ascii":
+            check_memory(size, TEXT_FACTOR, what)
+        raw = head + f.read()
+    return _read_body(raw, fmt, elements, start), obj_info
+
+
+def _read_body(raw: bytes, fmt: str, elements, start: int) -> dict:
     out: dict = {}
     if fmt == "ascii":
         tokens = raw[start:].split()
@@ -93,7 +154,7 @@ def read_ply(path: Path) -> tuple[dict, dict]:
                 out[name], pos = _ascii_rows(values, pos, count, props, name)
         if pos < len(values):
             raise PlyError(_leftover(elements, len(values) - pos, "numbers"))
-        return out, obj_info
+        return out
     order = "<" if fmt == "binary_little_endian" else ">"
     buf = memoryview(raw)[start:]
     pos = 0
@@ -112,7 +173,7 @@ def read_ply(path: Path) -> tuple[dict, dict]:
             out[name], pos = _binary_rows(buf, pos, count, props, order, name)
     if len(buf) > pos and bytes(buf[pos:]).strip():  # a trailing newline is harmless; more rows are not
         raise PlyError(_leftover(elements, len(buf) - pos, "bytes"))
-    return out, obj_info
+    return out
 
 
 def _ascii_values(tokens: list[bytes], elements) -> np.ndarray:

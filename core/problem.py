@@ -16,8 +16,9 @@ import numpy as np
 from .cut import overlap_cut
 from .errors import InputError
 from .frustum import KINDS, Overlap
+from .noise import NORMAL_NEIGHBOURS
 from .robust_error import RobustError
-from .scan import Scan
+from .scan import Scan, scale_mismatch
 from .surface import Surface
 from .transforms import apply, check_rigid, delta_between, invert, perturb
 
@@ -83,6 +84,11 @@ class Problem:
         return np.r_[d[:3] / self.scale, d[3:]]
 
 
+# Fewer points than this in a scan leave its noise level unmeasured (core.noise: the normal floor needs two
+# interleaved neighbourhoods of NORMAL_NEIGHBOURS points), and with it the threshold that says "trust".
+MIN_POINTS = 2 * NORMAL_NEIGHBOURS
+
+
 def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: ProblemConfig = ProblemConfig(),
             surface: Surface | None = None, seed: int = 0) -> Problem:
     """Triangulate the target, cut the overlap under ``T_init`` and sample the source points
@@ -90,8 +96,16 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
     config.validate()
     T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
     for s in (source, target):
+        if len(s.points) < MIN_POINTS:
+            raise InputError(f"{s.name}: only {len(s.points)} points; registering needs at least {MIN_POINTS} "
+                             f"(the noise level is measured on neighbourhoods of 2 x {NORMAL_NEIGHBOURS} points)")
         if s.flatness < 1e-3:
             raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
+    mismatch = scale_mismatch(source, target)
+    if mismatch and not (source.meta.get("units_stated") and target.meta.get("units_stated")
+                         and source.units == target.units):
+        raise InputError(f"{mismatch}; no rigid pose joins scans in different units: scale one, or state the "
+                         "same \"units\" in both sidecars if they are alike")
     surface = surface if surface is not None else Surface.from_scan(target)
     t_unc = config.translation_uncertainty_for(target.size)
     r_unc = np.radians(config.rotation_uncertainty_deg)

@@ -14,6 +14,27 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 
+# The largest coordinate (in the scan's units) a scan, a viewpoint or a span may have. At 1e12, float64
+# still resolves 2e-4 units (eps 2.2e-16 x 1e12), finer than any scanner's noise in the units we meet
+# (mm, m); differences of such points, their squares and products of three stay below 1e37, under
+# float32's 3.4e38 (Open3D's ray casting and the PLY files we write hold float32), so no step overflows.
+# A point at 1e300 squares to inf: numpy then warns and every distance is meaningless.
+MAX_COORDINATE = 1e12
+# The smallest extent (the longest side of the bounding box, in the scan's units) a scan may have. The geometry takes
+# squares and fourth powers of distances a thousandth of the extent and less (spacings, noise floors): from
+# 1e-9 they stay above 1e-60, far from float64's smallest normal number (2.2e-308); a scan spanning 1e-150
+# squares its spacing to 0 and every error and threshold to 0. No range scan is smaller than 1e-9 of its unit.
+MIN_EXTENT = 1e-9
+
+
+def check_coordinates(values) -> str | None:
+    """Why ``values`` (any shape) hold a number beyond :data:`MAX_COORDINATE`, or None."""
+    a = np.abs(np.asarray(values, dtype=np.float64))
+    finite = a[np.isfinite(a)]
+    if finite.size and finite.max() > MAX_COORDINATE:
+        return f"{finite.max():.3g} is beyond what the geometry can use (|coordinate| <= {MAX_COORDINATE:.0e})"
+    return None
+
 
 @dataclass(frozen=True, eq=False)
 class RangeGrid:
@@ -46,7 +67,7 @@ class Scan:
     guess: np.ndarray | None = None  # rough T_world_scan (e.g. odometry)
     dropped: int = 0  # non-finite points dropped on loading
     source: str = ""  # the file it came from
-    meta: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)  # e.g. "units_stated": the units come from the file, not a guess
 
     def __repr__(self) -> str:
         grid = "x".join(map(str, self.grid.shape)) if self.grid is not None else "no"
@@ -98,6 +119,12 @@ def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{what}: expected x y z points, got an array of shape {pts.shape}")
     keep = np.all(np.isfinite(pts), axis=1)
+    far = keep & np.any(np.abs(np.where(keep[:, None], pts, 0)) > MAX_COORDINATE, axis=1)
+    if far.any():
+        first = int(np.flatnonzero(far)[0])
+        raise InputError(f"{what}: {int(far.sum())} of {len(pts)} points lie beyond +-{MAX_COORDINATE:.0e} units "
+                         f"(point {first} is {np.round(pts[first], 6).tolist()}); coordinates that large "
+                         "leave no precision for the geometry")
     pts = pts[keep]
     dropped = int((~keep).sum())
     note = f" ({dropped} NaN/inf points dropped)" if dropped else ""
@@ -106,6 +133,10 @@ def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]
     s = np.linalg.svd(pts[:: max(1, len(pts) // 20000)] - pts.mean(0), compute_uv=False)
     if s[0] == 0 or s[1] / s[0] < 1e-6:
         raise InputError(f"{what}: all {len(pts)} points lie on a line (or one spot){note}; cannot make a surface")
+    extent = float(np.ptp(pts, axis=0).max())  # the longest side: a norm would square it to 0
+    if extent < MIN_EXTENT:
+        raise InputError(f"{what}: the points span only {extent:.3g} units, too small for the geometry (at least "
+                         f"{MIN_EXTENT:g}: its squared distances vanish); give them in a smaller unit")
     return pts, keep
 
 
@@ -113,3 +144,28 @@ def flatness(points: np.ndarray) -> float:
     """Smallest over largest principal spread of (N, 3) points: ~0 for a plane."""
     s = np.linalg.svd(points[:: max(1, len(points) // 20000)] - points.mean(0), compute_uv=False)
     return float(s[2] / s[0])
+
+
+# Two scans whose sizes and point spacings both differ by this factor or more, and by the same factor
+# (within SAME_FACTOR), look like one kind of data in two units (metres and centimetres: 100; metres and
+# millimetres: 1000). A small part scanned finely inside a large scene differs in size far more than in
+# spacing, so it passes.
+UNITS_APART = 100.0
+SAME_FACTOR = 3.0
+
+
+def scale_mismatch(a: Scan, b: Scan) -> str | None:
+    """Why ``a`` and ``b`` look like the same kind of data in units about 100 x or more apart (their sizes
+    and point spacings differ by the same large factor), or None."""
+    sizes, spacings = a.size / b.size if b.size else 0.0, a.spacing / b.spacing if b.spacing else 0.0
+    if not (sizes > 0 and spacings > 0 and np.isfinite(sizes) and np.isfinite(spacings)):
+        return None
+    ls, lp = np.log10(sizes), np.log10(spacings)
+    if min(abs(ls), abs(lp)) < np.log10(UNITS_APART) or ls * lp < 0 or abs(ls - lp) > np.log10(SAME_FACTOR):
+        return None
+    small, big = (a, b) if ls < 0 else (b, a)
+    factor = float(10 ** abs((ls + lp) / 2))
+    guess = {2: " (centimetres and metres?)", 3: " (millimetres and metres?)"}.get(round(np.log10(factor)), "")
+    return (f"{small.name} looks about {factor:.0f} x smaller than {big.name} (size {small.size:.4g} vs "
+            f"{big.size:.4g}, point spacing {small.spacing:.4g} vs {big.spacing:.4g}): the same kind of scan in "
+            f"other units{guess}")

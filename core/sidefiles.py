@@ -11,23 +11,18 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import InputError
-from .scan import Scan
+from .files import CONF_LIMIT, SIDECAR_LIMIT, TRANSFORM_LIMIT, read_bytes
+from .scan import Scan, check_coordinates
 
 
 def sidecar_path(path: Path) -> Path:
     return Path(path).with_suffix(".json")
 
 
-def _read_text(path: Path, what: str) -> str:
-    """The text of a side file (sidecar, .conf, transform), or one InputError saying why not."""
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, not {what}")
-    try:
-        return path.read_text(errors="replace")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+def _read_text(path: Path, what: str, limit: int) -> str:
+    """The text of a side file (sidecar, .conf, transform) of at most ``limit`` bytes, or one InputError
+    saying why not (only a regular file is read: core.files)."""
+    return read_bytes(path, str(path), limit, what).decode("utf-8", errors="replace")
 
 
 def read_sidecar(path: Path) -> dict:
@@ -35,7 +30,7 @@ def read_sidecar(path: Path) -> dict:
     side = sidecar_path(path)
     if not side.exists() and not side.is_symlink():
         return {}
-    text = _read_text(side, "a JSON sidecar")
+    text = _read_text(side, "a JSON sidecar", SIDECAR_LIMIT)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -64,6 +59,7 @@ def check_sidecar(data: dict, what: str) -> dict:
             out[key] = check_rigid(T, f"{what}: {key!r}")
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        _near(out[key][:3, 3], f"{what}: {key!r}'s translation")
     units = data.get("units")
     if units is not None and (not isinstance(units, str) or not units.strip()):
         raise InputError(f"{what}: 'units' should be a name such as \"mm\" or \"m\", found {_short(units)}")
@@ -79,7 +75,15 @@ def vector3(value, what: str) -> np.ndarray:
         raise InputError(f"{what} should be three numbers x, y, z, found {_short(value)}")
     if not np.all(np.isfinite(v)):
         raise InputError(f"{what} {v.tolist()} is not finite")
+    _near(v, what)
     return v
+
+
+def _near(values, what: str) -> None:
+    """Refuse coordinates (a point, a translation) beyond core.scan.MAX_COORDINATE."""
+    problem = check_coordinates(values)
+    if problem:
+        raise InputError(f"{what}: {problem}")
 
 
 def _short(value) -> str:
@@ -94,8 +98,8 @@ def load_conf(path: str | Path) -> dict[str, np.ndarray]:
     data (see its README): ``x_world = R(q*) x_scan + t`` with the CONJUGATE quaternion.
     """
     path = Path(path)
-    poses = {}
-    for lineno, line in enumerate(_read_text(path, "a Stanford .conf file").splitlines(), 1):
+    poses, lines = {}, {}
+    for lineno, line in enumerate(_read_text(path, "a Stanford .conf file", CONF_LIMIT).splitlines(), 1):
         tok = line.split()
         if not tok or tok[0] != "bmesh":
             continue
@@ -111,13 +115,20 @@ def load_conf(path: str | Path) -> dict[str, np.ndarray]:
         T = np.eye(4)
         T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
         T[:3, 3] = (tx, ty, tz)
-        poses[Path(tok[1]).stem] = T
+        _near(T[:3, 3], f"{path}: line {lineno}'s translation")
+        name = Path(tok[1]).stem
+        if name in poses:
+            raise InputError(f"{path}: line {lineno} gives a second pose for {name} (first on line {lines[name]}); "
+                             "each scan may appear once")
+        poses[name], lines[name] = T, lineno
     if not poses:
         raise InputError(f"{path}: no 'bmesh' lines: not a Stanford .conf file")
     return poses
 
 
 def pose_from_conf_beside(path: Path):
+    """The pose of ``path`` (by its stem) in a Stanford .conf in its folder, or None. A .conf that cannot
+    be read (a folder, a FIFO, a device, too large, malformed) is passed over: the user did not name it."""
     for conf in sorted(path.parent.glob("*.conf")):
         try:
             poses = load_conf(conf)
@@ -144,11 +155,11 @@ def parse_transform(text_or_path: str | Path) -> np.ndarray:
     (16 numbers, or that JSON)."""
     if isinstance(text_or_path, str) and not names_a_file(text_or_path) and _looks_like_numbers(text_or_path):
         text = text_or_path.strip()
-        return _transform_from_text(text, f"the transform {text if len(text) <= 40 else text[:37] + '...'!r}")
+        return transform_from_text(text, f"the transform {text if len(text) <= 40 else text[:37] + '...'!r}")
     path = Path(text_or_path)
     if not path.exists():
         raise InputError(f"{path}: no such file (and not 16 numbers)")
-    return _transform_from_text(_read_text(path, "a transform file").strip(), str(path))
+    return transform_from_text(_read_text(path, "a transform file", TRANSFORM_LIMIT).strip(), str(path))
 
 
 def names_a_file(text: str | Path) -> bool:
@@ -170,7 +181,9 @@ def _looks_like_numbers(text: str) -> bool:
     return t.startswith("{") or bool(re.fullmatch(r"[\s,;\[\]0-9eE+\-.naifNAIF]+", t)) and any(c.isdigit() for c in t)
 
 
-def _transform_from_text(text: str, what: str) -> np.ndarray:
+def transform_from_text(text: str, what: str) -> np.ndarray:
+    """A checked rigid (4, 4) transform from the text of 16 numbers or JSON with ``transform``; ``what``
+    names it in messages."""
     from .transforms import check_rigid
 
     if text.startswith("{"):
@@ -187,9 +200,11 @@ def _transform_from_text(text: str, what: str) -> np.ndarray:
     if values.size != 16:
         raise InputError(f"{what}: expected 16 numbers (a row-major 4 x 4 matrix), found {values.size}")
     try:
-        return check_rigid(values.reshape(4, 4), what)
+        T = check_rigid(values.reshape(4, 4), what)
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    _near(T[:3, 3], f"{what}: its translation")
+    return T
 
 
 def write_transform(path: str | Path, T: np.ndarray, **extra) -> None:

@@ -97,6 +97,8 @@ class PairThreshold:
         its overlap (notes above); inf when fewer than 3 points match or a floor is 0. ``scores``: T's
         on ``basis``, when evaluated already."""
         s = basis.evaluate(np.asarray(T)[None]) if scores is None else scores
+        if not (self.floor > 0 and self.angle_floor > 0):  # too few points to measure a noise level
+            return float("inf")
         with np.errstate(divide="ignore", invalid="ignore"):
             m = np.sqrt(s.inlier_median[0] / self.floor) * (basis.normal_angle(T) / self.angle_floor)
         return float(m) if np.isfinite(m) else float("inf")

@@ -94,8 +94,20 @@ def check_rigid(T: np.ndarray, what: str = "transform", tol: float = 1e-4) -> np
     if abs(det) < 1e-9:
         raise ValueError(f"{what} is singular (its rotation part has determinant {det:.3g})")
     if not np.allclose(R.T @ R, np.eye(3), atol=tol) or det < 0:
-        raise ValueError(f"{what} is not rigid: its 3 x 3 part is not a rotation (det {det:.3g})")
+        raise ValueError(f"{what} is not rigid: its 3 x 3 part {_not_a_rotation(R, det, tol)}")
     return T
+
+
+def _not_a_rotation(R: np.ndarray, det: float, tol: float) -> str:
+    """What a 3 x 3 matrix that is not a rotation is instead, in words (its singular values say it)."""
+    s = np.linalg.svd(R, compute_uv=False)
+    if det < 0 and np.allclose(s, 1, atol=tol):
+        return "is a reflection (det -1), not a rotation"
+    if np.ptp(s) <= tol * max(1.0, s.max()):
+        kind = f"is a rotation scaled by {s.mean():.6g} (a rigid transform has scale 1)"
+        return kind + (" and mirrored (det < 0)" if det < 0 else "")
+    return (f"is not a rotation: it stretches by {', '.join(f'{v:.6g}' for v in s)} along its axes "
+            f"(det {det:.3g})")
 
 
 def pose_error(T_est: np.ndarray, T_true: np.ndarray, center: np.ndarray | None = None) -> tuple[float, float]:

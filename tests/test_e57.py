@@ -305,8 +305,13 @@ def test_a_bad_e57_gives_one_line(case, words, tmp_path, rangereg):
         imf.close()
     with pytest.raises(InputError, match=words):
         load_scan(arg or path)
+    import shutil
+
+    from tests.conftest import ASSETS
+
+    other = shutil.copy(ASSETS / "corner" / "scan1.ply", tmp_path / "other.ply")  # a good target: the E57 is the cause
     for command in ("info", "register"):  # info of the file alone lists its headers: name the scan
-        args = [arg or f"{path}#0"] + ([tmp_path / "other.ply"] if command == "register" else [])
+        args = [arg or f"{path}#0"] + ([other] if command == "register" else [])
         code, out, err = rangereg(command, *args)
         assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
         assert words.split(":")[0] in err or case == "missing"

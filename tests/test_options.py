@@ -28,7 +28,7 @@ def test_a_good_value_parses_as_typed(name, text, value):
     ("seed", str(2**40), "<= 4294967295"), ("max_points", "2", ">= 3"), ("steps", "1000000", "<= 201"),
     ("threshold", "nan", "finite"), ("threshold", "inf", "finite"), ("threshold", "-3", ">= 0"),
     ("threshold", "12,5", "expected a number"), ("t_start", "inf", "finite"), ("t_start", "0", "> 0"),
-    ("cooling", "1", "< 1"), ("t_min_ratio", "0", "> 0"), ("rotation_uncertainty", "0", "> 0"),
+    ("cooling", "1", "< 1"), ("t_min_ratio", "0", "> 0"), ("rotation_uncertainty", "0", ">= 0.01"),
     ("translation_uncertainty", "-1", "> 0"), ("port", "99999", "<= 65535"), ("hops", "-1", ">= 0"),
     ("recut_rounds", "0", ">= 1"), ("upload_cap_mb", "0", "> 0"),
 ])

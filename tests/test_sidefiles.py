@@ -52,18 +52,18 @@ def test_malformed_conf(tmp_path):
 
 @pytest.fixture
 def unreadable(monkeypatch):
-    """Make a file that cannot be read (as root, chmod 0 does not stop reading: refuse it in read_text)."""
-    from pathlib import Path
+    """Make a file that cannot be read (as root, chmod 0 does not stop reading: refuse it where core.files opens)."""
+    import core.files
 
     refused = set()
-    real = Path.read_text
+    real = core.files._open_fd
 
-    def read_text(self, *args, **kwargs):
-        if self in refused:
-            raise PermissionError(13, "Permission denied", str(self))
-        return real(self, *args, **kwargs)
+    def open_fd(path):
+        if path in refused:
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path)
 
-    monkeypatch.setattr(Path, "read_text", read_text)
+    monkeypatch.setattr(core.files, "_open_fd", open_fd)
 
     def make(path):
         path.write_text("{}")

@@ -4,10 +4,21 @@ from __future__ import annotations
 
 from argparse import Namespace
 
+from app.distributed import reach_scheduler
 from app.outputs import check_output
+from core.errors import InputError
 
 
 def run(a: Namespace) -> int:
+    if not a.sweep:
+        given = [f for f, v in (("--workers", a.workers), ("--scheduler", a.scheduler)) if v is not None]
+        if given:
+            two = len(given) > 1
+            raise InputError(f"{' and '.join(given)} {'apply' if two else 'applies'} only with --sweep "
+                             f"({'they spread' if two else 'it spreads'} the sweep's starts)")
+    if a.scheduler is not None:
+        reach_scheduler(a.scheduler)
+    a.workers = 1 if a.workers is None else a.workers
     if a.json is not None:
         check_output(a.json, "--json", (".json",))
     if a.sweep:

@@ -3,6 +3,7 @@ and the initial guess read (cheap checks first, so a typo never waits for a scan
 
 from __future__ import annotations
 
+import sys
 from argparse import Namespace
 
 import numpy as np
@@ -12,10 +13,18 @@ from core.sidefiles import names_a_file
 
 
 def inputs(a: Namespace) -> list[str]:
-    """Every file the command reads (never to be overwritten by an output)."""
+    """Every file the command reads (never to be overwritten by an output), checked as far as it can be
+    without reading a scan: the scans' kinds, formats and sizes, and ``--init`` read (once: it may be a
+    pipe) into ``a.init_transform``."""
+    from core.io import check_scan_file
+
+    for scan in (a.source, a.target):
+        check_scan_file(scan)
     files = [a.source, a.target]
-    if getattr(a, "init", None) and names_a_file(a.init):
-        files.append(a.init)
+    if getattr(a, "init", None) is not None:
+        a.init_transform = parse_init(a.init)
+        if names_a_file(a.init):
+            files.append(a.init)
     if getattr(a, "trace_in", None) is not None:
         files.append(a.trace_in)
     return files
@@ -35,8 +44,14 @@ def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     """(source, target, T_init (4, 4) T_target_source): ``--init`` if given, else the scans' stored guesses."""
     from core.io import load_scan
     from core.problem import relative_guess
+    from core.scan import scale_mismatch
 
-    T_init = parse_init(a.init) if a.init is not None else None
+    T_init = getattr(a, "init_transform", None)
+    if T_init is None and a.init is not None:
+        T_init = parse_init(a.init)
     source = load_scan(a.source, viewpoint=a.viewpoint_source)
     target = load_scan(a.target, viewpoint=a.viewpoint_target)
+    mismatch = scale_mismatch(source, target)
+    if mismatch and source.units == target.units:  # stated alike (else core.problem refuses the pair)
+        sys.stderr.write(f"warning: {mismatch}, though both sidecars say {source.units}\n")
     return source, target, T_init if T_init is not None else relative_guess(source, target)

@@ -5,10 +5,10 @@ server listens."""
 from __future__ import annotations
 
 from argparse import Namespace
-from pathlib import Path
 
 from app.options import read_text_file
 from core.errors import InputError
+from core.files import check_folder, stat_regular
 from core.trace import read_trace
 
 
@@ -18,12 +18,12 @@ def run(a: Namespace) -> int:
     if (a.source is None) != (a.target is None):
         raise InputError("serve takes two scans (SOURCE TARGET) or none")
     for p in (a.source, a.target):
-        if p is not None and not Path(p).is_file():
-            raise InputError(f"{p}: {'is a folder, not a scan file' if Path(p).is_dir() else 'no such file'}")
+        if p is not None:
+            stat_regular(p, p, "a scan file")  # missing, a folder, a FIFO, a device, a link loop: one line now
     if a.trace is not None:  # missing, a folder, unreadable, binary, not a trace: one line now (its scans: below)
         read_trace(read_text_file(a.trace, "--trace"), f"--trace {a.trace}")
-    if a.data_dir is not None and not Path(a.data_dir).is_dir():
-        raise InputError(f"--data-dir {a.data_dir}: no such folder")
+    if a.data_dir is not None:
+        check_folder(a.data_dir, f"--data-dir {a.data_dir}")
     if not a.host.strip():
         raise InputError("--host: expected a host name or address, got nothing")
     return serve(ServeOptions(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port,

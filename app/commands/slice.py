@@ -42,11 +42,16 @@ def trace_notes(trace, T_init, cfg, units: str = "units") -> list[str]:
 
 
 def run(a: Namespace) -> int:
-    from core.landscape import compute_slice, default_span, parse_params, project
+    from core.landscape import check_spans, compute_slice, default_span, parse_params, project
     from core.problem import prepare
 
     params = parse_params(a.params)
     spans = parse_numbers(a.span, "--span", 2) if a.span is not None else None
+    if spans is not None:
+        try:
+            check_spans(params, spans)
+        except InputError as exc:
+            raise InputError(f"--span: {exc}") from None
     if a.center == "end" and a.trace_in is None:
         raise InputError("--center end needs --trace (the run whose end to slice around)")
     cfg = pair.config(a)

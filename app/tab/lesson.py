@@ -285,7 +285,7 @@ class LessonPanel:
         if finished:
             from core.transforms import pose_error
 
-            error, iterations = result.error, (result.iterations.get("icp", 0), result.iterations.get("sa", 0))
+            error, iterations = result.error, (result.iterations.icp, result.iterations.sa)
             if T_truth is not None:
                 off = pose_error(result.transform, T_truth, source.centroid)
         return Facts(threshold or 0.0, units, self.lesson.starts[self.k], tuple(legs(events)), finished, error, off,

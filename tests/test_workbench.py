@@ -263,10 +263,11 @@ def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, br
     page.get_by_role("button", name="Apply pose", exact=True).click()
     page.get_by_text("write decimals with a point").first.wait_for(timeout=10_000)
     assert initial_E(page) == E0  # nothing applied
-    tx.fill(f"{before + 2.5e-3:.12e}")  # exponent notation, as a user may type it (viser's number field mangled it)
+    # exponent notation, as a user may type it (viser's number field mangled it); a move E shows in 4 digits
+    tx.fill(f"{before + 2.5e1:.12e}")
     page.get_by_role("button", name="Apply pose", exact=True).click()
     wait_for(lambda: initial_E(page) != E0, 10, what="the initial E")
-    assert float(text_input(page, "tx (mm)").input_value()) == pytest.approx(before + 2.5e-3, abs=1e-9)
+    assert float(text_input(page, "tx (mm)").input_value()) == pytest.approx(before + 2.5e1, abs=1e-9)
     # out of range is a notification, not a silent clamp
     show_tab(page, "Landscape")
     text_input(page, "Steps").fill("1000000")

@@ -3,12 +3,16 @@
 max per mode and offset, and whether the pose lies within 2 degrees and 2 mm of the truth.
 
     python benchmarks/register_time.py [--starts 2] [--passes 1] [--modes origin,no-guess] [BUNNY_DIR]
+    python benchmarks/register_time.py --unregistrable   # pairs no rigid pose registers: what "not trusted" costs
     python benchmarks/register_time.py --smallest        # one run on the bundled corner pair: a check it runs
 
 For every shared bunny pair (app.sweep's whole family) and every sweep offset, each mode's start (app.sweep:
 the same seeded starts) is given to the CLI as a user would give it: the start as `--init` and the stated
 rotation (`--rotation-uncertainty`, plus `--translation-uncertainty` in the centroid mode); in the no-guess
-mode no `--init` and no flag at all. Run it on a quiet machine: one run at a time.
+mode no `--init` and no flag at all. ``--unregistrable``: each shared pair with its source mirrored (x -> -x:
+no rigid motion lays a mirror image on its original), no guess, so nothing is trusted and every stage and
+the bounded fallback run: the time a run takes to say "not trusted". Run it on a quiet machine: one run at
+a time.
 """
 
 from __future__ import annotations
@@ -57,6 +61,35 @@ def one_run(task: SweepTask) -> dict:
             "trusted": bool(d["below_threshold"])}
 
 
+def unregistrable_runs(folder: Path, starts: int) -> list[dict]:
+    """Each whole pair's source mirrored, registered with no guess (module notes): seconds and trust."""
+    import tempfile
+    from dataclasses import replace
+
+    from core.io import load_scan, save_scan
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _, s_view, t_view, _ in sweep_pairs(folder, ("whole",)):
+            src = load_scan(s_view.path)
+            mirrored = Path(tmp) / f"{Path(s_view.path).stem}-mirrored.ply"
+            save_scan(mirrored, replace(src, points=src.points * [-1.0, 1.0, 1.0], viewpoint=src.viewpoint * [-1.0, 1.0, 1.0],
+                                        pose=None, guess=None, faces=None))
+            for k in range(starts):
+                cmd = [sys.executable, "-m", "app.cli", "register", str(mirrored), t_view.path, "--seed", str(k), "--json"]
+                out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT,
+                                     env={**os.environ, "PYTHONPATH": str(ROOT)})
+                if out.returncode != 0:
+                    raise SystemExit(f"rangereg register failed: {out.stderr.strip()}")
+                d = json.loads(out.stdout)
+                rows.append({"mode": "unregistrable", "offset": 0.0, "pair": f"{mirrored.stem}->{t_view.name}",
+                             "start": k, "seconds": d["seconds"], "import_seconds": d["import_seconds"], "right": False,
+                             "trusted": bool(d["below_threshold"])})
+                print(f"  mirrored {mirrored.stem}->{t_view.name} start {k}: {d['seconds']:.3f} s "
+                      f"{'TRUSTED' if d['below_threshold'] else 'not trusted'} ({d['stop_reason']})", flush=True)
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("bunny", nargs="?", default=str(ROOT.parent / "shared" / "data" / "bunny"))
@@ -64,6 +97,7 @@ def main() -> int:
     ap.add_argument("--passes", type=int, default=1, help="passes over every run, one after the other")
     ap.add_argument("--modes", default="origin,no-guess", help=f"comma-separated of {', '.join(MODES)}")
     ap.add_argument("--smallest", action="store_true", help="one run: the bundled corner pair, 5 deg, origin mode")
+    ap.add_argument("--unregistrable", action="store_true", help="the mirrored pairs only (module notes)")
     a = ap.parse_args()
     if a.starts < 1 or a.passes < 1:
         ap.error("--starts and --passes must be >= 1")
@@ -80,6 +114,9 @@ def main() -> int:
     rows = []
     for p in range(a.passes):
         print(f"pass {p + 1}: load average {os.getloadavg()[0]:.1f}", flush=True)
+        if a.unregistrable:
+            rows += unregistrable_runs(Path(a.bunny), a.starts)
+            continue
         for task in tasks:
             r = one_run(task)
             rows.append(r)
@@ -92,7 +129,7 @@ def main() -> int:
     for key in dict.fromkeys((r["mode"], r["offset"]) for r in rows):
         sel = [r for r in rows if (r["mode"], r["offset"]) == key]
         sec = [r["seconds"] for r in sel]
-        print(f"| {key[0]} | {'-' if key[0] == 'no-guess' else f'{key[1]:g} deg'} | {len(sel)} | "
+        print(f"| {key[0]} | {'-' if key[0] in ('no-guess', 'unregistrable') else f'{key[1]:g} deg'} | {len(sel)} | "
               f"{sum(r['right'] for r in sel)} | {sum(r['trusted'] for r in sel)} | "
               f"{np.median(sec):.2f} / {np.percentile(sec, 90):.2f} / {max(sec):.2f} |")
     sec = [r["seconds"] for r in rows]

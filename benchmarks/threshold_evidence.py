@@ -3,7 +3,7 @@ and the simulated scenes, where the truth and the nearest wrong minimum lie on t
 
 For each case: the pair's noise floor and angle floor; at the true pose, sqrt(the median matched d^2
 over the floor), the median normal angle over the angle floor, their product (the misfit the threshold
-bounds) and the matched share; then ICP minima (core.global_search.refine: ICP on the cut at the
+bounds) and the matched share; then ICP minima (core.global_search.refinement.refine: ICP on the cut at the
 start, then on the cut at the pose found) from N seeded starts 20-120 degrees and up to 30 % of the
 size off and from the truth turned about each principal axis by 20-90 degrees; a minimum more than
 the success bound off is wrong, and counted when at least the basis's minimum overlap (10 %) matches.

@@ -8,7 +8,7 @@ pair's fixed basis.
     stages     (stages.py) the guess; KISS-Matcher's hypothesis (beside the guess when the rotation is
                stated wider than ``CandidateConfig.guess_first_deg``); the rotation samples within the
                region (core.candidates), shifted to fit; FPFH + RANSAC
-    refine     (refine.py) no hypothesis is dropped: each stage is scored in one batched query and its
+    refine     (refinement.py) no hypothesis is dropped: each stage is scored in one batched query and its
                best few refined by ICP on the paper's robust E (on the overlap cut at the candidate,
                then on the cut at the pose found), those inside the region first
     verdict    the first refined pose the pair threshold trusts inside the region ends the search; one
@@ -36,13 +36,13 @@ from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
 from ..surface import Surface
-from .fallback import fallback
-from .refine import Found, refine, search_stages
+from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
+from .refinement import Found, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
-from .stages import Hypotheses, Stage, stages
+from .stages import Hypotheses, Stage
 from .stream import EventStream, TimeBound
 
-__all__ = ["EventStream", "Hypotheses", "Stage", "TimeBound", "kiss_ahead", "refine", "register_global", "stages"]
+__all__ = ["EventStream", "Hypotheses", "Stage", "TimeBound", "kiss_ahead", "refine", "register_global"]
 
 
 def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
@@ -62,7 +62,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         elif found.beyond is not None:
             best, stop = found.beyond, Stop(StopReason.TRUSTED, f"{StopReason.TRUSTED.value}, beyond the stated region")
         else:
-            best, stop, local_minima = fallback(setup, run, found)
+            best, stop, local_minima = bounded_hybrid(setup, run, found)
     except Cancelled:
         best, stop, sources = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}
     return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, sources,

@@ -9,7 +9,7 @@ import numpy as np
 from ..problem import prepare
 from ..result import Stop, StopReason
 from ..search.run import run_method
-from .refine import Found, best_refined
+from .refinement import Found, best_refined
 from .setup import Setup
 from .stream import EventStream
 

@@ -255,7 +255,11 @@ def parse_init(text: str) -> np.ndarray:
     if text is None or not str(text).strip():
         raise InputError("--init: expected 16 numbers or a file, got nothing")
     p = Path(text)
-    if names_a_file(text) or p.is_symlink():  # a file, a pipe, a link (even a broken or looping one)
+    try:
+        link = p.is_symlink()
+    except (OSError, ValueError):  # 16 numbers too long to be a file name: the system refuses to look
+        link = False
+    if names_a_file(text) or link:  # a file, a pipe, a link (even a broken or looping one)
         content = read_text_file(p, "--init", TRANSFORM_LIMIT, pipe=True)
         try:
             return transform_from_text(content.strip(), str(p))

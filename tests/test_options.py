@@ -121,3 +121,17 @@ def test_a_lock_reaches_the_config_and_a_bad_one_is_one_message():
         Settings(lock="rx,qq")
     with pytest.raises(InputError, match="^--lock: expected text"):
         Settings(lock=3)
+
+
+def test_an_init_of_sixteen_long_numbers_is_read_as_numbers_not_a_file_name():
+    import numpy as np
+
+    from app.options import parse_init
+    from core.transforms import rotation_matrix
+
+    T = np.eye(4)
+    T[:3, :3] = rotation_matrix(np.array([0.3, -0.2, 0.5]))
+    T[:3, 3] = [-0.048564374008218336, 0.008956121399062985, -0.010020339583596436]
+    text = " ".join(repr(float(v)) for v in T.ravel())  # longer than a file name may be
+    assert len(text) > 255
+    assert np.allclose(parse_init(text), T)

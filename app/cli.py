@@ -118,10 +118,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "(no rotation samples, no feature matching)")
     s.add_argument("--rotation-samples", type=_knob("rotation_samples"), metavar="N", help="global: rotations "
                    "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
-    s.add_argument("--full-search", action="store_true", help="global: when no candidate is trusted, let the "
-                   "paper's hybrid search round the best one until it stops by itself (default: 300 steps)")
-    s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: start no new stage of the "
-                   "search after S seconds (default: none; the search's work is bounded anyway)")
+    s.add_argument("--full-search", action="store_true", help="global: no bound on the search when no candidate is "
+                   "trusted: every stage runs and the paper's hybrid searches round the best candidate until it "
+                   "stops by itself (default: 2.5 s of search and 300 of the hybrid's steps at most)")
+    s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: seconds of search at most "
+                   "when nothing is trusted (default 2.5; with --full-search, none unless given)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
                    "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")

@@ -38,6 +38,10 @@ CAP_SPACINGS = 0.7
 SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
 SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
+# RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
+# confidence, after log(0.001) / log(1 - w^3) draws when a share w of the mutual matches is right: 20,000
+# serve w >= 0.07. The full 100,000 cost ~5 s here on a pair where nothing matches, where it never stops early.
+RANSAC_ITERATIONS = 20_000
 
 
 @dataclass(frozen=True)
@@ -87,10 +91,13 @@ class CandidateConfig:
     # bound on work, so a run ends the same on every machine. In the sweep it never turned an untrusted
     # candidate into a trusted pose (0 of the runs that reached it); 300 steps cost ~0.3-1 s of CPU
     fallback_steps: int | None = 300
-    # No new stage or leg starts after this many seconds of search (None: no bound, the default); the pose
-    # then is the best scored so far. A bound on time, not work: a run that meets it may end otherwise on
-    # another machine.
-    time_limit: float | None = None
+    # The search starts no stage and ends its refinements once this many seconds have passed since the
+    # setup began (None: no bound); the pose then is the best scored so far, not trusted. A bound on time,
+    # not work: a run that meets it may end otherwise on a slower or busier machine. Measured here (files
+    # -> pose, load 1-3): runs trusted on the shared pairs end in 0.5-0.8 s, 3-5 x below it; a pair no rigid
+    # pose registers (benchmarks/register_time.py --unregistrable) searched on for 5-9 s, and with this bound
+    # ends 2.8-2.9 s after its files began to be read.
+    time_limit: float | None = 2.5
 
     def validate(self) -> None:
         if self.sample < 10:
@@ -295,6 +302,6 @@ def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[fl
             res = reg.registration_ransac_based_on_feature_matching(
                 src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
                 [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
-                reg.RANSACConvergenceCriteria(100000, 0.999))
+                reg.RANSACConvergenceCriteria(RANSAC_ITERATIONS, 0.999))
             out.append(np.asarray(res.transformation).copy())
     return out

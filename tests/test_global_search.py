@@ -143,3 +143,29 @@ def test_json_stays_json_when_open3d_warns_on_stdout():
     assert r.returncode == 0, r.stderr
     assert "Too few correspondences" in r.stderr  # the warning was printed, and not on stdout
     assert json.loads(r.stdout)["method"] == "global"
+
+
+def test_past_the_time_bound_no_stage_starts_and_the_run_says_so(scene):
+    from dataclasses import replace
+
+    from core.candidates import CandidateConfig
+
+    corner, _ = scene("corner")
+    _, bowl = scene("bowl")
+    cfg = Config(method="global", problem=no_guess(ProblemConfig()),
+                 candidates=replace(CandidateConfig(), time_limit=1e-6))  # spent before the first stage
+    res = register(corner, bowl, np.eye(4), cfg)
+    assert res.stop_reason.name == "TIME_BOUND" and "1e-06 s" in res.stop_text
+    assert set(res.details.candidate_sources.values()) == {"not reached within the time bound"}
+    assert not res.trusted and res.iterations.icp == res.iterations.sa == 0
+    full = Config(method="global", candidates=replace(CandidateConfig(), fallback_steps=None, time_limit=None))
+    assert full.candidates.time_limit is None  # --full-search: no bound at all
+
+
+def test_full_search_lifts_both_bounds_unless_a_time_is_given():
+    from app.options import Settings, to_config
+
+    assert to_config(Settings()).candidates.time_limit == 2.5
+    full = to_config(Settings(full_search=True)).candidates
+    assert full.time_limit is None and full.fallback_steps is None
+    assert to_config(Settings(full_search=True, time_limit=20)).candidates.time_limit == 20.0

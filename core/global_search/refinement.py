@@ -17,7 +17,7 @@ from ..scan import Scan
 from ..surface import Surface
 from .setup import Setup
 from .stages import Hypotheses, stages
-from .stream import EventStream
+from .stream import EventStream, TimeBound
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, config: Config,
@@ -58,6 +58,7 @@ class Found:
     inside: np.ndarray | None = None
     beyond: np.ndarray | None = None
     last_cut: Problem | None = None
+    out_of_time: bool = False  # a refinement was cut by the time bound
 
     def note(self, T: np.ndarray, source: str) -> None:
         """Pose T (4, 4) was found by ``source``."""
@@ -91,8 +92,12 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         done.append(poses[k])
         run.leg("icp")
         at_guess = setup.problem if poses[k] is setup.T_guess else None
-        T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
-                         lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
+        try:
+            T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
+                             lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
+        except TimeBound:  # the time bound ran out inside this refinement: it is given up, the search ends
+            found.out_of_time = True
+            return
         found.note(T, hyp.label(k))
         if setup.trusted(T):
             if setup.region.inside(T):
@@ -119,8 +124,8 @@ def search_stages(setup: Setup, run: EventStream) -> tuple[Found, dict]:
     notes: stages, verdict). Returns what was found and, per stage, how many poses it gave or why none."""
     found, sources = Found(), {}
     for stage in stages(setup):
-        if setup.out_of_time():
-            sources[stage.name] = "not reached within the time limit"
+        if found.out_of_time or setup.out_of_time():
+            sources[stage.name] = "not reached within the time bound"
             continue
         if found.beyond is not None and stage.costly:
             sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "

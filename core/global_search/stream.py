@@ -36,6 +36,10 @@ class EventStream:
         self.in_leg = 0
 
     def emit(self, phase: str, T: np.ndarray, E: float) -> None:
+        """A step of the stages (a candidate scored, a refinement's ICP iteration); a refinement past the
+        time bound raises :class:`TimeBound` (the step is not taken)."""
+        if phase == "icp" and self.time_limit is not None and time.perf_counter() - self.t0 > self.time_limit:
+            raise TimeBound()
         self.n[phase] += 1
         self.in_leg += 1
         if self.listener is not None:

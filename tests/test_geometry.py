@@ -43,6 +43,17 @@ def test_grid_surface_edges_respect_the_culling_bound(bunny):
     assert _edges_within_bound(s.points, faces)
 
 
+def test_a_scans_surface_shares_its_tree_and_measures_its_reach_as_afresh(bunny, scene):
+    for s in (bunny("bun045"), scene("bowl")[0]):
+        surface = Surface.from_scan(s)
+        assert surface.tree is s.tree  # one k-d tree of the scan's points, not two
+        afresh = Surface(surface.vertices, surface.faces)
+        assert afresh.reach == float(edge_lengths(s.points, surface.faces).max()) == surface.reach
+        q = s.points[::97] + 0.5 * s.spacing
+        assert np.array_equal(surface.squared_distances_within(q, 2 * s.spacing),
+                              afresh.squared_distances_within(q, 2 * s.spacing))
+
+
 def test_delaunay_surface_never_bridges_a_depth_jump():
     rng = np.random.default_rng(1)
     near = np.c_[rng.uniform(-1, 0, (800, 2)), np.full(800, -5.0)]

@@ -14,7 +14,7 @@ from ..candidates import Basis, CandidateConfig, make_basis, pair_spacing
 from ..config import Config
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
-from ..noise import noise_floors
+from ..noise import noise_floors_ahead
 from ..problem import Problem, prepare
 from ..region import Region
 from ..scan import Scan
@@ -76,12 +76,18 @@ def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config:
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
     ahead = kiss_ahead(source, target, cc)
+    # the pair's noise floors, measured on a thread while this one cuts the overlap; they are measured
+    # with as many queries as the cut's sample holds, which is the most a sample holds unless the cut is small
+    rng = np.random.default_rng(config.seed)
+    floors = noise_floors_ahead([source, target], rng, pc.max_points)
     problem = prepare(source, target, T_init, pc, seed=config.seed)
+    if len(problem.points) != pc.max_points:
+        rng = np.random.default_rng(config.seed)
+        floors = noise_floors_ahead([source, target], rng, len(problem.points))
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
-    rng = np.random.default_rng(config.seed)
-    floor = float(np.mean(noise_floors([source, target], rng, len(problem.points))))
+    floor = float(np.mean(floors()))
     basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
     threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
     region = Region.stated(problem.T_init, pc, source, target)

@@ -68,8 +68,6 @@ def noise_floors_ahead(scans: list[Scan], rng: np.random.Generator, n_points: in
     threads = min(threads, len(scans))
     if o3d.utility.get_max_threads() < 2 or threads < 1:
         return lambda: [_measure(scan, *d) for scan, d in zip(scans, draws)]
-    for scan in scans:  # each scan's k-d tree and spacing made here, once, not raced for by the threads
-        _ = scan.tree, scan.spacing
     pool = ThreadPoolExecutor(threads, thread_name_prefix="noise-floor")
     if threads == 1:
         futures = [pool.submit(lambda: [_measure(scan, *d) for scan, d in zip(scans, draws)])]

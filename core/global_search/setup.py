@@ -81,11 +81,13 @@ def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config:
     # started ahead, it took the other core from the setup's threads and the guess's refinement (the
     # bunny's 5-15 deg starts, load ~6: wall median 0.51 s started ahead, 0.47 s made when wanted).
     ahead = kiss_ahead(source, target, cc) if pc.rotation_uncertainty_deg > cc.guess_first_deg else None
-    # the pair's noise floors, measured on a thread while this one cuts the overlap; they are measured
-    # with as many queries as the cut's sample holds, which is the most a sample holds unless the cut is small
+    # the pair's noise floors, measured on a thread while this one triangulates the target and cuts the
+    # overlap (the surface's query structure built on a third meanwhile); they are measured with as many
+    # queries as the cut's sample holds, which is the most a sample holds unless the cut is small
     rng = np.random.default_rng(config.seed)
     floors = noise_floors_ahead([source, target], rng, pc.max_points)
-    problem = prepare(source, target, T_init, pc, seed=config.seed)
+    surface = Surface.from_scan(target).warm()
+    problem = prepare(source, target, T_init, pc, surface=surface, seed=config.seed)
     if len(problem.points) != pc.max_points:
         rng = np.random.default_rng(config.seed)
         floors = noise_floors_ahead([source, target], rng, len(problem.points))

@@ -16,7 +16,7 @@ candidate must overlap the other scan by at least ``min_overlap`` both ways.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from .transforms import apply, invert
 CAP_SPACINGS = 0.7
 SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
 SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
+RECENT_POSES = 8  # single poses a basis remembers its answers for (Basis.evaluate, normal_angle)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 # RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
 # confidence, after log(0.001) / log(1 - w^3) draws when a share w of the mutual matches is right: 20,000
@@ -162,10 +163,26 @@ class Basis:
     neighbours: int
     target: Scan
     angle_floor: float
+    # the last few single poses asked about (a pose found is scored, tested for trust and reported: the
+    # same answers three times over), by the pose's bytes
+    _recent: dict = field(default_factory=dict, init=False, repr=False)
+
+    def _remembered(self, what: str, T: np.ndarray, compute):
+        key = (what, T.tobytes())
+        if key not in self._recent:
+            if len(self._recent) >= RECENT_POSES:
+                del self._recent[next(iter(self._recent))]
+            self._recent[key] = compute()
+        return self._recent[key]
 
     def evaluate(self, poses: np.ndarray) -> Scores:
         """Score (P, 4, 4) T_target_source poses; all closest points in one query."""
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+        if len(poses) == 1:
+            return self._remembered("scores", poses, lambda: self._evaluate(poses))
+        return self._evaluate(poses)
+
+    def _evaluate(self, poses: np.ndarray) -> Scores:
         P, M = len(poses), len(self.points)
         moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
         # every distance beyond the cap pays the cap: only those within it need the exact query
@@ -186,7 +203,10 @@ class Basis:
         target's normals at their closest points, over the points that match (inside the target's
         frustum, within the cap); nan when fewer than 3 match. A pose that lays a surface on a
         different one (a twin sliding over itself) tilts them; a range bias between views does not."""
-        T = np.asarray(T, dtype=np.float64)
+        T = np.asarray(T, dtype=np.float64).reshape(4, 4)
+        return self._remembered("normal angle", T, lambda: self._normal_angle(T))
+
+    def _normal_angle(self, T: np.ndarray) -> float:
         moved = self.points @ T[:3, :3].T + T[:3, 3]
         closest, d2 = self.surface.closest(moved)
         close = self.target_frustum.contains(moved) & (d2 < self.cap)

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frustum import Frustum, frustum_of, visible_from
+from .frustum import Frustum, Overlap, frustum_of, visible_from
 from .scan import Scan
 from .surface import Surface
-from .transforms import apply, invert
+from .transforms import apply
 
 MIN_SHARE = 0.02  # a cut is enough when it holds this share of the source's points (and >= 3)
 CUTS = ("frustum", "frustum+half-uncertainty", "frustum+uncertainty", "whole scan")
@@ -24,13 +24,20 @@ CUTS = ("frustum", "frustum+half-uncertainty", "frustum+uncertainty", "whole sca
 
 @dataclass(frozen=True, eq=False)
 class Cut:
-    """used: (Ns,) bool source points in the cut; name: which of CUTS; source_mask, target_mask: the
-    frustum masks both ways (the paper's overlap, for drawing)."""
+    """used: (Ns,) bool source points in the cut; name: which of CUTS; overlap: the frustum masks both
+    ways (the paper's overlap, for drawing; ``source_mask``, ``target_mask``)."""
 
     used: np.ndarray
     name: str
-    source_mask: np.ndarray
-    target_mask: np.ndarray
+    overlap: Overlap
+
+    @property
+    def source_mask(self) -> np.ndarray:
+        return self.overlap.source_mask
+
+    @property
+    def target_mask(self) -> np.ndarray:
+        return self.overlap.target_mask
 
 
 def _widened(f: Frustum, points: np.ndarray, angle: float, chunk: int = 65536) -> np.ndarray:
@@ -57,22 +64,21 @@ def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: n
     rotation uncertainty holds fewer than 3 (the guess's uncertainty allows no overlap)."""
     f_src, f_tgt = frustum_of(source, kind), frustum_of(target, kind)
     moved = apply(T_target_source, source.points)
-    back = apply(invert(T_target_source), target.points)
     enough = max(3, int(MIN_SHARE * len(source.points)))
     src_mask = f_tgt.contains(moved)
-    tgt_mask = f_src.contains(back)
+    overlap = Overlap(src_mask, f_src, target.points, np.array(T_target_source, dtype=np.float64))
     used = src_mask.copy()
     if visibility and used.any():
         radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
         used[np.flatnonzero(used)] = visible_from(surface, target.viewpoint, moved[used],
                                                   translation_uncertainty + rotation_uncertainty * radius)
     if used.sum() >= enough:
-        return Cut(used, CUTS[0], src_mask, tgt_mask)
+        return Cut(used, CUTS[0], overlap)
     widest = used
     for name, angle in ((CUTS[1], rotation_uncertainty / 2), (CUTS[2], rotation_uncertainty)):
         widest = _widened(f_tgt, moved, angle)
         if widest.sum() >= enough:
-            return Cut(widest, name, src_mask, tgt_mask)
+            return Cut(widest, name, overlap)
     if widest.sum() < 3:
         return None
-    return Cut(np.ones(len(source.points), dtype=bool), CUTS[3], src_mask, tgt_mask)
+    return Cut(np.ones(len(source.points), dtype=bool), CUTS[3], overlap)

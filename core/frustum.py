@@ -13,7 +13,7 @@ become outliers.
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -201,10 +201,19 @@ def _occupancy(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 @dataclass(frozen=True, eq=False)
 class Overlap:
-    """source_mask: (Ns,) source points inside the target's frustum; target_mask: (Nt,) the reverse."""
+    """source_mask: (Ns,) source points inside the target's frustum under ``T_target_source``;
+    target_mask: (Nt,) the reverse, the ``target_points`` (target frame) inside ``source_frustum``, made
+    when first asked for (only drawing asks: a registration's every cut would pay a test of the whole
+    target for it)."""
 
     source_mask: np.ndarray
-    target_mask: np.ndarray
+    source_frustum: Frustum = field(repr=False)
+    target_points: np.ndarray = field(repr=False)
+    T_target_source: np.ndarray = field(repr=False)
+
+    @cached_property
+    def target_mask(self) -> np.ndarray:
+        return self.source_frustum.contains(apply(invert(self.T_target_source), self.target_points))
 
     @property
     def source_fraction(self) -> float:
@@ -223,9 +232,8 @@ def segment_overlap(source: Scan, target: Scan, T_target_source: np.ndarray, kin
                     frusta: tuple[Frustum, Frustum] | None = None) -> Overlap:
     """Segment the overlap both ways under the guess ``T_target_source``."""
     f_src, f_tgt = frusta if frusta is not None else (frustum_of(source, kind), frustum_of(target, kind))
-    src_in_tgt = f_tgt.contains(apply(T_target_source, source.points))
-    tgt_in_src = f_src.contains(apply(invert(T_target_source), target.points))
-    return Overlap(src_in_tgt, tgt_in_src)
+    T = np.array(T_target_source, dtype=np.float64)
+    return Overlap(f_tgt.contains(apply(T, source.points)), f_src, target.points, T)
 
 
 def visible_from(target_surface, viewpoint: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:

@@ -9,6 +9,7 @@ E of a perfect registration, in the scan's own units, with no knowledge of the s
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
@@ -52,14 +53,28 @@ def noise_floors(scans: list[Scan], rng: np.random.Generator, n_points: int = 50
     the closest-point queries release the GIL: two bunny scans 0.10-0.13 s instead of 0.16-0.19),
     unless this process may use one thread only (Open3D's thread limit, which app.distributed sets
     per task stream)."""
+    return noise_floors_ahead(scans, rng, n_points, threads=len(scans))()
+
+
+def noise_floors_ahead(scans: list[Scan], rng: np.random.Generator, n_points: int = 500,
+                       threads: int = 1) -> Callable[[], list[float]]:
+    """:func:`noise_floors` started now: the draws made at once from ``rng`` (the same bits as one after
+    the other), the measures on ``threads`` threads of their own while the caller works on; call the
+    result for the floors (it waits for them). Held to one thread (Open3D's thread limit, which
+    app.distributed sets per task stream), the measures run when it is called, in the caller's thread."""
     import open3d as o3d
 
     draws = [_draw(scan, rng, n_points) for scan in scans]
-    threads = min(len(scans), o3d.utility.get_max_threads())
-    if threads < 2:
-        return [_measure(scan, *d) for scan, d in zip(scans, draws)]
-    with ThreadPoolExecutor(threads, thread_name_prefix="noise-floor") as pool:
-        return list(pool.map(lambda sd: _measure(sd[0], *sd[1]), zip(scans, draws)))
+    threads = min(threads, len(scans))
+    if o3d.utility.get_max_threads() < 2 or threads < 1:
+        return lambda: [_measure(scan, *d) for scan, d in zip(scans, draws)]
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="noise-floor")
+    if threads == 1:
+        futures = [pool.submit(lambda: [_measure(scan, *d) for scan, d in zip(scans, draws)])]
+    else:
+        futures = [pool.submit(_measure, scan, *d) for scan, d in zip(scans, draws)]
+    pool.shutdown(wait=False)
+    return lambda: futures[0].result() if threads == 1 else [f.result() for f in futures]
 
 
 def normal_floor(scan: Scan, at: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> float:

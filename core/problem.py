@@ -113,7 +113,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
     if cut is None:
         raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess, even with "
                          f"its frustum opened by the rotation uncertainty ({config.rotation_uncertainty_deg:g} deg)")
-    overlap, used = Overlap(cut.source_mask, cut.target_mask), cut.used
+    overlap, used = cut.overlap, cut.used
     idx = np.flatnonzero(used)
     rng = np.random.default_rng(seed)
     if len(idx) > config.max_points:

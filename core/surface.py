@@ -9,6 +9,7 @@ face the sensor.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -94,6 +95,12 @@ def view_projection(points: np.ndarray, viewpoint: np.ndarray,
 def triangulate(scan: Scan, axis: np.ndarray | None = None) -> np.ndarray:
     """(M, 3) int64 faces over ``scan.points``; see the module notes. ``axis``: the viewing direction
     to project along (default the mean ray), so that a part of a scan triangulates as within the whole."""
+    return _triangulate(scan, axis)[0]
+
+
+def _triangulate(scan: Scan, axis: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """:func:`triangulate`'s faces and their longest edge (units; :attr:`Surface.reach`), from the edge
+    lengths the triangulation measures anyway."""
     pts = scan.points
     if scan.grid is not None:
         faces = _grid_faces(scan.grid.index)
@@ -109,10 +116,13 @@ def triangulate(scan: Scan, axis: np.ndarray | None = None) -> np.ndarray:
                              f"{np.round(scan.viewpoint, 4).tolist()} (seen edge-on?)") from None
     if len(faces):
         spacing = local_spacing(pts, scan.tree)  # the scan's own tree (built once, for its spacing too)
-        faces = faces[np.all(edge_lengths(pts, faces) <= edge_bound(spacing, faces), axis=1)]
+        lengths = edge_lengths(pts, faces)
+        kept = np.all(lengths <= edge_bound(spacing, faces), axis=1)
+        faces, lengths = faces[kept], lengths[kept]
     if len(faces) == 0:
         raise InputError(f"{scan.name}: no surface could be built (every triangle bridged a gap)")
-    return _face_sensor(pts, faces, scan.viewpoint)
+    # winding a face the other way measures the same three edges
+    return _face_sensor(pts, faces, scan.viewpoint), float(lengths.max())
 
 
 def _grid_faces(idx: np.ndarray) -> np.ndarray:
@@ -146,18 +156,36 @@ class Surface:
 
     vertices: np.ndarray
     faces: np.ndarray
+    # a k-d tree of ``vertices`` and the longest edge, when known already (a scan's own tree, the
+    # triangulation's edge lengths); else made on first use
+    tree: cKDTree | None = field(default=None, repr=False)
+    longest_edge: float | None = field(default=None, repr=False)
     offset: np.ndarray = field(init=False)
+    _built: object = field(default=None, init=False, repr=False)
+    _building: threading.Lock = field(default_factory=threading.Lock, init=False, repr=False)
 
     def __post_init__(self):
         self.offset = self.vertices.mean(0)
 
     @classmethod
     def from_scan(cls, scan: Scan) -> Surface:
-        faces = scan.faces if scan.faces is not None and len(scan.faces) else triangulate(scan)
-        return cls(scan.points, faces)
+        """The scan's stored faces, else its triangulation (module notes), over its points; with the
+        scan's k-d tree (its points are the vertices)."""
+        if scan.faces is not None and len(scan.faces):
+            return cls(scan.points, scan.faces, tree=scan.tree)
+        faces, longest = _triangulate(scan)
+        return cls(scan.points, faces, tree=scan.tree, longest_edge=longest)
 
-    @cached_property
+    @property
     def _scene(self):
+        """Open3D's RaycastingScene of the mesh, built once (by the first query, or by :meth:`warm`)."""
+        if self._built is None:
+            with self._building:  # one build, whichever thread asks first; the others wait for it
+                if self._built is None:
+                    self._built = self._build_scene()
+        return self._built
+
+    def _build_scene(self):
         import open3d as o3d
 
         scene = o3d.t.geometry.RaycastingScene()
@@ -165,7 +193,16 @@ class Surface:
         mesh.vertex.positions = o3d.core.Tensor((self.vertices - self.offset).astype(np.float32))
         mesh.triangle.indices = o3d.core.Tensor(self.faces.astype(np.int32))
         scene.add_triangles(mesh)
+        # Embree builds its hierarchy at the first query (a 78k-triangle bunny scan: ~0.04 s): made here
+        scene.compute_closest_points(o3d.core.Tensor(np.zeros((1, 3), dtype=np.float32)))
         return scene
+
+    def warm(self) -> Surface:
+        """Build the query structure now, on a thread of its own (Open3D lets go of the GIL meanwhile),
+        while the caller works on; the first query waits for it. Returns the surface."""
+        if self._built is None:
+            threading.Thread(target=lambda: self._scene, name="surface-warm", daemon=True).start()
+        return self
 
     def closest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points (N, 3) float64 and squared distances (N,) for (N, 3) queries."""
@@ -174,11 +211,13 @@ class Surface:
 
     @cached_property
     def _vertex_tree(self) -> cKDTree:
-        return cKDTree(self.vertices)
+        return self.tree if self.tree is not None else cKDTree(self.vertices)
 
     @cached_property
     def reach(self) -> float:
         """The longest edge (units): every point of the surface lies within it of a vertex."""
+        if self.longest_edge is not None:
+            return self.longest_edge
         return float(edge_lengths(self.vertices, self.faces).max()) if len(self.faces) else 0.0
 
     def squared_distances_within(self, query: np.ndarray, radius: float) -> np.ndarray:

@@ -30,6 +30,22 @@ def test_candidate_scores_match_a_per_pose_loop(scene):
         assert scores.inliers[k] == pytest.approx(np.mean(inside & (d2 < basis.cap)))
 
 
+def test_a_pose_alone_scores_as_in_a_batch_and_again_as_first(scene):
+    target, source = scene("corner")
+    basis = make_basis(source, target, Surface.from_scan(target), 0.4, np.random.default_rng(3),
+                       CandidateConfig(sample=50))
+    rng = np.random.default_rng(5)
+    poses = [perturb(np.eye(4), np.r_[rng.normal(0, 30, 3), rng.normal(0, 0.1, 3)], source.centroid) for _ in range(12)]
+    batch = basis.evaluate(np.stack(poses))
+    fields = ("score", "inside", "reverse", "inlier_median", "inliers")
+    first = [(basis.evaluate(T[None]), basis.normal_angle(T)) for T in poses]  # more poses than it remembers
+    for k, T in enumerate(poses + poses[::-1]):
+        k = k if k < len(poses) else 2 * len(poses) - 1 - k
+        alone = basis.evaluate(T[None])
+        assert all(getattr(alone, f)[0] == getattr(batch, f)[k] == getattr(first[k][0], f)[0] for f in fields)
+        assert basis.normal_angle(T) == pytest.approx(first[k][1], rel=0, abs=0, nan_ok=True)
+
+
 def test_super_fibonacci_rotations_cover_so3_evenly():
     R = super_fibonacci(720)
     assert np.allclose(np.einsum("nij,nkj->nik", R, R), np.eye(3), atol=1e-9)

@@ -43,6 +43,30 @@ def test_grid_surface_edges_respect_the_culling_bound(bunny):
     assert _edges_within_bound(s.points, faces)
 
 
+def test_a_scans_surface_shares_its_tree_and_measures_its_reach_as_afresh(bunny, scene):
+    for s in (bunny("bun045"), scene("bowl")[0]):
+        surface = Surface.from_scan(s)
+        assert surface.tree is s.tree  # one k-d tree of the scan's points, not two
+        afresh = Surface(surface.vertices, surface.faces)
+        assert afresh.reach == float(edge_lengths(s.points, surface.faces).max()) == surface.reach
+        q = s.points[::97] + 0.5 * s.spacing
+        assert np.array_equal(surface.squared_distances_within(q, 2 * s.spacing),
+                              afresh.squared_distances_within(q, 2 * s.spacing))
+
+
+def test_a_surface_warmed_on_a_thread_answers_as_one_built_by_its_first_query(scene):
+    from concurrent.futures import ThreadPoolExecutor
+
+    s = scene("bowl")[0]
+    q = s.points[::31] + np.random.default_rng(2).normal(0, 5.0, (len(s.points[::31]), 3))
+    cold = Surface.from_scan(s).closest_with_normals(q)
+    warm = Surface.from_scan(s).warm()
+    with ThreadPoolExecutor(4) as pool:  # queries from several threads while it builds: one build, the same answers
+        answers = list(pool.map(lambda _: warm.closest_with_normals(q), range(4)))
+    for got in answers + [warm.closest_with_normals(q)]:
+        assert all(np.array_equal(a, b) for a, b in zip(got, cold))
+
+
 def test_delaunay_surface_never_bridges_a_depth_jump():
     rng = np.random.default_rng(1)
     near = np.c_[rng.uniform(-1, 0, (800, 2)), np.full(800, -5.0)]

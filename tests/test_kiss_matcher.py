@@ -62,3 +62,20 @@ def test_kiss_matcher_gives_the_same_bits_every_run_in_its_own_process_or_in_thi
     monkeypatch.setattr(kmc, "CHILD", Path(kmc.CHILD.parent / "no_such_child.py"))
     assert np.array_equal(kmc.kiss_candidates(source, target, spacing, 5.0)[0], first[0])
     kmc._CHILD.close()
+
+def test_the_setup_starts_kiss_matcher_ahead_only_when_its_stage_comes_next_to_the_guess(scene):
+    from core.global_search.setup import prepare_setup
+    from core.kiss_matcher_candidates import kiss_available
+    from core.problem import ProblemConfig
+    from core.register import Config
+
+    if not kiss_available():
+        pytest.skip("kiss-matcher is not installed (an optional extra)")
+    target, source = scene("corner")
+    first = CandidateConfig().guess_first_deg
+    for deg, ahead in ((first, False), (first + 10, True)):
+        setup = prepare_setup(source, target, np.eye(4), Config(method="global",
+                                                                 problem=ProblemConfig(rotation_uncertainty_deg=deg)))
+        assert (setup.ahead is not None) is ahead  # within guess_first_deg the guess is refined alone first
+        if ahead:
+            setup.ahead.result(timeout=60)

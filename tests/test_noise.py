@@ -25,6 +25,17 @@ def test_floors_side_by_side_are_the_floors_one_after_the_other(scene):
             assert all(f > 0 for f in one_by_one)
 
 
+def test_floors_measured_ahead_are_the_floors_and_leave_the_generator_as_they_do(scene):
+    from core.noise import noise_floors_ahead
+
+    a, b = scene("bowl")
+    for threads in (1, 2):
+        rng, ahead_rng = np.random.default_rng(7), np.random.default_rng(7)
+        ahead = noise_floors_ahead([a, b], ahead_rng, 300, threads)
+        assert ahead_rng.random() == (noise_floors([a, b], rng, 300), rng.random())[1]  # the draws made at once
+        assert ahead() == noise_floors([a, b], np.random.default_rng(7), 300)
+
+
 def _corner_scans(noises: tuple[float, ...]) -> list:
     """One view of the corner per range noise (mm), the same rays and seed."""
     from core.simulate import corner_mesh, look_at, scan_mesh

@@ -14,7 +14,7 @@ from ..candidates import Basis, CandidateConfig, make_basis, pair_spacing
 from ..config import Config
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
-from ..noise import noise_floors
+from ..noise import noise_floors_ahead
 from ..problem import Problem, prepare
 from ..region import Region
 from ..scan import Scan
@@ -60,8 +60,8 @@ class Setup:
 def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None:
     """KISS-Matcher's hypotheses, started on a thread of their own (None when it is off or not installed).
     The thread makes the voxel clouds and waits on core.kiss_matcher_candidates' child process, which runs
-    on the other core while this one cuts the overlap, takes the noise floor and the basis (the same inputs,
-    so the same hypotheses); a run trusted before its stage leaves them unread."""
+    on the other core while this one makes the setup (the same inputs, so the same hypotheses); a run
+    trusted before its stage leaves them unread."""
     if not (cc.enabled and cc.kiss_matcher and kiss_available()):
         return None
     pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
@@ -77,13 +77,26 @@ def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config:
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
-    ahead = kiss_ahead(source, target, cc)
+    # KISS-Matcher's hypothesis is scored beside the guess when the rotation is stated wider than
+    # guess_first_deg (.stages): then it starts first, on the other core. Else it is wanted only when the
+    # guess alone is not trusted (at 5-15 deg, 6 of 60 sweep runs), and is made then (.stages.matched):
+    # started ahead, it took the other core from the setup's threads and the guess's refinement (the
+    # bunny's 5-15 deg starts, load ~6: wall median 0.51 s started ahead, 0.47 s made when wanted).
+    ahead = kiss_ahead(source, target, cc) if pc.rotation_uncertainty_deg > cc.guess_first_deg else None
+    # the pair's noise floors, measured on a thread while this one triangulates the target and cuts the
+    # overlap (the surface's query structure built on a third meanwhile); they are measured with as many
+    # queries as the cut's sample holds, which is the most a sample holds unless the cut is small
+    rng = np.random.default_rng(config.seed)
+    floors = noise_floors_ahead([source, target], rng, pc.max_points)
+    surface = (surface if surface is not None else Surface.from_scan(target)).warm()
     problem = prepare(source, target, T_init, pc, surface=surface, seed=config.seed)
+    if len(problem.points) != pc.max_points:
+        rng = np.random.default_rng(config.seed)
+        floors = noise_floors_ahead([source, target], rng, len(problem.points))
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
-    rng = np.random.default_rng(config.seed)
-    floor = float(np.mean(noise_floors([source, target], rng, len(problem.points))))
+    floor = float(np.mean(floors()))
     basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
     threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
     region = Region.stated(problem.T_init, pc, source, target)

@@ -81,8 +81,8 @@ def run_method(case: Case, method: str, T0: np.ndarray, seed: int) -> dict:
     cfg = Config(seed=seed, problem=case.problem, **kw)
     res = register(case.source, case.target, T0, cfg)
     rot, tr = pose_error(res.transform, case.T_true, case.source.centroid)
-    return {"error": res.error, "iterations": res.iterations["icp"] + res.iterations["sa"], "icp": res.iterations["icp"],
-            "sa": res.iterations["sa"], "seconds": res.seconds, "rot": rot, "trans": tr,
+    return {"error": res.error, "iterations": res.iterations.icp + res.iterations.sa, "icp": res.iterations.icp,
+            "sa": res.iterations.sa, "seconds": res.seconds, "rot": rot, "trans": tr,
             "ok": rot < case.ok_rot and tr < case.ok_trans, "T": res.transform, "threshold": res.threshold}
 
 

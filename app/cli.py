@@ -82,11 +82,15 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--max-points", type=_knob("max_points"), default=pc.max_points,
                        help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
         s.add_argument("--seed", type=_knob("seed"), default=0, help="seed of every random choice (default 0)")
-        s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), default=pc.rotation_uncertainty_deg,
-                       metavar="DEG", help="how far off the guess may be in rotation, (0, 180]; 180: "
-                       f"no guess at all (register's default method takes it) (default {pc.rotation_uncertainty_deg:g} deg)")
+        s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), metavar="DEG",
+                       help="how far off the guess may be in rotation, (0, 180], about the scan frame's origin (where "
+                       "a 4x4 --init's rotation acts: the global method adds the move this implies at the scans' "
+                       f"centroid to the translation); default {pc.rotation_uncertainty_deg:g} deg; 180: any rotation. "
+                       "The global method takes no --init, no stored rough poses and neither uncertainty flag as no "
+                       "guess at all")
         s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",
-                       help="how far off the guess may be in translation (default 15 %% of the target's size)")
+                       help="how far off the guess may be in translation (default 15 %% of the target's size; "
+                       "the global method leaves it free from a stated rotation of 90 deg up)")
         s.add_argument("--lock", metavar="SPEC", help="degrees of freedom the search may not move: any of "
                        "tx,ty,tz,rx,ry,rz (about the overlap centroid; 'rotation' or 'translation' for three), or "
                        "turntable:px,py,pz,dx,dy,dz (rotation about that line in TARGET's frame only; "
@@ -104,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(no rotation samples, no feature matching)")
     s.add_argument("--rotation-samples", type=_knob("rotation_samples"), metavar="N", help="global: rotations "
                    "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
+    s.add_argument("--full-search", action="store_true", help="global: when no candidate is trusted, let the "
+                   "paper's hybrid search round the best one until it stops by itself (default: a few seconds at most)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
                    "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")
@@ -137,6 +143,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quick", action="store_true", help="fewer runs (under 3 minutes)")
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
+    s.add_argument("--modes", help="--sweep: how starts are made, comma-separated of origin, turntable, centroid, "
+                   "no-guess (default all)")
+    s.add_argument("--families", help="--sweep: which pairs, comma-separated of whole, crop-whole, crop-crop "
+                   "(default all)")
     s.add_argument("--json", help="write the rows as JSON to this file")
     s.add_argument("--runs", type=_knob("runs"), help="starts per scene (default 10, quick 2)")
     s.add_argument("--workers", type=_knob("workers"), default=1, help="--sweep: starts at once: 1 = in this process "

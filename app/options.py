@@ -141,6 +141,7 @@ class Settings:
     coarse_to_fine: bool = False
     candidates: bool = True  # method global: candidate poses beyond the guess (False: the guess alone)
     rotation_samples: int | None = None  # method global: over all of SO(3)
+    full_search: bool = False  # method global: no bound on the search (the paper's hybrid runs to its end)
     lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
@@ -191,7 +192,8 @@ def to_config(s: Settings):
                   anneal=replace(base.anneal, **anneal), sa_alone=replace(base.sa_alone, **anneal),
                   polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
                   candidates=replace(base.candidates, enabled=s.candidates,
-                                     **given(rotation_samples=s.rotation_samples)),
+                                     **given(rotation_samples=s.rotation_samples),
+                                     **({"fallback_steps": None, "time_limit": None} if s.full_search else {})),
                   **given(hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg

@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -201,3 +202,25 @@ class TraceFile:
             self._file.close()
         with contextlib.suppress(Exception):
             self._cm.__exit__(InputError, InputError("discarded"), None)
+
+
+@contextlib.contextmanager
+def library_prints_to_stderr(active: bool = True) -> Iterator[None]:
+    """While active, what is written to file descriptor 1 (a C++ library's prints: Open3D's warnings)
+    goes to stderr, so that stdout holds only what the command prints on purpose (``--json``)."""
+    try:
+        if not active:
+            raise ValueError
+        sys.stdout.flush()
+        fd = sys.stdout.fileno()
+        saved = os.dup(fd)
+    except (OSError, ValueError, AttributeError):  # inactive, or no file behind stdout (in-process callers)
+        yield
+        return
+    os.dup2(sys.stderr.fileno(), fd)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, fd)
+        os.close(saved)

@@ -27,8 +27,8 @@ sys.path.insert(0, str(ROOT))
 
 from app.sweep import shared_pairs  # noqa: E402
 from core.candidates import CandidateConfig, make_basis  # noqa: E402
+from core.config import Config  # noqa: E402
 from core.global_search import refine  # noqa: E402
-from core.icp import IcpConfig  # noqa: E402
 from core.io import load_scan  # noqa: E402
 from core.noise import noise_floor  # noqa: E402
 from core.problem import ProblemConfig  # noqa: E402
@@ -81,7 +81,7 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: Candidate
     pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * t.size)
     for T0 in starts_from(T_true, s, rng, starts, t.size):
         try:
-            T, _ = refine(s, t, surface, T0, pc, IcpConfig(metric=config.refine_metric))
+            T, _ = refine(s, t, surface, T0, pc, Config(candidates=config))
         except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
             continue
         rot, trans = pose_error(T, T_true, s.centroid)

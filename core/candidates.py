@@ -1,12 +1,11 @@
-"""Candidate poses beyond the guess, scored on one fixed basis (beyond the paper; issue 13).
+"""Candidate poses beyond the guess, scored on one fixed basis (beyond the paper).
 
 The paper's search starts from the guess and trusts the guess to lie in the true basin (section 2.1).
 Before it, we gather poses to try: the guess; hypotheses from global feature matching (Open3D's FPFH
 + RANSAC at two voxel sizes and two seeds, and KISS-Matcher when installed); and a deterministic
 sampling of rotations within the guess's stated rotation uncertainty (super-Fibonacci samples of
 SO(3), Alexa 2022), each with the translation that best matches the scans' centroids within the
-stated translation uncertainty. A candidate farther from the guess than its stated uncertainty is
-dropped; the rest are scored on one :class:`Basis`.
+stated translation uncertainty (core.region). Every candidate is scored on one :class:`Basis`.
 
 The basis: one seeded sample of the source's points and one fixed cap. Every candidate pays, per
 sample point, its squared distance to the target surface capped at ``cap``; a point outside the
@@ -43,6 +42,9 @@ ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours 
 
 @dataclass(frozen=True)
 class CandidateConfig:
+    """The ``global`` method's knobs (core.global_search): where candidates come from, how many are
+    refined and how, and how long the search may go on when nothing is trusted."""
+
     enabled: bool = True
     sample: int = 160  # source points on the fixed basis (the paper's E: 165-341)
     min_overlap: float = 0.1  # share of each scan's sample that must fall in the other's frustum
@@ -57,7 +59,29 @@ class CandidateConfig:
     # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations
     # on the same robust E; "point" is the paper's Horn step
     refine_metric: str = "plane"
+    # a refinement leg stops when its best E has not fallen for this many iterations (core.icp's patience).
+    # Measured on the bunny sweep's starts (5 pairs, origin mode, 5-180 deg): right refinements reach their
+    # best within 2-6 iterations of a leg's start and then at most cycle
+    refine_patience: int = 8
     normal_neighbours: int = NORMAL_NEIGHBOURS  # points a normal is fitted to (the pair threshold's angle)
+    # The guess is refined alone first when its rotation is stated within this; a wider guess is scored
+    # with KISS-Matcher's hypothesis first. Measured on the bunny sweep's starts only (the scenes have no
+    # KISS-Matcher stage worth timing; it orders stages, success does not depend on it): the guess alone,
+    # refined with the point-to-plane steps, is trusted at 5 and 15 deg, but from 30 deg about half of 20
+    # starts fell through to the rotation samples: 0.81-4.11 s, median 1.22 (in process, files -> pose,
+    # quiet); with KISS-Matcher scored beside the guess 0.93-1.53, median 1.01.
+    guess_first_deg: float = 20.0
+    refine_rotation_deg: float = 15.0  # a candidate's first overlap cut assumes it is this close (the samples' spacing)
+    distinct_rotation_deg: float = 2.0  # candidates closer than this (and distinct_translation) are refined once
+    distinct_translation: float = 0.01  # share of the target's size
+    local_translation: float = 0.05  # the hybrid's translation uncertainty round the best candidate (share of size)
+    # When no candidate is trusted the paper's hybrid searches round the best one, for at most this many
+    # steps (ICP iterations and annealing moves; None: until it stops by itself, as --method hybrid).
+    fallback_steps: int | None = 3000
+    # No new stage or leg starts after this many seconds of search (None: no bound); the pose then is
+    # the best scored and not trusted. A bound on time, not on work, so the last resort of a slow
+    # machine: fallback_steps bounds a run the same on every machine.
+    time_limit: float | None = 8.0
 
     def validate(self) -> None:
         if self.sample < 10:
@@ -69,10 +93,27 @@ class CandidateConfig:
         if self.refine_metric not in METRICS:
             raise InputError(f"the refinement's ICP metric must be one of {', '.join(METRICS)}, "
                              f"not {self.refine_metric!r}")
+        if self.refine_patience < 1:
+            raise InputError(f"the refinement's patience must be at least 1 iteration, got {self.refine_patience}")
         if self.normal_neighbours < 3:
             raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):
             raise InputError(f"FPFH voxel sizes must be positive, got {self.fpfh_voxels}")
+        for name in ("guess_first_deg", "refine_rotation_deg", "distinct_rotation_deg"):
+            if not 0 < getattr(self, name) <= 180:
+                raise InputError(f"{name} must be in (0, 180] degrees, got {getattr(self, name)}")
+        for name in ("distinct_translation", "local_translation"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(f"{name} must be a share of the target's size > 0, got {getattr(self, name)}")
+        if self.fallback_steps is not None and self.fallback_steps < 0:
+            raise InputError(f"the fallback's steps must be >= 0 (or None: unbounded), got {self.fallback_steps}")
+        if self.time_limit is not None and not (np.isfinite(self.time_limit) and self.time_limit > 0):
+            raise InputError(f"the time limit must be > 0 seconds (or None: unbounded), got {self.time_limit}")
+
+    @property
+    def full_search(self) -> bool:
+        """No bound on the fallback: the paper's hybrid runs until it stops by itself."""
+        return self.fallback_steps is None and self.time_limit is None
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,21 +238,6 @@ def super_fibonacci(n: int) -> np.ndarray:
     a, b = 2 * np.pi * s / phi, 2 * np.pi * s / psi
     q = np.c_[r * np.sin(a), r * np.cos(a), R * np.sin(b), R * np.cos(b)]
     return Rotation.from_quat(q).as_matrix()
-
-
-def within(T: np.ndarray, T_guess: np.ndarray, center: np.ndarray, rot_unc: float, trans_unc: float) -> bool:
-    """Whether pose T lies within the guess's stated uncertainty: rotation (radians) and the move of
-    the source point ``center`` (source frame, units)."""
-    return bool(within_many(np.asarray(T)[None], T_guess, center, rot_unc, trans_unc)[0])
-
-
-def within_many(Ts: np.ndarray, T_guess: np.ndarray, center: np.ndarray, rot_unc: float, trans_unc: float) -> np.ndarray:
-    """(P,) bool: :func:`within` for each of the (P, 4, 4) poses ``Ts``."""
-    Ts = np.asarray(Ts, dtype=np.float64).reshape(-1, 4, 4)
-    moved = Ts[:, :3, :3] @ center + Ts[:, :3, 3] - (T_guess[:3, :3] @ center + T_guess[:3, 3])
-    cos = (np.einsum("pij,ij->p", Ts[:, :3, :3], T_guess[:3, :3]) - 1.0) / 2.0  # trace(R G^T)
-    angle = np.arccos(np.clip(cos, -1.0, 1.0))
-    return (angle <= rot_unc + 1e-9) & (np.linalg.norm(moved, axis=1) <= trans_unc + 1e-12)
 
 
 def rotation_candidates(source: Scan, target: Scan, T_guess: np.ndarray, rot_unc: float, trans_unc: float,

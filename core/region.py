@@ -21,7 +21,7 @@ twice the stated uncertainty about the guess, section 2.1); this region is the `
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -36,6 +36,15 @@ FREE_FROM_DEG = 90.0
 # bun090->bun000: RANSAC and KISS-Matcher hypotheses refined, against the truth)
 SLACK_ROTATION_DEG = 3.0
 SLACK_TRANSLATION = 0.03  # share of the target's size
+
+
+def offsets(Ts: np.ndarray, T_ref: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) rotation angle (radians) and (P,) move of the source point ``center`` (3,) (units) from the
+    (4, 4) pose ``T_ref`` to each of the (P, 4, 4) poses ``Ts``."""
+    Ts = np.asarray(Ts, dtype=np.float64).reshape(-1, 4, 4)
+    moved = Ts[:, :3, :3] @ center + Ts[:, :3, 3] - (T_ref[:3, :3] @ center + T_ref[:3, 3])
+    cos = (np.einsum("pij,ij->p", Ts[:, :3, :3], T_ref[:3, :3]) - 1.0) / 2.0  # trace(R G^T)
+    return np.arccos(np.clip(cos, -1.0, 1.0)), np.linalg.norm(moved, axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,11 +89,7 @@ class Region:
 
     def offsets(self, Ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P,) rotation (radians) and (P,) centroid move (units) of the (P, 4, 4) poses from the guess."""
-        Ts = np.asarray(Ts, dtype=np.float64).reshape(-1, 4, 4)
-        G = self.T_guess
-        moved = Ts[:, :3, :3] @ self.center + Ts[:, :3, 3] - (G[:3, :3] @ self.center + G[:3, 3])
-        cos = (np.einsum("pij,ij->p", Ts[:, :3, :3], G[:3, :3]) - 1.0) / 2.0  # trace(R G^T)
-        return np.arccos(np.clip(cos, -1.0, 1.0)), np.linalg.norm(moved, axis=1)
+        return offsets(Ts, self.T_guess, self.center)
 
     def contains(self, Ts: np.ndarray) -> np.ndarray:
         """(P,) bool: each of the (P, 4, 4) poses lies inside (the bounds plus the slack)."""
@@ -119,3 +124,8 @@ class Region:
         return {"rotation_deg": self.stated_rotation_deg, "translation": self.stated_translation,
                 "translation_at_centroid": self.translation if np.isfinite(self.translation) else None,
                 "no_guess": self.no_guess}
+
+
+def no_guess(config: ProblemConfig) -> ProblemConfig:
+    """``config`` stating no guess: any rotation (180 deg), no translation bound (module notes)."""
+    return replace(config, rotation_uncertainty_deg=180.0, translation_uncertainty=None)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
@@ -19,6 +19,7 @@ class StopReason(StrEnum):
     HOPS_SPENT = "hop budget spent"
     CANCELLED = "cancelled"
     TRUSTED = "a candidate refined below the pair threshold"  # method "global" (core.global_search)
+    TIME_BOUND = "nothing trusted within the time bound"  # method "global": the search's bound ran out
 
 
 @dataclass(frozen=True)
@@ -32,17 +33,62 @@ class Stop:
         return self.text or self.reason.value
 
 
+@dataclass(frozen=True)
+class Iterations:
+    """Steps per phase over a run: ICP iterations, annealing moves (and hops), candidates scored."""
+
+    icp: int = 0
+    sa: int = 0
+    candidates: int = 0
+
+    @property
+    def total(self) -> int:
+        return self.icp + self.sa + self.candidates
+
+    def to_json(self) -> dict:
+        """{"icp": n, "sa": n}, and "candidates" where any were scored (the global method)."""
+        return {"icp": self.icp, "sa": self.sa, **({"candidates": self.candidates} if self.candidates else {})}
+
+
+@dataclass(frozen=True, eq=False)
+class GlobalDetails:
+    """What the ``global`` method (core.global_search) found out beside the pose.
+
+    threshold: the pair threshold (core.threshold.PairThreshold); misfit: its misfit at the pose (None
+    when too little matches to judge); region: the stated region (core.region.Region); within_region:
+    the pose lies inside it; beyond: where it lies otherwise, in words ('' inside); score: the pose's
+    score on the pair's fixed basis (squared units); candidates: poses scored; candidate_sources: per
+    stage, how many poses it gave or why it gave none; found_by: the stage whose refined pose this is
+    ("guess", "kiss-matcher", "rotation samples", "fpfh-ransac 5 spacings", ..., "hybrid")."""
+
+    threshold: object
+    misfit: float | None
+    region: object
+    within_region: bool
+    beyond: str
+    score: float
+    candidates: int
+    candidate_sources: dict
+    found_by: str = ""
+
+    def to_json(self) -> dict:
+        return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
+                "within_region": self.within_region, "region": self.region.to_json(), "beyond": self.beyond,
+                "score": self.score, "candidates": self.candidates, "candidate_sources": dict(self.candidate_sources),
+                "found_by": self.found_by}
+
+
 @dataclass(frozen=True, eq=False)
 class Result:
     """transform: (4, 4) T_target_source; error: final robust E (squared units); threshold: the E
     below which the pose is trusted (squared units; method "global": the pair threshold's bound on the
-    median matched d^2 where the normals agree at their floor, core.threshold); iterations: {"icp": n,
-    "sa": n} (more keys may follow); evaluations: of E over the run; seconds: wall time from the call to
-    the result."""
+    median matched d^2 where the normals agree at their floor, core.threshold); iterations: steps per
+    phase; evaluations: of E over the run; seconds: wall time from the call to the result; trusted and
+    details: method "global"'s verdict and what it found (None for the paper's methods)."""
 
     transform: np.ndarray
     error: float
-    iterations: dict
+    iterations: Iterations
     local_minima: int
     evaluations: int
     seconds: float
@@ -51,7 +97,7 @@ class Result:
     stop: Stop
     cut: str = "frustum"  # the overlap cut under the guess (core.cut.CUTS: widened when the frustum's was empty)
     trusted: bool | None = None  # method "global": the pair threshold's verdict (core.threshold.PairThreshold)
-    details: dict = field(default_factory=dict)  # method "global": threshold derivation, candidate sources, score
+    details: GlobalDetails | None = None
 
     @property
     def stop_reason(self) -> StopReason:
@@ -69,29 +115,35 @@ class Result:
         return bool(self.trusted) if self.trusted is not None else bool(self.error < self.threshold)
 
     @property
+    def within_region(self) -> bool | None:
+        """Method "global": the pose lies inside the stated region (core.region); None otherwise."""
+        return None if self.details is None else self.details.within_region
+
+    @property
     def trust_text(self) -> str:
-        """Why to trust this pose or not, in words."""
-        misfit, derivation = self.details.get("misfit"), self.details.get("threshold_derivation")
-        if self.trusted is None or derivation is None:
-            return f"E is {'below' if self.below_threshold else 'above'} the threshold ({self.threshold:.6g})"
+        """Why to trust this pose or not, in words (and, for a pose beyond the stated region, where it lies)."""
+        d = self.details
+        if self.trusted is None or d is None:
+            return f"E is {'below' if self.below_threshold else 'above'} the threshold ({self.threshold:.4g})"
+        factor = d.threshold.factor
         if self.trusted:
-            return (f"where the scans overlap they agree at the noise level in distance and normals (misfit "
-                    f"{misfit:.3g} < {derivation['factor']:g})")
-        if self.details.get("within_region") is False:
-            return ("the pose lies farther from the guess than twice its stated uncertainty (a twin of a symmetric "
-                    "scene may fit as well there; state a larger uncertainty to accept it)")
-        if misfit is None:
-            return "too little of the scans overlaps at this pose to judge it"
-        return (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
-                f"{misfit:.3g}, trusted below {derivation['factor']:g})")
+            text = (f"where the scans overlap they agree at the noise level in distance and normals (misfit "
+                    f"{d.misfit:.3g} < {factor:g})")
+        elif d.misfit is None:
+            text = "too little of the scans overlaps at this pose to judge it"
+        else:
+            text = (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
+                    f"{d.misfit:.3g}, trusted below {factor:g})")
+        return f"{text}; {d.beyond}" if d.beyond else text
 
     def __repr__(self) -> str:
         it = self.iterations
-        return (f"Result({self.method}: E={self.error:.6g}, iterations icp={it['icp']} sa={it['sa']}, "
+        return (f"Result({self.method}: E={self.error:.4g}, iterations icp={it.icp} sa={it.sa}, "
                 f"local_minima={self.local_minima}, {self.seconds:.2f} s, stopped: {self.stop_text})")
 
     def to_json(self) -> dict:
-        return {"transform": self.transform.tolist(), "error": self.error, "iterations": dict(self.iterations),
+        return {"transform": self.transform.tolist(), "error": self.error, "iterations": self.iterations.to_json(),
                 "local_minima": self.local_minima, "evaluations": self.evaluations, "seconds": self.seconds,
                 "method": self.method, "threshold": self.threshold, "stop_reason": self.stop_text,
-                "below_threshold": self.below_threshold, "cut": self.cut, **self.details}
+                "below_threshold": self.below_threshold, "cut": self.cut,
+                **({} if self.details is None else {"trusted": self.trusted, **self.details.to_json()})}

@@ -69,7 +69,7 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     assert rot < 2.0 and trans < 0.002
     assert g.below_threshold
     # the guess, 90 degrees off, is not what was refined into the answer: a stage beyond it was scored
-    assert g.iterations["candidates"] >= 2 and set(g.details["candidate_sources"]) - {"guess"}
+    assert g.iterations.candidates >= 2 and set(g.details.candidate_sources) - {"guess"}
     # the same run again gives the same bits (KISS-Matcher's hypothesis included: core.kiss)
     again = register(source, target, T0, Config(method="global", problem=pc))
     assert np.array_equal(again.transform, g.transform) and again.error == g.error
@@ -82,7 +82,7 @@ def test_with_candidates_off_only_the_guess_is_tried(scene):
     T_true = true_transform(source, target)
     T0 = perturb(T_true, np.r_[50.0, 0, 0, 0, np.radians(3), 0], apply(T_true, source.centroid[None])[0])
     res = register(source, target, T0, Config(method="global", candidates=CandidateConfig(enabled=False)))
-    assert res.details["candidates"] == 1 and res.iterations["candidates"] == 1
+    assert res.details.candidates == 1 and res.iterations.candidates == 1
     assert pose_error(res.transform, T_true, source.centroid)[0] < 1.0
 
 
@@ -110,8 +110,8 @@ def test_the_pair_threshold_does_not_trust_a_twin_of_the_bowl_that_fits_in_dista
     """The bowl turned 35 deg about a principal axis and refined ends in a valley 3.8 deg and 19 mm off,
     where 71 % of the sample matches at 6.4 x the noise floor in d^2: distance alone (the last version's
     test, 7 x) trusted it. The normals there disagree: the misfit rejects it, and trusts the truth."""
+    from core.config import Config
     from core.global_search import refine
-    from core.icp import IcpConfig
     from core.noise import noise_floor
     from core.problem import ProblemConfig
     from core.simulate import true_transform
@@ -129,7 +129,7 @@ def test_the_pair_threshold_does_not_trust_a_twin_of_the_bowl_that_fits_in_dista
     turned = perturb(T_true, np.r_[0, 0, 0, np.radians(35) * (T_true[:3, :3] @ axes[:, 2])],
                      apply(T_true, source.centroid[None])[0])
     pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * target.size)
-    T, _ = refine(source, target, surface, turned, pc, IcpConfig(metric="plane"))
+    T, _ = refine(source, target, surface, turned, pc, Config(candidates=CandidateConfig(refine_metric="plane")))
     rot, trans = pose_error(T, T_true, source.centroid)
     assert rot > 2.0 and trans > 10.0  # a wrong minimum (the scenes' success bound: 1 deg, 1 % of the size)
     s = basis.evaluate(T[None])
@@ -148,7 +148,7 @@ def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
     res = register(source, target, T0, Config(method="global"), events.append)
     phases = [e.phase for e in events]
     assert phases[0] == "candidates" and "icp" in phases
-    assert phases.count("candidates") == res.iterations["candidates"] == res.details["candidates"]
+    assert phases.count("candidates") == res.iterations.candidates == res.details.candidates
     steps = [e.iteration for e in events if not e.local_minimum]
     assert steps == list(range(1, len(steps) + 1))
     assert all(e.phase_iteration >= 1 and e.leg >= 1 for e in events)

@@ -221,15 +221,26 @@ def test_register_with_a_lock_keeps_it_in_every_traced_event_and_slice_refuses_a
     assert code == 2 and err.count("\n") == 1 and "--lock: cannot lock qq" in err
 
 
-def test_a_right_pose_beyond_the_stated_uncertainty_says_so_rather_than_calling_it_wrong(rangereg):
+def test_a_trusted_pose_beyond_the_stated_uncertainty_comes_back_and_says_where(rangereg):
     if not BUNNY.is_dir():
         pytest.skip("the shared bunny scans are absent")
-    # no stored guess: identity, 45 degrees from the truth, beyond twice the default 15 degrees; the
-    # pipeline's hybrid still reaches the truth, which the pair threshold would trust but for the region
-    code, out, _ = rangereg("register", BUNNY / "bun045.ply", BUNNY / "bun000.ply")
+    # the identity stated as a guess good to 15 degrees, 45 degrees from the truth: KISS-Matcher's hypothesis
+    # (start-free) is refined and trusted beyond the region; nothing inside is: it is returned, and says so
+    code, out, _ = rangereg("register", BUNNY / "bun045.ply", BUNNY / "bun000.ply", "--rotation-uncertainty", 15)
     assert code == 0
     rot = float(re.search(r"vs ground truth: rotation ([0-9.]+) deg", out).group(1))
     assert rot < 1.0, out
-    assert "trust       no: the pose lies farther from the guess than twice its stated uncertainty" in out
-    assert "note: the pose found lies beyond twice the guess's stated uncertainty (15 deg" in out
-    assert "probably not the registration" not in out
+    assert re.search(r"trust       yes: .*; found [0-9.]+ deg( / [0-9.]+ m)? beyond the stated uncertainty \(15 deg", out), out
+    assert "note: the pose was found beyond the uncertainty stated for the guess" in out
+    code, out, _ = rangereg("register", BUNNY / "bun045.ply", BUNNY / "bun000.ply", "--rotation-uncertainty", 15,
+                            "--json")
+    res = json.loads(out)
+    assert res["trusted"] is True and res["within_region"] is False and res["beyond"].startswith("found ")
+
+
+def test_no_guess_and_no_flags_is_no_guess_at_all(rangereg):
+    if not BUNNY.is_dir():
+        pytest.skip("the shared bunny scans are absent")
+    code, out, _ = rangereg("register", BUNNY / "bun090.ply", BUNNY / "bun000.ply")  # 90 degrees apart
+    assert code == 0 and "guess       no guess" in out and "trust       yes" in out, out
+    assert float(re.search(r"vs ground truth: rotation ([0-9.]+) deg", out).group(1)) < 2.0

@@ -187,7 +187,7 @@ def test_the_global_pipeline_registers_a_turntable_pair_from_far_round_the_table
                                               problem=ProblemConfig(rotation_uncertainty_deg=180.0)), events.append)
     rot, tr = pose_error(res.transform, Tt, source.points.mean(0))
     assert rot < 1.0 and tr < 1.0, (rot, tr)
-    assert res.method == "global" and res.iterations["candidates"] >= 1
+    assert res.method == "global" and res.iterations.candidates >= 1
     on_axis = point + np.outer([-300.0, 0.0, 300.0], AXIS)
     for e in events:
         assert np.all(e.coords[:3] == 0.0) and np.all(e.coords[3:5] == 0.0)

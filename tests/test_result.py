@@ -6,11 +6,13 @@ import json
 
 import numpy as np
 
-from core.result import Result, Stop, StopReason
+from core.region import Region
+from core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+from core.threshold import pair_threshold
 
 
 def _result(error=0.5, threshold=1.0, stop=Stop(StopReason.BELOW_THRESHOLD)):
-    return Result(np.eye(4), error, {"icp": 12, "sa": 30}, 1, 80, 0.25, "hybrid", threshold, stop)
+    return Result(np.eye(4), error, Iterations(12, 30), 1, 80, 0.25, "hybrid", threshold, stop)
 
 
 def test_the_stop_reason_is_an_enum_member_and_its_text_names_the_counts():
@@ -35,18 +37,24 @@ def test_json_keeps_its_keys_with_readable_text_and_adds_below_threshold():
     assert out["iterations"] == {"icp": 12, "sa": 30}
 
 
-def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided():
+def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided(scene):
     assert _result(error=0.5, threshold=1.0).trust_text == "E is below the threshold (1)"
-    derivation = {"factor": 4.5}
+    source, target = scene("corner")
+    from core.problem import ProblemConfig
 
-    def global_(trusted, misfit):
-        return Result(np.eye(4), 0.5, {"icp": 3, "sa": 0}, 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
-                      trusted=trusted, details={"threshold_derivation": derivation, "misfit": misfit})
+    region = Region.stated(np.eye(4), ProblemConfig(), source, target)
+
+    def global_(trusted, misfit, beyond=""):
+        details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), misfit, region, not beyond, beyond, 0.1, 4, {"guess": 1})
+        return Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
+                      trusted=trusted, details=details)
 
     assert "agree at the noise level in distance and normals (misfit 2.1 < 4.5)" in global_(True, 2.1).trust_text
     assert "(misfit 7.3, trusted below 4.5)" in global_(False, 7.3).trust_text
     assert "too little" in global_(False, None).trust_text  # no misfit: fewer than 3 points matched
     assert "E is" not in global_(True, 2.1).trust_text  # E on the cut is not what the pair threshold bounds
-    beyond = global_(False, 1.3)
-    beyond.details["within_region"] = False  # fits, but lies beyond twice the stated uncertainty
-    assert "farther from the guess than twice its stated uncertainty" in beyond.trust_text
+    beyond = global_(True, 1.3, "found 41 deg / 0.12 m beyond the stated uncertainty (15 deg, ...)")
+    assert beyond.within_region is False and beyond.trust_text.endswith("beyond the stated uncertainty (15 deg, ...)")
+    out = beyond.to_json()
+    assert out["trusted"] is True and out["within_region"] is False and out["beyond"].startswith("found 41 deg")
+    assert out["iterations"] == {"icp": 3, "sa": 0, "candidates": 4} and out["region"]["rotation_deg"] == 15.0

@@ -29,13 +29,13 @@ def test_hybrid_escapes_a_local_minimum_where_icp_stays(scene_start):
     # annealing gets the rotation out of ICP's well; the translation along the corner stays partly off
     assert rot < 1 and tr < icp_tr, (rot, tr)
     assert hyb.error < icp_res.error
-    assert hyb.local_minima >= 1 and hyb.iterations["sa"] > 0
+    assert hyb.local_minima >= 1 and hyb.iterations.sa > 0
     # the event stream agrees with the reported counts
-    assert sum(e.phase == "icp" and not e.local_minimum for e in events) >= hyb.iterations["icp"] - 2
-    assert sum(e.phase == "sa" for e in events) == hyb.iterations["sa"]
+    assert sum(e.phase == "icp" and not e.local_minimum for e in events) >= hyb.iterations.icp - 2
+    assert sum(e.phase == "sa" for e in events) == hyb.iterations.sa
     assert sum(e.local_minimum for e in events) == hyb.local_minima
     assert [e.iteration for e in events if not e.local_minimum] == sorted(e.iteration for e in events if not e.local_minimum)
-    assert events[-1].iteration == hyb.iterations["icp"] + hyb.iterations["sa"]
+    assert events[-1].iteration == hyb.iterations.icp + hyb.iterations.sa
     assert all(e.temperature is not None for e in events if e.phase == "sa")
 
 
@@ -53,10 +53,10 @@ def test_basin_hopping_finds_the_bowls_true_well_where_icp_stays_out(scene_start
     assert rot < 1 and tr < 0.01 * a.size, (rot, tr)
     assert hop.error < stuck.error and hop.local_minima >= 1
     # every hop is one 'sa' event without a temperature, followed by an ICP leg
-    assert sum(e.phase == "sa" for e in events) == hop.iterations["sa"] > 0
+    assert sum(e.phase == "sa" for e in events) == hop.iterations.sa > 0
     assert all(e.temperature is None for e in events if e.phase == "sa")
     assert sum(e.local_minimum for e in events) == hop.local_minima
-    assert events[-1].iteration == hop.iterations["icp"] + hop.iterations["sa"]
+    assert events[-1].iteration == hop.iterations.icp + hop.iterations.sa
 
 
 def test_recutting_the_overlap_at_the_found_pose_gets_icp_out(scene_start):

@@ -15,9 +15,10 @@ import json
 import sys
 import time
 from argparse import Namespace
+from dataclasses import replace
 
 from app.commands import pair
-from app.outputs import TraceFile, check_distinct, check_output, write_outputs
+from app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, write_outputs
 from core.errors import InputError
 
 TRACE_SUFFIXES = (".jsonl", ".ndjson", ".json")
@@ -39,11 +40,31 @@ class Progress:
 
 
 def run(a: Namespace) -> int:
+    with library_prints_to_stderr(a.json):  # --json: stdout holds the JSON and nothing else
+        res, source, target, cfg, seconds, trace, out = _register(a)
+    try:
+        report(res, source, target, cfg, a.json, seconds)  # first: a file that cannot be written loses only itself
+    finally:  # the files are written even when stdout is gone (`| head`)
+        failed = []
+        if trace is not None:
+            try:
+                trace.commit()
+            except InputError as exc:
+                failed.append(str(exc))
+        try:
+            write_outputs([(out, "--out", lambda p: _write_transform(p, res))])
+        except InputError as exc:
+            failed.append(str(exc))
+        if failed:
+            raise InputError("; ".join(failed))
+    return 0
+
+
+def _register(a: Namespace):
+    """Check, read, register: (result, source, target, config, seconds, trace file or None, --out path or None)."""
     from core.register import register
 
-    if a.method is None:
-        a.method = "global"
-    cfg = pair.config(a)
+    cfg = pair.config(a, method=a.method or "global")
     files = pair.inputs(a)
     scans = [a.source, a.target]
     out = check_output(a.out, "--out", (".json",), files, scans) if a.out is not None else None
@@ -59,6 +80,11 @@ def run(a: Namespace) -> int:
     import core.global_search  # noqa: F401
     t0 = time.perf_counter()
     source, target, T_init = pair.load(a)
+    if cfg.method == "global" and not pair.has_guess(a, source, target) and a.rotation_uncertainty is None \
+            and a.translation_uncertainty is None:
+        from core.region import no_guess
+
+        cfg = replace(cfg, problem=no_guess(cfg.problem))  # nothing said about the pose: any pose
     # progress is for someone watching a terminal: a log or a pipe gets the result and at most one error line
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
@@ -81,22 +107,7 @@ def run(a: Namespace) -> int:
     if trace is not None:  # the closing line: the pose the run returned (not always its last event)
         trace.write(json.dumps({"result": res.to_json()}))
     seconds = {"seconds": time.perf_counter() - t0, "import_seconds": t0 - t_imports}
-    try:
-        report(res, source, target, cfg, a.json, seconds)  # first: a file that cannot be written loses only itself
-    finally:  # the files are written even when stdout is gone (`| head`)
-        failed = []
-        if trace is not None:
-            try:
-                trace.commit()
-            except InputError as exc:
-                failed.append(str(exc))
-        try:
-            write_outputs([(out, "--out", lambda p: _write_transform(p, res))])
-        except InputError as exc:
-            failed.append(str(exc))
-        if failed:
-            raise InputError("; ".join(failed))
-    return 0
+    return res, source, target, cfg, seconds, trace, out
 
 
 def _write_transform(path, res) -> None:
@@ -114,11 +125,15 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
             out["lock"] = str(cfg.lock)
         print(json.dumps(out))
         return
+    it = res.iterations
     print(f"method      {res.method}")
+    if res.details is not None:
+        print(f"guess       {res.details.region.describe()}")
     if cfg.lock.active:
         print(f"locked      {cfg.lock} (free: {', '.join(cfg.lock.free)})")
-    print(f"error       {res.error:.6g} {target.units}^2 (threshold {res.threshold:.6g})")
-    print(f"iterations  ICP {res.iterations['icp']}, SA {res.iterations['sa']}  (local minima {res.local_minima})")
+    print(f"error       {res.error:.4g} {target.units}^2 (threshold {res.threshold:.4g})")
+    print(f"iterations  ICP {it.icp}, SA {it.sa}" + (f", candidates {it.candidates}" if it.candidates else "")
+          + f"  (local minima {res.local_minima})")
     print(f"stopped     {res.stop_text} after {seconds['seconds']:.2f} s (files to result; "
           f"imports {seconds['import_seconds']:.2f} s apart)")
     if res.cut != "frustum":
@@ -132,14 +147,24 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
 
         rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
         print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
-    t_unc = cfg.problem.translation_uncertainty_for(target.size)
-    if res.details.get("within_region") is False:
-        print(f"note: the pose found lies beyond twice the guess's stated uncertainty "
-              f"({cfg.problem.rotation_uncertainty_deg:g} deg, {t_unc:.4g} {target.units}); if the guess may be that "
-              "far off, say so with --rotation-uncertainty / --translation-uncertainty (180: no guess at all).")
-    elif res.threshold > 0 and not res.below_threshold:
-        why = "the pair threshold does not trust this pose" if res.trusted is not None else "E stayed above the threshold"
-        print(f"note: {why}, so this is probably not the registration. The search covers "
-              f"about twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg, "
-              f"{t_unc:.4g} {target.units}); if the guess may be farther off, give a better --init or a larger "
-              "--rotation-uncertainty / --translation-uncertainty, or try --method basin-hopping.")
+    note = advice(res, cfg)
+    if note:
+        print(f"note: {note}")
+
+
+def advice(res, cfg) -> str:
+    """What the user can do about this result, in a sentence ('' when nothing)."""
+    if res.details is not None and res.below_threshold and not res.within_region:
+        return ("the pose was found beyond the uncertainty stated for the guess; if the guess may be that far off, "
+                "say so with --rotation-uncertainty / --translation-uncertainty (a twin of a symmetric scene inside "
+                "the stated region would have won)")
+    if res.below_threshold or res.threshold <= 0:
+        return ""
+    if res.details is not None:
+        return ("not trusted, so this is probably not the registration. Give a better --init, state how far off the "
+                "guess may be (--rotation-uncertainty, --translation-uncertainty; no --init and neither flag: no "
+                "guess at all), or search longer from this pose (--full-search, or --method hybrid with it as --init).")
+    return ("E stayed above the threshold, so this is probably not the registration. The search covers about "
+            f"twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg); if the guess may "
+            "be farther off, give a better --init or a larger --rotation-uncertainty / --translation-uncertainty, "
+            "or try --method global or basin-hopping.")

@@ -1,0 +1,45 @@
+"""One run of a paper method (hybrid, icp, sa, icp-restarts, basin-hopping) on one pair, start to result.
+
+    prepare    section 2.1: triangulate the target, cut the overlap under the guess, sample the source
+    threshold  section 2.3: the E expected at perfect registration (core.threshold)
+    search     the method per overlap cut (methods), refined on a cut at the pose found, in rounds
+    polish     optional: a last unweighted ICP leg (section 4)
+    result     the round with the lowest E on the cut at its own pose
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..config import Config
+from ..events import Cancelled, Listener
+from ..lock import LockFrame
+from ..problem import Problem, prepare
+from ..result import Iterations, Result
+from ..scan import Scan
+from ..threshold import threshold_for
+from .rounds import Round, best_round, cancelled, polish, search_rounds
+from .state import SearchState
+
+
+def run_method(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config, listener: Listener | None = None,
+               problem: Problem | None = None, frame: LockFrame | None = None) -> Result:
+    """``config.method`` (a paper method) from the guess ``T_init`` (T_target_source); see core.register."""
+    t0 = time.perf_counter()
+    problem = problem or prepare(source, target, T_init, config.problem, seed=config.seed)
+    threshold = threshold_for(problem, config)
+    state = SearchState(problem, config, listener, frame)
+    # the search region is centred on the pose the problem was cut at: the guess (section 2.1)
+    state.start_at(problem.T_init)
+    rounds: list[Round] = []
+    try:
+        search_rounds(state, threshold, rounds)
+        if config.polish:
+            polish(state, rounds)
+    except Cancelled:
+        rounds.append(cancelled(state))
+    best = best_round(rounds)
+    return Result(best.T, best.error, Iterations(state.n["icp"], state.n["sa"]), state.local_minima,
+                  state.evaluations, time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut)

@@ -83,7 +83,8 @@ class MergeConfig:
     # no guess, more scans: each scan's best partners by the cue (15-stop turntable, seed 0: the best 2
     # by the share of mutually nearest FPFH features are within 2 stops for 28 of 30)
     cue_partners: int = 2
-    reach_partners: int = 3  # a scan no trusted pair reaches: partners tried with no guess, per round
+    # a group of scans no trusted pair joins to the first: pairs across to the placed scans, per round
+    reach_partners: int = 3
     # the region about the graph's pose (a pair registered again, or found under the poses found)
     found_rotation_deg: float = 5.0
     # a pair closes when its cycle's residual is within these (rotation; translation in point spacings)
@@ -366,29 +367,32 @@ class _Campaign:
         shares = self.timed_map(share_task, [(i, j, invert(P[i]) @ P[j]) for i, j in near], "overlaps") if near else []
         over = {(i, j): f for (i, j), f in zip(near, shares)}
         tasks = []
-        # not used, registered once: again from the graph's pose, before it is given up
+        # not used, registered once, and overlapping under the poses found: again from the graph's pose,
+        # before it is given up (a pair matching less than min_overlap cannot be trusted: the pair
+        # threshold asks 30 % of the source's sample to match)
         for (i, j), f in over.items():
-            if (i, j) in self.pairs and self.tried[i, j] == 1 and f >= self.mc.min_overlap_any:
+            if (i, j) in self.pairs and self.tried[i, j] == 1 and f >= self.mc.min_overlap:
                 tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start="graph pose"))
         # pairs that now overlap: each scan's best partners under the poses found, not registered yet
         fresh = [(i, j, f) for (i, j), f in over.items() if (i, j) not in self.pairs]
         for i, j, _ in choose(fresh + [(i, j, 1.0) for i, j in used], self.n, "init", self.mc):
             if (i, j) not in self.pairs and (i, j) in over:
                 tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, start="graph pose"))
-        # a scan no trusted pair reaches: its partners by overlap under the rough poses (in their region),
-        # then its likeliest by the cue (no guess)
+        # scans no trusted pair joins to the first: per group of them (joined among themselves, or alone),
+        # the pairs across to the placed scans, by overlap under the rough poses (in their region), then
+        # by the cue (no guess)
+        label = _labels(self.n, [keys[k] for k in g.kept])
         rot, trans = self.region()
-        for u in [k for k in range(self.n) if not placed[k]]:
-            rough = sorted((m for m in range(self.n) if m != u and _key(u, m) not in self.pairs
-                            and self.init_overlap.get(_key(u, m), 0.0) >= self.mc.min_overlap_any),
-                           key=lambda m: -self.init_overlap[_key(u, m)])
-            cue = [m for m in self.cue_rank(u) if _key(u, m) not in self.pairs and m not in rough]
-            picks = [(m, True) for m in rough] + [(m, False) for m in cue]
-            for m, by_pose in picks[:self.mc.reach_partners]:
-                i, j = _key(u, m)
-                if not any((t.i, t.j) == (i, j) for t in tasks):
-                    tasks.append(PairTask(i, j, self.rel(i, j), rot if by_pose else 180.0, trans if by_pose else None,
-                                          start="rough poses" if by_pose else "no guess"))
+        for group in sorted({label[k] for k in range(self.n) if not placed[k]}):
+            inside = [k for k in range(self.n) if label[k] == group]
+            across = [_key(u, m) for u in inside for m in range(self.n) if placed[m] and _key(u, m) not in self.pairs]
+            rough = sorted((c for c in across if self.init_overlap.get(c, 0.0) >= self.mc.min_overlap_any),
+                           key=lambda c: -self.init_overlap[c])
+            cue = sorted((c for c in across if c not in rough), key=lambda c: (-self.cue(*c), c))
+            picks = [(c, True) for c in rough] + [(c, False) for c in cue]
+            for (i, j), by_pose in picks[:self.mc.reach_partners]:
+                tasks.append(PairTask(i, j, self.rel(i, j), rot if by_pose else 180.0, trans if by_pose else None,
+                                      start="rough poses" if by_pose else "no guess"))
         return tasks
 
     def close(self, P: list, i: int, j: int) -> bool:

@@ -180,7 +180,7 @@ class TaskRunner:
 
     def start(self) -> None:
         """Connect to the scheduler or start the local cluster (done by the first map with work for it)."""
-        if self.serial or self.client is not None:
+        if self.client is not None or (self.scheduler is None and self.workers == 1):
             return
         import dask
         from distributed import Client, LocalCluster

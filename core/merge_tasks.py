@@ -113,7 +113,8 @@ def built(shared: Shared, k: int) -> tuple[Scan, Surface]:
 
 
 def _normals(shared: Shared, k: int) -> np.ndarray:
-    """(N, 3) normals of scan k (facing its sensor), once per process: only targets of a pair need them."""
+    """(N, 3) normals of scan k (facing its sensor), once per process."""
+    built(shared, k)
     cache = _BUILT[shared.token]
     if ("normals", k) not in cache:
         cache[("normals", k)] = sample_quality(built(shared, k)[0])[0]
@@ -129,19 +130,26 @@ def pair_seed(seed: int, i: int, j: int, attempt: int = 0) -> int:
 
 
 def overlap_task(shared: Shared, item: tuple) -> float:
-    """item (i, j, T_i_j) -> the smaller of the two overlap shares under T_i_j: of a fixed sample of each
-    scan's points (OVERLAP_SAMPLE), those inside the other's frustum and not hidden behind its surface
-    by more than the stated uncertainty allows (core.cut's test, on a sample: the frustum and a ray per
-    point over a whole 40k-point scan cost ~1 s a pair)."""
-    i, j, T_i_j = item
-    (si, fi), (sj, fj) = built(shared, i), built(shared, j)
+    """item (i, j, T_i_j[, facing]) -> the smaller of the two overlap shares under T_i_j: of a fixed sample
+    of each scan's points (OVERLAP_SAMPLE), those inside the other's frustum and not hidden behind its
+    surface by more than the stated uncertainty allows (core.cut's test on a sample: a ray per point
+    over a whole 40k-point scan costs ~1 s a pair). ``facing``: instead of the rays, those whose normal
+    (turned by T) faces the other's sensor: for poses known only roughly (a rotation within tens of
+    degrees, the position not at all), where a surface the other sensor saw from behind must not count."""
+    i, j, T_i_j, *rest = item
+    facing = bool(rest and rest[0])
     pc = shared.config.problem
     fracs = []
-    for src, tgt, surf, T in ((sj, si, fi, T_i_j), (si, sj, fj, invert(T_i_j))):
-        pts = src.points[::max(1, len(src.points) // OVERLAP_SAMPLE)]
+    for a, b, T in ((j, i, T_i_j), (i, j, invert(T_i_j))):
+        src, (tgt, surf) = built(shared, a)[0], built(shared, b)
+        step = max(1, len(src.points) // OVERLAP_SAMPLE)
+        pts = src.points[::step]
         moved = apply(T, pts)
         inside = frustum_of(tgt, pc.frustum).contains(moved)
-        if pc.visibility and inside.any():
+        if facing:
+            normals = _normals(shared, a)[::step] @ T[:3, :3].T
+            inside &= np.einsum("ij,ij->i", normals, tgt.viewpoint - moved) > 0
+        elif pc.visibility and inside.any():
             radius = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
             margin = pc.translation_uncertainty_for(tgt.size) + np.radians(pc.rotation_uncertainty_deg) * radius
             inside[np.flatnonzero(inside)] = visible_from(surf, tgt.viewpoint, moved[inside], margin)

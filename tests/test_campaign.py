@@ -281,3 +281,35 @@ def test_map_tasks_keeps_the_order_serially_and_on_a_cluster():
     items = list(range(7))
     assert map_tasks(abs, [-i for i in items], workers=1) == items
     assert map_tasks(abs, [-i for i in items], workers=2) == items
+
+
+def _slow_abs(x: int) -> int:
+    time.sleep(0.3)
+    return abs(x)
+
+
+def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch):
+    import app.distributed as dist
+
+    pays = dist.cluster_pays
+    assert not pays(0.5 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]
+    assert pays(2 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]
+    assert not pays(100.0, cores=1, load=0.0)[0]
+    busy, why = pays(100.0, cores=2, load=3.0)
+    assert not busy and "busy" in why
+    # little work: the plain loop, and it says why
+    with dist.TaskRunner(progress=[].append) as runner:
+        assert runner.map(abs, [-1, -2, -3]) == [1, 2, 3]
+        assert runner.serial and runner.client is None
+        assert runner.choice.startswith("plain loop in this process")
+    # work that pays (the bound lowered, a quiet machine): the rest of the map goes to a local cluster
+    monkeypatch.setattr(dist, "PAYBACK_SECONDS", 0.5)
+    monkeypatch.setattr(dist.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(dist, "default_workers", lambda: 2)
+    lines = []
+    with dist.TaskRunner(progress=lines.append) as runner:
+        assert runner.map(_slow_abs, [-k for k in range(8)]) == list(range(8))
+        assert not runner.serial and runner.client is not None
+        assert runner.choice.startswith("a local cluster of 2 workers: about")
+    assert any(line.startswith("starting a local cluster") for line in lines)
+    assert any(line.startswith("_slow_abss 8/8") and line.endswith("done") for line in lines)

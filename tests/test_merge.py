@@ -11,7 +11,7 @@ import pytest
 from core.fuse import double_layer_fraction, fuse
 from core.merge import merge
 from core.surface import Surface
-from core.transforms import apply, invert, perturb, pose_error, random_perturbation
+from core.transforms import apply, invert, pose_error
 from tests.conftest import ASSETS, BUNNY
 from tests.conftest import run_cli as rangereg
 
@@ -69,18 +69,38 @@ def test_merge_bad_conf_gets_one_line(tmp_path):
         assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
 
 
-@pytest.mark.slow
-def test_bunny_set_comes_back_to_the_conf_poses(bunny):
-    scans = [bunny(n) for n in ("bun000", "bun045", "bun090", "bun315")]
-    rng = np.random.default_rng(0)
-    initial = []
-    for s in scans:  # each .conf pose perturbed by 10 degrees and 20 mm about the scan's centre
-        t, r = random_perturbation(rng, 10.0, 0.020)
-        initial.append(perturb(s.pose, np.r_[t, r], apply(s.pose, s.points.mean(0)[None])[0]))
-    res = merge(scans, initial)
-    for s, T in zip(scans, res.poses):
+def _right(scans, poses, deg: float = 2.0, metres: float = 0.002) -> list[tuple[str, float, float]]:
+    """The scans placed beyond deg / metres of the truth relative to the first (empty: all right)."""
+    off = []
+    for s, T in zip(scans, poses):
         rot, tr = pose_error(T, invert(scans[0].pose) @ s.pose, s.points.mean(0))
-        assert rot < 1.0 and tr < 0.002, (s.name, rot, tr)
+        if not (rot < deg and tr < metres):
+            off.append((s.name, rot, tr))
+    return off
+
+
+def test_the_four_bunny_scans_with_no_poses_all_land(bunny):
+    """No --init, no stored poses: every pair over all rotations; bun315 with bun090 (135 deg apart,
+    ~6 % matching) is not trusted and not used; every scan within 2 deg / 2 mm (~40 s)."""
+    scans = [replace(bunny(n), guess=None) for n in ("bun000", "bun045", "bun090", "bun315")]
+    res = merge(scans, None, build_model=False)
+    assert res.mode == "all" and all(res.placed)
+    assert not _right(scans, res.poses)
+    far = next(p for p in res.pairs if {p.i, p.j} == {2, 3})
+    assert far.status == "rejected" and not far.trusted and "not trusted" in far.reason
+    assert all(p.trusted for p in res.used) and len(res.used) >= 4  # a cycle checks every scan
+    assert all(r.cycle is not None and r.cycle[0] < 2.0 for r in res.scans)
+
+
+@pytest.mark.slow
+def test_bunny_set_from_rough_poses_comes_back_to_the_conf_poses(bunny):
+    from core.turntable import rough_poses
+
+    scans = [bunny(n) for n in ("bun000", "bun045", "bun090", "bun315")]
+    # each .conf pose turned by 15 degrees about its scan frame's origin and shifted by 25 mm
+    initial = rough_poses([s.pose for s in scans], "frame", 15.0, 0.025, seed=0)
+    res = merge(scans, initial)
+    assert all(res.placed) and not _right(scans, res.poses, 1.0, 0.001)
     assert double_layer_fraction(res.model.vertices, res.model.faces, scans[0].spacing) < 0.02
     assert BUNNY.is_dir()
 

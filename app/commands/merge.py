@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from app.options import Settings, read_text_file, to_config
-from app.outputs import check_output, write_output
+from app.outputs import check_output, library_prints_to_stderr, write_output
 from core.errors import InputError
 
 PROGRESS_DELAY = 1.0  # s: a run that fails sooner shows no progress lines
@@ -93,7 +93,8 @@ def run(a) -> int:
     have = initial is not None or all(s.guess is not None for s in scans)
     config = stated_config(a, have)
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
-    with TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
+    # --json: stdout holds the report alone (Open3D's C++ warnings go to stderr)
+    with library_prints_to_stderr(a.json), TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
         res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map)
     report = build_report(res, scans, truth, config, have, runner, scheduler, out)
     try:

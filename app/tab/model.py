@@ -124,7 +124,8 @@ class ModelPanel:
                 if st.pair == pair and st.display is not None:
                     st.model = res.model
 
-            report = campaign_text(res)
+            counted = [line for line in lines if line.startswith("pairs")]
+            report = campaign_text(res) + (f"  \n{counted[-1]}" if counted else "")
             self.state.hand(apply, lambda: self._campaign_done(res, report))
 
         threading.Thread(target=work, daemon=True, name="rangereg-campaign").start()

@@ -151,6 +151,7 @@ class PairResult:
     reason: str = ""
     cycle: tuple | None = None
     earlier: str | None = None
+    stop: str = ""  # why its registration's search stopped (core.result.Stop's text)
 
     def __repr__(self) -> str:
         return (f"PairResult({self.j}->{self.i}, E={self.error:.4g}, {'trusted' if self.trusted else 'untrusted'}, "
@@ -293,23 +294,26 @@ class _Campaign:
             chosen = self.cue_pairs()
         else:
             items = [(i, j) for i in range(n) for j in range(i + 1, n)]
-            self.say(f"measuring the overlap of {len(items)} pairs under the initial poses")
-            guesses = [self.rel(i, j) for i, j in items]
-            # where the stated region lets a scan move by about its size at its centroid (a rotation about
-            # an origin far from the scans: a sensor's, a turntable's), the rough poses say little about
-            # where it lies: its overlap is also measured with its centroid on the partner's, counting the
-            # points that face the partner's sensor
-            loose = [self.loose(i, j, T) for (i, j), T in zip(items, guesses)]
-            aligned = [k for k, flag in enumerate(loose) if flag]
-            fracs = self.timed_map(overlap_task, [(i, j, T) for (i, j), T in zip(items, guesses)]
-                                   + [(*items[k], self.centred(*items[k], guesses[k]), True) for k in aligned], "overlaps")
-            for m, k in enumerate(aligned):
-                fracs[k] = max(fracs[k], fracs[len(items) + m])
-            fracs = fracs[:len(items)]
-            self.init_overlap = dict(zip(items, fracs))
-            chosen = [c[:2] for c in choose([(i, j, f) for (i, j), f in zip(items, fracs)], n, mode, self.mc)]
+            self.init_overlap = dict(zip(items, self.initial_overlaps(items)))
+            chosen = [c[:2] for c in choose([(i, j, f) for (i, j), f in self.init_overlap.items()], n, mode, self.mc)]
         start = "rough poses" if self.have else "no guess"
         return [PairTask(i, j, self.rel(i, j), rot, trans, start=start) for i, j in chosen]
+
+    def initial_overlaps(self, items: list[tuple[int, int]]) -> list[float]:
+        """The overlap of each pair under the initial poses (core.merge_tasks.overlap_task)."""
+        self.say(f"measuring the overlap of {len(items)} pairs under the initial poses")
+        guesses = [self.rel(i, j) for i, j in items]
+        # where the stated region lets a scan move by about its size at its centroid (a rotation about an
+        # origin far from the scans: a sensor's, a turntable's), the rough poses say little about where it
+        # lies: its overlap is also measured with its centroid on the partner's, counting the points that
+        # face the partner's sensor (10-stop turntable, 15 deg about the sensor: round 1 then picks the
+        # 20 pairs within 2 stops, all trusted; measured as given, 14 pairs of which 8 far apart)
+        aligned = [k for k, ((i, j), T) in enumerate(zip(items, guesses)) if self.loose(i, j, T)]
+        fracs = self.timed_map(overlap_task, [(i, j, T) for (i, j), T in zip(items, guesses)]
+                               + [(*items[k], self.centred(*items[k], guesses[k]), True) for k in aligned], "overlaps")
+        for m, k in enumerate(aligned):
+            fracs[k] = max(fracs[k], fracs[len(items) + m])
+        return fracs[:len(items)]
 
     def loose(self, i: int, j: int, T: np.ndarray) -> bool:
         """Whether pair (i, j)'s region (guess T_i_j) lets scan j's centroid move by align_from x scan i's size."""
@@ -338,7 +342,7 @@ class _Campaign:
     def result(self, task: PairTask, res: PairOutcome, before: PairResult | None) -> PairResult:
         earlier = None if before is None else self.reason_of(before)
         return PairResult(task.i, task.j, res.T, res.error, res.share, res.trusted, res.misfit, res.within_region,
-                          res.seconds, self.round, task.start, earlier=earlier)
+                          res.seconds, self.round, task.start, earlier=earlier, stop=res.stop)
 
     def timed_map(self, fn, items: list, label: str) -> list:
         t0 = time.perf_counter()
@@ -356,7 +360,8 @@ class _Campaign:
         trusted = [k for k, p in self.pairs.items() if p.trusted]
         for k, p in self.pairs.items():
             if not p.trusted:
-                why[k] = ("not trusted: too little of the pair overlaps to judge it" if p.misfit is None else
+                why[k] = (p.stop if p.stop.startswith("not registered") else
+                          "not trusted: too little of the pair overlaps to judge it" if p.misfit is None else
                           f"not trusted (misfit {p.misfit:.3g})")
         if len(trusted) >= 3:
             median = float(np.median([self.pairs[k].error for k in trusted]))

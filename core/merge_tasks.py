@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .errors import InputError
 from .frustum import frustum_of, visible_from
 from .fuse import sample_quality
 from .register import Config, register
@@ -199,7 +200,11 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     problem = replace(shared.config.problem, rotation_uncertainty_deg=task.rotation_deg,
                       translation_uncertainty=task.translation)
     config = replace(shared.config, method="global", seed=seed, problem=problem)
-    res = register(source, target, task.T0, config)
+    try:
+        res = register(source, target, task.T0, config)
+    except InputError as exc:  # e.g. no overlap at the guess or at a candidate: a pair that did not register
+        return PairOutcome(task.T0, float("inf"), False, None, None, 0.0, f"not registered: {exc}",
+                           time.perf_counter() - t0)
     trusted, misfit, within = verdict(res)
     T = res.transform
     if trusted:

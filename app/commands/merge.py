@@ -132,7 +132,7 @@ def build_report(res, scans, truth, config, have: bool, runner, scheduler, out) 
         "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "trusted": p.trusted,
                    "misfit": p.misfit, "within_region": p.within_region, "overlap": p.overlap, "status": p.status,
                    "reason": p.reason, "cycle_residual": _residual(p.cycle), "round": p.round, "start": p.start,
-                   "earlier": p.earlier, "seconds": p.seconds} for p in res.pairs],
+                   "earlier": p.earlier, "stop_reason": p.stop, "seconds": p.seconds} for p in res.pairs],
         "graph": {"mode": res.mode, "pairs": len(res.pairs), "used": len(res.used),
                   "rejected": sum(p.status == "rejected" for p in res.pairs), "rounds": res.rounds,
                   "registrations": res.registrations},

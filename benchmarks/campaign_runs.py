@@ -52,14 +52,16 @@ class Outcome:
         return f"{max(e[0] for e in placed):.3g} deg / {max(e[1] for e in placed):.3g} mm"
 
 
-def score(poses: list, truth: list[np.ndarray], scans) -> list:
-    """(degrees, mm) of each pose (T_first_scan, None: not placed) against the truth relative to the first."""
+def score(poses: list, truth: list[np.ndarray], scans, reference: int = 0) -> list:
+    """(degrees, mm) of each pose (T_reference_scan, None: not placed) against the truth relative to the
+    reference (the first scan, unless our merge placed the others in another's frame: then the first
+    counts as not placed)."""
     out = []
     for T, Tt, s in zip(poses, truth, scans):
         if T is None:
             out.append(None)
             continue
-        rot, move = pose_error(T, invert(truth[0]) @ Tt, s.points.mean(0))
+        rot, move = pose_error(T, invert(truth[reference]) @ Tt, s.points.mean(0))
         out.append((rot, move * MM.get(s.units, 1.0)))
     return out
 
@@ -77,7 +79,9 @@ def ours(scans, truth, initial, rotation_deg: float = 15.0, seed: int = 0, worke
     seconds = time.perf_counter() - t0
     note = (f"{res.rounds} rounds, {res.registrations} registrations, {len(res.used)}/{len(res.pairs)} pairs used; "
             f"{runner.choice}")
-    return Outcome(score(res.poses, truth, scans), seconds, note), res
+    if res.reference != 0:
+        note += f"; poses in {scans[res.reference].name}'s frame"
+    return Outcome(score(res.poses, truth, scans, res.reference), seconds, note), res
 
 
 def peer(scans, truth, initial) -> Outcome:

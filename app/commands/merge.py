@@ -125,6 +125,7 @@ def build_report(res, scans, truth, config, have: bool, runner, scheduler, out) 
     rot, trans = (pc.rotation_uncertainty_deg, pc.translation_uncertainty) if have else (180.0, None)
     report = {
         "scans": names,
+        "reference": names[res.reference],  # the poses are in its frame: the first scan's unless its group is not the largest
         "placed": res.placed,
         "poses": [None if T is None else np.asarray(T).tolist() for T in res.poses],
         "scan_reports": [{"name": r.name, "placed": r.placed, "trusted_pairs": [names[k] for k in r.trusted],
@@ -148,7 +149,7 @@ def build_report(res, scans, truth, config, have: bool, runner, scheduler, out) 
                   "double_layer_fraction": double_layer_fraction(res.model.vertices, res.model.faces, gap)},
     }
     if truth is not None:
-        errs = [None if T is None else pose_error(T, invert(truth[0]) @ Tt, s.points.mean(0))
+        errs = [None if T is None else pose_error(T, invert(truth[res.reference]) @ Tt, s.points.mean(0))
                 for T, Tt, s in zip(res.poses, truth, scans)]
         report["rotation_error_deg"] = [None if e is None else e[0] for e in errs]
         report["translation_error"] = [None if e is None else e[1] for e in errs]
@@ -183,7 +184,7 @@ def print_report(report: dict, res, scans) -> None:
         again = f"; before: {p['earlier']}" if p["earlier"] else ""
         print(f"  {p['source']} -> {p['target']}  E={p['error']:.4g}  {trust}, overlap {p['overlap']:.0%}, "
               f"round {p['round']} from {p['start']}: {p['status'].upper()}{why}{cyc}{again}")
-    print(f"scans (poses into {names[0]}'s frame):")
+    print(f"scans (poses into {report['reference']}'s frame):")
     for k, r in enumerate(report["scan_reports"]):
         partners = ", ".join(r["trusted_pairs"]) or "none"
         if r["placed"]:

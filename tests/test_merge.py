@@ -106,28 +106,89 @@ def test_bunny_set_from_rough_poses_comes_back_to_the_conf_poses(bunny):
 
 
 def test_a_scan_no_trusted_pair_reaches_is_reported_not_placed(tmp_path):
-    from app.crops import window
     from core.io import load_scan, save_scan
 
-    # two windows of one scan's range grid that share no point: no pose makes them overlap
-
-    scan = load_scan(ASSETS / "corner" / "scan1.ply")
-    rows, cols = np.nonzero(scan.grid.index >= 0)
-    left = cols < np.quantile(cols, 0.3)
-    right = cols > np.quantile(cols, 0.7)
-    for name, keep in (("left", left), ("right", right)):
-        part = window(scan, keep, rows, cols, name)
-        save_scan(tmp_path / f"{name}.ply", replace(part, pose=None, guess=None))
+    # a bowl and a corner of walls (two windows of one scan would not do: a patch of wall fits any wall):
+    # no pose makes them overlap; no poses stored: no guess
+    for name, scene in (("left", "bowl"), ("right", "corner")):
+        save_scan(tmp_path / f"{name}.ply", replace(load_scan(ASSETS / scene / "scan1.ply"), pose=None, guess=None))
     out = tmp_path / "model.ply"
     r = rangereg("merge", tmp_path / "left.ply", tmp_path / "right.ply", "--out", out, "--json", "--workers", "1")
     assert r.returncode == 3, r.stderr
     rep = json.loads(r.stdout)  # stdout holds the JSON alone
-    assert rep["placed"] == [True, False] and rep["poses"][1] is None
+    assert rep["placed"] == [True, False] and rep["poses"][1] is None and rep["reference"] == "left"
     assert rep["stated"]["no_guess"] and rep["pairs"][0]["start"] == "no guess"
     assert rep["pairs"][0]["status"] == "rejected" and not rep["pairs"][0]["trusted"]
     assert "no trusted pair" in rep["scan_reports"][1]["why"]
     assert "1 of 2 scans not placed (right)" in r.stderr
     assert out.exists()  # the model of the placed scans
+
+
+class _Scripted:
+    """A task map whose pair registrations are scripted (the rounds, the graph and the report are the
+    merge's own): ``answer(i, j, attempt, T0) -> (T_i_j, trusted)``; overlaps and shares are 0.5."""
+
+    def __init__(self, answer):
+        self.answer, self.asked = answer, []
+
+    def __call__(self, fn, items, shared, label=None):
+        from core.merge_tasks import PairOutcome, pair_task
+
+        if fn is not pair_task:
+            return [0.5 for _ in items]
+        out = []
+        for t in items:
+            self.asked.append((t.i, t.j, t.attempt, t.start))
+            T, trusted = self.answer(t.i, t.j, t.attempt, t.T0)
+            out.append(PairOutcome(T, 1e-3 if trusted else 1.0, trusted, 0.5 if trusted else 9.0, True, 0.5,
+                                   "scripted", 0.0))
+        return out
+
+
+def _four_views():
+    from core.turntable import make_campaign
+    from tests.test_campaign import SMALL
+
+    camp = make_campaign(3, SMALL)
+    return [replace(s, guess=None) for s in camp.scans[:4]]
+
+
+def test_when_the_first_scan_is_in_no_group_the_largest_group_is_placed_in_its_frame():
+    scans = _four_views()
+    truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
+    # every pair with the first scan fails; the other three close a loop
+    run = _Scripted(lambda i, j, attempt, T0: (truth(i, j), True) if i > 0 else (T0, False))
+    res = merge(scans, None, build_model=False, map_tasks=run)
+    assert res.mode == "all" and res.placed == [False, True, True, True] and res.reference == 1
+    assert res.poses[0] is None and np.allclose(res.poses[1], np.eye(4))
+    for k in (2, 3):
+        assert pose_error(res.poses[k], truth(1, k))[0] < 1e-4
+    assert "no trusted pair reaches it" in res.scans[0].why
+    assert all(p.status == ("rejected" if p.i == 0 else "used") for p in res.pairs)
+
+
+def test_a_trusted_pair_that_does_not_close_is_registered_again_from_the_graphs_pose():
+    from core.transforms import from_params
+
+    scans = _four_views()
+    truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
+    twin = from_params(np.r_[0, 0, 0, 0, 0, np.radians(120.0)])
+
+    def answer(i, j, attempt, T0):
+        if (i, j) == (1, 3) and attempt == 0:
+            return truth(i, j) @ twin, True  # a wrong pose the pair threshold trusted
+        return truth(i, j), True
+
+    run = _Scripted(answer)
+    res = merge(scans, None, build_model=False, map_tasks=run)
+    assert all(res.placed) and res.rounds == 2
+    again = [a for a in run.asked if a[2] == 1]
+    assert again == [(1, 3, 1, "graph pose")]  # registered again, from the graph's pose, before given up
+    pair = next(p for p in res.pairs if (p.i, p.j) == (1, 3))
+    assert pair.status == "used" and pair.round == 2 and "does not close" in pair.earlier
+    for k in range(4):
+        assert pose_error(res.poses[k], truth(0, k))[0] < 1e-4
+    assert all(r.cycle is not None and r.cycle[0] < 1e-4 for r in res.scans)
 
 
 def test_candidate_pairs_per_mode():

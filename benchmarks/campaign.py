@@ -75,7 +75,7 @@ def families(a) -> int:
     truth = [s.pose for s in camp.scans]
     print(f"{camp!r}; {load()} before")
     rows = []
-    for cut in (False, True):
+    for cut in {"whole": (False,), "crops": (True,)}.get(a.only, (False, True)):
         scans = [crop(s, 0) for s in camp.scans] if cut else camp.scans
         for family in FAMILIES:
             name = f"turntable {a.scans}{', crops 0' if cut else ''}, {family}"
@@ -163,6 +163,7 @@ def main() -> int:
     p.add_argument("--repeat", type=int, default=3, help="runs per setting, interleaved; medians compared")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--families", action="store_true", help="every family of starts, ours and Open3D's multiway")
+    p.add_argument("--only", choices=("whole", "crops"), help="--families: only the whole scans, or only the crops")
     p.add_argument("--large", action="store_true", help="10 scans of ~40k points from rough poses, timed")
     p.add_argument("--run-workers", type=int, default=None, help="--families / --large: as merge --workers "
                    "(default: merge's own choice)")

@@ -175,9 +175,9 @@ def consensus(n: int, edges: list[Edge], centers: list[np.ndarray], tol: Toleran
 def rivals(n: int, edges: list[Edge], centers: list[np.ndarray], tol: Tolerance, rng: np.random.Generator,
            agree: list[int], tree: list[int], reference: int = 0) -> dict[int, str]:
     """Scans the graph cannot place for sure: {scan: why}. For each edge the consensus rejected, the best
-    tree that holds it is a rival; where the rival puts scans elsewhere (beyond the tolerance), the edges
-    that agree with it on those scans weigh at least RIVAL x those that agree with the consensus there,
-    and no cycle decides between them: those scans are ambiguous."""
+    tree that holds it is a rival; where the rival puts scans elsewhere (beyond the tolerance), and the
+    edges that agree with it and not with the consensus weigh at least RIVAL x those that agree with the
+    consensus and not with it, no cycle decides between them: the scans it moves are ambiguous."""
     best = tree_poses(n, edges, tree, reference)
     w = [e.weight for e in edges]
     out: dict[int, str] = {}
@@ -189,8 +189,10 @@ def rivals(n: int, edges: list[Edge], centers: list[np.ndarray], tol: Tolerance,
         moved = {s for s in range(n) if not tol.holds(_pose_gap(best[s], other[s], centers[s]))}
         if not moved:
             continue
-        here = sum(w[m] for m in agree if {edges[m].i, edges[m].j} & moved)
-        there = sum(w[m] for m in r_agree if {edges[m].i, edges[m].j} & moved)
+        # the edges that decide between the two: those that agree with one and not the other (an edge
+        # among scans that move together agrees with both alike)
+        here = sum(w[m] for m in set(agree) - set(r_agree))
+        there = sum(w[m] for m in set(r_agree) - set(agree))
         if there >= RIVAL * here:
             for s in moved:
                 out.setdefault(s, f"its pairs disagree ({edges[k].i}-{edges[k].j} against the others) and no "

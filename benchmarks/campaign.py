@@ -119,12 +119,16 @@ def large(a) -> int:
         whole = time.perf_counter() - t0
     rep = json.loads(out.getvalue())
     rot, tr = rep["rotation_error_deg"], rep["translation_error"]
+    cycles = [r["cycle_residual"] for r in rep["scan_reports"] if r["cycle_residual"]]
+    worst = "-" if not cycles else "{rotation_deg:.3f} deg / {translation:.3f} mm".format(
+        **max(cycles, key=lambda c: c["rotation_deg"]))
     right = sum(r is not None and r < 2.0 and t < 2.0 for r, t in zip(rot, tr))
     print(f"rangereg merge, 10 scans of {min(len(s.points) for s in camp.scans)}-{max(len(s.points) for s in camp.scans)} "
           f"points, rough 'frame' starts: exit {status}; {right}/10 right (worst "
           f"{max(r for r in rot if r is not None):.3f} deg, {max(t for t in tr if t is not None):.3f} mm); "
           f"report {rep['seconds']:.1f} s (pairwise {rep['pair_seconds']:.1f} s), whole command {whole:.1f} s; "
-          f"{rep['graph']['registrations']} registrations in {rep['graph']['rounds']} rounds; ran on: {rep['runner']}; "
+          f"{rep['graph']['registrations']} registrations in {rep['graph']['rounds']} rounds; largest cycle residual "
+          f"{worst}; ran on: {rep['runner']}; "
           f"{load()} after")
     return 0 if right == 10 and rep["seconds"] <= 60 else 1
 

@@ -77,8 +77,10 @@ def ours(scans, truth, initial, rotation_deg: float = 15.0, seed: int = 0, worke
     with TaskRunner(workers, progress=progress) as runner:
         res = merge(plain, initial, config, build_model=False, map_tasks=runner.map, progress=progress)
     seconds = time.perf_counter() - t0
+    cycles = [r.cycle for r in res.scans if r.cycle is not None]
+    worst = "-" if not cycles else "{:.3f} deg / {:.3g}".format(*max(cycles))
     note = (f"{res.rounds} rounds, {res.registrations} registrations, {len(res.used)}/{len(res.pairs)} pairs used; "
-            f"{runner.choice}")
+            f"largest cycle residual {worst}; {runner.choice}")
     if res.reference != 0:
         note += f"; poses in {scans[res.reference].name}'s frame"
     return Outcome(score(res.poses, truth, scans, res.reference), seconds, note), res

@@ -31,13 +31,14 @@ OVERLAP_SAMPLE = 2000  # points of each scan an overlap is measured on (a share:
 @dataclass(frozen=True, eq=False)
 class Shared:
     """What every task needs, shipped once per worker: the scans as plain arrays, the registration
-    config and the merge's polish knobs (steps, gate in point spacings)."""
+    config and the merge's polish knobs (steps, gate in point spacings, source points at most)."""
 
     token: str  # identifies the scan set, for the per-process cache
     scans: tuple  # dicts from scan_arrays
     config: Config
     polish_steps: int = 30
     polish_gate: float = 1.5
+    polish_points: int = 10000
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,7 +210,8 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     T = res.transform
     if trusted:
         spacing = max(source.spacing, target.spacing)
-        P = polish(source.points, target, surface, _normals(shared, task.i), T, spacing, shared.polish_steps,
+        points = source.points[::max(1, len(source.points) // shared.polish_points)]
+        P = polish(points, target, surface, _normals(shared, task.i), T, spacing, shared.polish_steps,
                    shared.polish_gate)
         rot, move = pose_error(P, T, source.centroid)
         if rot < 1.0 and move < 2 * spacing:  # a polish only polishes: one that wanders is not taken

@@ -185,20 +185,28 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Register overlapping pairs, make poses globally consistent, fuse one mesh.")
     s.add_argument("scans", nargs="+", help="scan files; an .e57 without #K brings all its scans, with their stored "
                    "poses as the initial poses")
-    s.add_argument("--init", help="initial poses: a Stanford .conf (default: stored rough poses, else a chain)")
+    s.add_argument("--init", help="initial poses: a Stanford .conf (default: the scans' stored rough poses, else "
+                   "no guess: every pair registered over all rotations)")
+    s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), help="degrees each initial pose "
+                   "may be off, about its scan frame's origin (default 15; a pair's guess: twice it)")
+    s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), help="units each initial "
+                   "pose may be off (default: unstated, a share of the scan's size)")
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
     s.add_argument("--out", default="model.ply", help="the fused mesh (.ply), or the scans with their registered "
                    "poses (.e57; points untouched, the first scan left at its initial pose)")
     s.add_argument("--seed", type=_knob("seed"), default=0)
     s.add_argument("--workers", type=_knob("workers"), default=None, help="pairwise registrations at once: 1 = a "
-                   "plain loop here, N = a local Dask cluster of N processes (default: one per core)")
+                   "plain loop here, N = a local Dask cluster of N processes (default: the plain loop, and a "
+                   "cluster of one worker per core once the work left pays for its start)")
     s.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the pairwise registrations on an existing "
                    "Dask cluster (started with 'dask scheduler' and 'dask worker')")
     s.add_argument("--threads", type=_knob("threads"), default=None, help="threads per task stream (this process, or "
                    "each worker): default all cores for --workers 1, cores // N for a local cluster of N")
-    s.add_argument("--pairs", choices=("init", "chain", "overlap"), help="candidate pairs: init = each scan's "
-                   "best-overlapping partners under the initial poses (default with initial poses); chain = "
-                   "consecutive scans and the last with the first (default without); overlap = every overlapping pair")
+    s.add_argument("--pairs", choices=("init", "overlap", "chain", "all", "features"), help="the first round's "
+                   "pairs: init = each scan's best-overlapping partners under the initial poses (default with "
+                   "poses); overlap = every overlapping pair; chain = consecutive scans and the last with the "
+                   "first; all = every pair (default without poses up to 6 scans); features = each scan's "
+                   "likeliest neighbours by their features (default without poses beyond)")
     s.add_argument("--json", action="store_true")
 
     s = sub.add_parser("scenes", help="regenerate the bundled default scenes",

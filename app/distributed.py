@@ -2,9 +2,12 @@
 or on Dask distributed. The only module that imports dask.
 
 - ``workers=1``: a plain loop in this process (no Dask).
-- ``workers=N > 1`` (default: as many as cores): a ``LocalCluster`` of N worker processes on
-  127.0.0.1, one task at a time each (``threads_per_worker=1``: our tasks hold the GIL in numpy and
-  Python between Open3D calls).
+- ``workers=N > 1``: a ``LocalCluster`` of N worker processes on 127.0.0.1, one task at a time each
+  (``threads_per_worker=1``: our tasks hold the GIL in numpy and Python between Open3D calls).
+- ``workers=None`` (default): the plain loop, until the work left pays for a local cluster of one
+  worker per core (:func:`cluster_pays`: the tasks' measured time x the tasks left against the
+  cluster's start); then the rest of that map and every later one on the cluster. ``choice`` says
+  which was chosen and why.
 - ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` + ``dask worker``); its
   workers must import this project (run them with the same PYTHONPATH / environment).
 
@@ -91,32 +94,71 @@ def reach_scheduler(address: str, timeout: float = PROBE_SECONDS) -> None:
                          "'dask scheduler' (and workers with 'dask worker ADDRESS') or leave --scheduler out")
 
 
+# When a local cluster pays (workers=None). Measured here (2 cores, README "Campaigns"): a local cluster of
+# 2 workers starts in 3.3-4.8 s on a quiet machine (processes and the engine's imports; 5-27 s at load
+# 9-16) and runs a 24-scan campaign's pairwise stage 1.65-1.72 x faster than the plain loop. Work w
+# seconds long on the loop takes start + w / 1.65 on the cluster: it pays from w = 2.5 x start, 12 s.
+PAYBACK_SECONDS = 12.0
+# Under load a second worker finds no free core (2 workers were 0.42-1.06 x the loop at load 9-16): no
+# cluster while the 1-minute load average is above the cores less this.
+LOAD_MARGIN = 0.5
+
+
 def default_workers() -> int:
     """As many workers as cores (at least 1)."""
     return max(1, os.cpu_count() or 1)
 
 
+def cluster_pays(seconds_left: float, cores: int | None = None, load: float | None = None) -> tuple[bool, str]:
+    """Whether ``seconds_left`` of work on the plain loop pays for starting a local cluster, and why."""
+    cores = default_workers() if cores is None else cores
+    load = os.getloadavg()[0] if load is None else load
+    if cores < 2:
+        return False, "one core: a cluster cannot run faster"
+    if load > cores - LOAD_MARGIN:
+        return False, f"the machine is busy (load {load:.1f} on {cores} cores): a second worker finds no free core"
+    if seconds_left < PAYBACK_SECONDS:
+        return False, f"about {seconds_left:.0f} s of work left, less than a local cluster's start pays back " \
+                      f"({PAYBACK_SECONDS:g} s)"
+    return True, f"about {seconds_left:.0f} s of work left, more than a local cluster's start pays back " \
+                 f"({PAYBACK_SECONDS:g} s)"
+
+
 class Progress:
-    """``done / total`` with elapsed time and an ETA, one line at most every ``every`` seconds (and the last)."""
+    """``done / total`` with elapsed time and an ETA, one line at most every ``every`` seconds (and the
+    last). A later map of the same work (a merge's second round of pairs) continues it: :meth:`extend`
+    adds its tasks to the total and names it, so done, total and the ETA count every round."""
 
     def __init__(self, total: int, label: str, write: Callable[[str], None] | None, every: float = 2.0):
         self.total, self.label, self.write, self.every = total, label, write, every
         self.done = 0
         self.t0 = time.perf_counter()
+        self.busy = 0.0  # seconds spent inside maps of this work (the ETA's rate; not the time between rounds)
+        self._since = self.t0
         self._last = -1e9
+
+    def extend(self, more: int, label: str) -> None:
+        self.total += more
+        self.label = label
+        self._since = time.perf_counter()
 
     def step(self) -> None:
         self.done += 1
+        now = time.perf_counter()
+        self.busy += now - self._since
+        self._since = now
         if self.write is None:
             return
-        now = time.perf_counter()
         if self.done < self.total and now - self._last < self.every:
             return
         self._last = now
-        elapsed = now - self.t0
-        eta = elapsed / self.done * (self.total - self.done)
+        eta = self.busy / self.done * (self.total - self.done)
         tail = f"ETA {_clock(eta)}" if self.done < self.total else "done"
-        self.write(f"{self.label} {self.done}/{self.total}, {_clock(elapsed)} elapsed, {tail}")
+        self.write(f"{self.label} {self.done}/{self.total}, {_clock(now - self.t0)} elapsed, {tail}")
+
+    def rate(self) -> float:
+        """Seconds per task so far (0 before the first)."""
+        return self.busy / self.done if self.done else 0.0
 
 
 def _clock(seconds: float) -> str:
@@ -136,6 +178,7 @@ class TaskRunner:
                  threads: int | None = None):
         if scheduler is not None:
             reach_scheduler(scheduler)  # before any work: a run never claims a cluster it did not reach
+        self.auto = workers is None and scheduler is None
         workers = default_workers() if workers is None else workers
         if not isinstance(workers, int) or workers < 1:
             raise InputError(f"--workers must be a whole number >= 1, got {workers!r}")
@@ -145,10 +188,19 @@ class TaskRunner:
         self.threads = threads
         self.client = None
         self.cluster = None
+        self.bars: dict[str, Progress] = {}
+        self._most_left = -1.0
+        if self.auto:
+            self.choice = "plain loop in this process: no work yet"
+        elif scheduler is None and workers == 1:
+            self.choice = "plain loop in this process (--workers 1)"
+        else:
+            self.choice = f"the Dask cluster at {scheduler}" if scheduler else f"a local cluster of {workers} workers"
 
     @property
     def serial(self) -> bool:
-        return self.scheduler is None and self.workers == 1
+        """Tasks run (so far) in this process: ``workers=1``, or ``workers=None`` before a cluster paid."""
+        return self.client is None and self.scheduler is None and (self.auto or self.workers == 1)
 
     @property
     def stream_threads(self) -> int | None:
@@ -162,7 +214,7 @@ class TaskRunner:
 
     def start(self) -> None:
         """Connect to the scheduler or start the local cluster (done by the first map with work for it)."""
-        if self.serial or self.client is not None:
+        if self.client is not None or (self.scheduler is None and self.workers == 1):
             return
         import dask
         from distributed import Client, LocalCluster
@@ -210,17 +262,45 @@ class TaskRunner:
         self.client = self.cluster = None
 
     def map(self, fn: Callable, items: Sequence[Any], shared: Any = None, label: str | None = None) -> list:
-        """``[fn(shared, item) ...]`` (or ``fn(item)`` when ``shared`` is None), in the order of ``items``."""
+        """``[fn(shared, item) ...]`` (or ``fn(item)`` when ``shared`` is None), in the order of ``items``.
+        ``label`` names the work in progress lines; a later map of the same ``fn`` continues its count."""
         items = list(items)
-        label = label or getattr(fn, "__name__", "task").removesuffix("_task") + "s"
-        bar = Progress(len(items), label, self.say)
-        if self.serial or len(items) < 2:  # one task: a cluster would only add its start-up
+        bar = self._bar(fn, items, label)
+        one = (lambda item: fn(item)) if shared is None else (lambda item: fn(shared, item))
+        if self.client is None and (self.serial or len(items) < 2):  # one task: a cluster would only add its start
             out = []
             with open3d_threads(self.threads):
-                for item in items:
-                    out.append(fn(item) if shared is None else fn(shared, item))
+                for k, item in enumerate(items):
+                    out.append(one(item))
                     bar.step()
+                    if self.auto and self._pays(bar.rate() * (len(items) - k - 1), len(items) - k - 1):
+                        return out + self._on_cluster(fn, items[k + 1:], shared, bar)
             return out
+        return self._on_cluster(fn, items, shared, bar)
+
+    def _bar(self, fn: Callable, items: list, label: str | None) -> Progress:
+        key = getattr(fn, "__name__", "task").removesuffix("_task") + "s"
+        label = label or key
+        if key in self.bars:
+            self.bars[key].extend(len(items), label)
+        else:
+            self.bars[key] = Progress(len(items), label, self.say)
+        return self.bars[key]
+
+    def _pays(self, seconds_left: float, left: int) -> bool:
+        """workers=None: start the local cluster now (and say why) when the work left pays for it."""
+        if left < 2:
+            return False
+        pays, why = cluster_pays(seconds_left)
+        if pays or seconds_left >= self._most_left:  # the plain loop's reason: its closest call
+            self._most_left = seconds_left
+            self.choice = (f"a local cluster of {self.workers} workers: {why}" if pays
+                           else f"plain loop in this process: {why}")
+        if pays and self.say:
+            self.say(f"starting {self.choice}")
+        return pays
+
+    def _on_cluster(self, fn: Callable, items: list, shared: Any, bar: Progress) -> list:
         from distributed import as_completed
 
         self.start()

@@ -54,13 +54,14 @@ class CandidateConfig:
     sample: int = 160  # source points on the fixed basis (the paper's E: 165-341)
     min_overlap: float = 0.1  # share of each scan's sample that must fall in the other's frustum
     rotation_samples: int = ROTATION_SAMPLES  # over all of SO(3); those within the uncertainty are kept
-    # FPFH voxel size in point spacings: Open3D's recipe uses 5 cm on scenes ~3 m across (~1/60 of the
-    # size); 5 spacings is ~1/60 of a bunny scan. 2 spacings (the sweep peer's, ~1 mm on the bunny) costs
-    # ~5 x as much and gave no trusted pose the other stages missed: measured on 224 sweep runs (5 whole
-    # pairs and 27 crop pairs of the shared scans, four modes, 15 and 90 deg), the poses returned
-    # trusted came from the guess and KISS-Matcher (171), the rotation samples (23), KISS-Matcher after
-    # them (23) and FPFH at 5 spacings (3); FPFH at 2 spacings, run in 4 of them, none. (2.0, 5.0) adds it.
-    fpfh_voxels: tuple[float, ...] = (5.0,)
+    # FPFH voxel sizes in point spacings, coarse first (a finer one runs only when nothing is trusted
+    # yet): Open3D's recipe uses 5 cm on scenes ~3 m across (~1/60 of the size); 5 spacings is ~1/60 of
+    # a bunny scan. On 224 bunny sweep runs (5 whole and 27 crop pairs, four modes, 15 and 90 deg) the
+    # trusted poses came from the guess and KISS-Matcher (171), the rotation samples (23), KISS-Matcher
+    # after them (23) and FPFH at 5 spacings (3): 2 spacings (~5 x the cost) added none there. On sparse
+    # scans it does: the 8-stop simulated turntable from identity poses (1.6-1.9k points a scan, ~70
+    # voxels at 5 spacings) has neighbour pairs (scan03 -> scan01) trusted only through it.
+    fpfh_voxels: tuple[float, ...] = (2.0, 5.0)
     fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
     refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)

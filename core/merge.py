@@ -1,341 +1,593 @@
-"""A whole set of scans -> globally consistent poses -> one model.
+"""A set of scans -> globally consistent poses -> one model (the paper's Fig. 2, for many views).
 
-1. Initial poses (``T_world_scan``): given (a Stanford .conf), the scans' stored rough poses, or a
-   chain in the given order (each scan registered onto the previous one from the identity).
-2. Candidate pairs (``pairs``): ``init``: the pairs that overlap under the initial poses, each scan
-   keeping its best few partners; ``overlap``: every pair that overlaps; ``chain``: consecutive scans
-   (and the last with the first when they overlap: a turntable's loop).
-3. Every candidate pair is registered with the hybrid optimiser, then polished (point-to-plane).
-   Pairs are independent tasks: ``map_tasks`` runs them (serially by default; ``app.distributed``
-   runs them on Dask). Each task gets a seed of its own, ``SeedSequence([seed, i, j])``, so the
-   result does not depend on where or in which order the tasks run.
-4. Open3D's pose-graph optimisation makes the pairwise results globally consistent; loop-closure
-   edges it finds inconsistent are pruned and reported.
-5. :func:`core.fuse.fuse` builds one surface model. Poses are returned in the first scan's frame.
+1. Poses to start from (``T_world_scan``): given (a Stanford .conf, or the scans' stored rough poses),
+   each within the stated uncertainty (``Config.problem``: rotation about the scan frame's origin, and
+   translation); or none: no guess, every pair registered over all rotations and translations.
+2. Round 1's pairs (:class:`MergeConfig` ``pairs``): with poses, those that overlap under them
+   ("init": each scan's best partners; "overlap": every overlapping pair; "chain": consecutive scans);
+   with none, every pair ("all") up to ``all_pairs_up_to`` scans, else each scan's likeliest
+   neighbours by a cheap cue ("features": the share of mutually nearest FPFH features).
+3. Each pair is registered by the ``global`` pipeline (core.register) in the pair's region: a relative
+   guess between two poses each within R degrees and T units is within 2R and 2T, so the pair's region
+   is twice the stated one (no guess: rotation 180, translation unstated). Trusted pairs are polished.
+   Pairs are independent tasks (core.merge_tasks), run by ``map_tasks`` (serially by default;
+   app.distributed runs them on Dask), each with its own seed: the result does not depend on where.
+4. The pose graph (core.posegraph) of the trusted pairs keeps only pairs that close; untrusted pairs
+   weigh nothing, trusted ones their matching share over their misfit. A scan the kept pairs do not
+   join to the first scan is not placed (pose None): never placed wrong silently. (When the first
+   scan's group is not the largest, the largest group is placed in its first scan's frame instead,
+   and ``MergeResult.reference`` says which.)
+5. Further rounds, while they add pairs: every pair not used that overlaps under the poses found is
+   registered again from the graph's pose (once) before it is given up; pairs that now overlap under
+   the poses found are registered; a scan no trusted pair reaches tries its likeliest partners by the
+   cue with no guess. Then the graph again.
+6. :func:`core.fuse.fuse` builds one surface model from the placed scans. Poses are ``T_reference_scan``.
 """
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .fuse import FusedModel, fuse, sample_quality
-from .posegraph import solve_pose_graph
-from .problem import ProblemConfig, prepare
-from .register import Config, register
-from .scan import RangeGrid, Scan
-from .surface import Surface
-from .transforms import apply, from_params, invert
+from .fuse import FusedModel, fuse
+from .merge_tasks import (
+    PairOutcome,
+    PairTask,
+    Shared,
+    clear_geometry_cache,
+    feature_task,
+    overlap_task,
+    pair_task,
+    scan_arrays,
+    share_task,
+    token,
+)
+from .posegraph import Edge, Graph, Tolerance, information_matrix, solve
+from .problem import ProblemConfig
+from .region import Region
+from .register import Config
+from .scan import Scan
+from .transforms import invert
 
-MIN_OVERLAP = 0.25  # visible overlap, both ways, under the initial poses, for a pair to be registered
-MIN_OVERLAP_ANY = 0.05  # below this a scan's best partner is no partner: the scan overlaps nothing
-# pairs="init" keeps, per scan, its best partners by overlap: on a 24-stop turntable every scan overlaps
-# 10-11 others by >= 0.25 (measured, seed 1), and the far ones add work and wrong minima, not accuracy.
-MAX_PARTNERS = 4
-OUTLIER_PAIR = 20.0  # a pair whose E exceeds this many times the median pair's is dropped
-# Polish: point-to-plane Gauss-Newton steps after the hybrid. Beyond the paper: its ICP (point to
-# closest point) slides slowly along smooth surfaces and stops up to a degree or more off on the simulated
-# turntable; point-to-plane converges in a few steps. Measured, 24 stops, seed 1, 15 pairs 15-30 deg apart,
-# mean (max) rotation error: no polish 0.36 (1.27) deg; gate 3 / 1.5 / 1 spacings: 0.15 / 0.055 / 0.059 deg
-# (a wide gate lets in points beyond the target's edge, whose closest points sit on the edge). On a smoother
-# object (fewer, wider lumps): 1.92 (6.6) deg without, 0.16 / 0.11 / 0.11 deg with.
-POLISH_STEPS = 30
-POLISH_GATE = 1.5  # correspondences farther than this many point spacings are left out of the polish
-PAIR_MODES = ("init", "chain", "overlap")
-
-TaskMap = Callable[[Callable[[Any, Any], Any], Sequence[Any], Any], list]
-"""``map_tasks(fn, items, shared) -> [fn(shared, item) for item in items]``, in order, run anywhere."""
+__all__ = ["MergeConfig", "MergeResult", "PairResult", "ScanReport", "clear_geometry_cache", "merge", "serial_map"]
 
 
-def serial_map(fn: Callable[[Any, Any], Any], items: Sequence[Any], shared: Any) -> list:
+@dataclass(frozen=True)
+class MergeConfig:
+    """The merge's own knobs (the registration's are ``core.register.Config``'s), each with what it was
+    measured on."""
+
+    pairs: str | None = None  # round 1's pairs (PAIR_MODES); None: "init" with poses, else "all" / "features"
+    # a pair is registered when it overlaps by this share both ways under the initial poses ("init",
+    # "overlap"), and found anew when its scans' points match by this share under the poses found; the
+    # pair threshold trusts a pose only where >= 30 % of the source's sample matches (core.threshold), so
+    # a pair below ~25 % is work for nothing (bunny crops: pairs matching 17-18 % at the truth untrusted)
+    min_overlap: float = 0.25
+    # below this a scan's best partner is no partner (a scan that overlaps nothing under its rough pose)
+    min_overlap_any: float = 0.05
+    # a pair whose region lets the source's centroid move by this share of the target's size has its
+    # overlap also measured centroid on centroid (bunny, 15 deg about the frame's origin: 0.36; the
+    # simulated turntable, whose sensor stands 700 mm from a 382 mm object: 1.5)
+    align_from: float = 0.25
+    # "init" keeps, per scan, its best partners by overlap: on a 24-stop turntable every scan overlaps
+    # 10-11 others by >= 0.25 (measured, seed 1), and the far ones add work and wrong minima, not accuracy
+    max_partners: int = 4
+    # Polish: point-to-plane Gauss-Newton steps after a trusted pair. Measured (the hybrid's poses, 24
+    # stops, seed 1, 15 pairs 15-30 deg apart), mean (max) rotation error: no polish 0.36 (1.27) deg;
+    # gate 3 / 1.5 / 1 spacings: 0.15 / 0.055 / 0.059 deg (a wide gate lets in points beyond the
+    # target's edge). On a smoother object: 1.92 (6.6) deg without, 0.16 / 0.11 / 0.11 deg with.
+    polish_steps: int = 30
+    polish_gate: float = 1.5  # point spacings
+    # ... on at most about this many of the source's points (every k-th). Measured on a 10-stop turntable
+    # pair of 40k-point scans, from 0.3 deg off: all 40,686 points 0.94 s CPU, 0.0107 deg off after;
+    # 10,172 points 0.26 s, 0.0100 deg; 5,086 points 0.17 s, 0.0216 deg
+    polish_points: int = 10000
+    # a trusted pair whose E exceeds this many times the median of the trusted pairs' is not used.
+    # Measured, right pairs: bunny 0.6-1.8e-8 (wrong minima >= 1e-6, untrusted); 10-stop turntable of
+    # 40k-point scans 0.015-0.13 (8.6 x its median); 24-stop turntable, every family: none beyond 20 x
+    outlier_error: float = 20.0
+    # no guess: every pair is registered up to this many scans (15 pairs); beyond, the cue picks
+    all_pairs_up_to: int = 6
+    # no guess, more scans: each scan's best partners by the cue (15-stop turntable, seed 0: the best 2
+    # by the share of mutually nearest FPFH features are within 2 stops for 28 of 30)
+    cue_partners: int = 2
+    # a group of scans no trusted pair joins to the first: pairs across to the placed scans, per round
+    reach_partners: int = 3
+    # the region about the graph's pose (a pair registered again, or found under the poses found)
+    found_rotation_deg: float = 5.0
+    # a pair closes when its cycle's residual is within these (rotation; translation in point spacings)
+    cycle_rotation_deg: float = 2.0
+    cycle_translation: float = 4.0
+    max_rounds: int = 4
+
+    PAIR_MODES: ClassVar[tuple[str, ...]] = ("init", "overlap", "chain", "all", "features")
+
+    def validate(self) -> None:
+        if self.pairs is not None and self.pairs not in self.PAIR_MODES:
+            raise InputError(f"pairs must be one of {', '.join(self.PAIR_MODES)}, got {self.pairs!r}")
+        if not 0 < self.min_overlap_any <= self.min_overlap < 1:
+            raise InputError(f"overlaps must satisfy 0 < min_overlap_any <= min_overlap < 1, got "
+                             f"{self.min_overlap_any} and {self.min_overlap}")
+        for name in ("max_partners", "polish_steps", "polish_points", "all_pairs_up_to", "cue_partners", "reach_partners",
+                     "max_rounds"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < (0 if name == "polish_steps" else 1):
+                raise InputError(f"{name} must be a whole number >= {0 if name == 'polish_steps' else 1}, got {v!r}")
+        for name in ("polish_gate", "outlier_error", "found_rotation_deg", "cycle_rotation_deg", "cycle_translation",
+                     "align_from"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a number > 0, got {v!r}")
+        if self.found_rotation_deg > 180 or self.cycle_rotation_deg > 180:
+            raise InputError("rotations must be at most 180 degrees")
+
+
+TaskMap = Callable[..., list]
+"""``map_tasks(fn, items, shared, label=None) -> [fn(shared, item) for item in items]``, in order, run
+anywhere; ``label`` names the work for progress ("pairs, round 2")."""
+
+
+def serial_map(fn: Callable[[Any, Any], Any], items: Sequence[Any], shared: Any, label: str | None = None) -> list:
     """The default :data:`TaskMap`: a plain loop in this process."""
     return [fn(shared, item) for item in items]
 
 
 @dataclass(frozen=True, eq=False)
 class PairResult:
-    """One registered pair. ``status``: "used" (an edge of the pose graph), "dropped" (E far above the
-    other pairs': it did not find its partner surface) or "rejected" (pruned by the pose graph as
-    inconsistent with the others)."""
+    """One pair's last registration. ``T_i_j`` maps scan j into scan i's frame; ``start``: where it began
+    ("rough poses", "no guess", "graph pose"); ``status`` "used" (an edge the graph kept, joined to the
+    first scan) or "rejected", ``reason`` why; ``cycle``: (degrees, units) the residual of the cycle it
+    closes (used) or by which it misses the final poses (rejected), None when on no cycle; ``earlier``:
+    why its previous registration was not used, when it was registered again."""
 
     i: int
     j: int
-    T_i_j: np.ndarray  # maps scan j into scan i's frame
+    T_i_j: np.ndarray
     error: float
-    overlap: float
-    seconds: float = 0.0
-    status: str = "used"
+    overlap: float  # the share of the pair matching at T_i_j (core.merge_tasks.share_at)
+    trusted: bool
+    misfit: float | None
+    within_region: bool | None
+    seconds: float
+    round: int
+    start: str
+    status: str = "rejected"
+    reason: str = ""
+    cycle: tuple | None = None
+    earlier: str | None = None
+    stop: str = ""  # why its registration's search stopped (core.result.Stop's text)
 
     def __repr__(self) -> str:
-        return f"PairResult({self.j}->{self.i}, E={self.error:.4g}, overlap {self.overlap:.0%}, {self.status})"
+        return (f"PairResult({self.j}->{self.i}, E={self.error:.4g}, {'trusted' if self.trusted else 'untrusted'}, "
+                f"{self.status}{': ' + self.reason if self.reason else ''})")
+
+
+@dataclass(frozen=True)
+class ScanReport:
+    """placed: joined to the first scan by used pairs; trusted: partners (indices) of its trusted pairs;
+    cycle: (degrees, units) the largest residual of the used cycles through it (None: on none); why:
+    why it is not placed ("" when placed)."""
+
+    name: str
+    placed: bool
+    trusted: tuple
+    cycle: tuple | None
+    why: str = ""
 
 
 @dataclass(frozen=True, eq=False)
 class MergeResult:
-    poses: list  # (4, 4) T_first_scan per scan
-    pairs: list  # every registered PairResult, with its status
+    poses: list  # (4, 4) T_reference_scan per scan (the first scan's frame, see reference); None where not placed
+    pairs: list  # PairResult per registered pair (its last registration)
+    scans: list  # ScanReport per scan
     model: FusedModel | None
     seconds: float
-    pair_seconds: float = 0.0  # wall time of the pairwise stage (candidates + registrations)
-    overlap_seconds: float = 0.0  # of which measuring the candidates' overlap
+    pair_seconds: float = 0.0  # wall time of the pairwise stages (overlaps, cue, registrations), all rounds
+    overlap_seconds: float = 0.0  # of which measuring overlaps and the cue
     mode: str = "init"
+    rounds: int = 1
+    registrations: int = 0  # pair registrations run, in all rounds
+    reference: int = 0  # the scan whose frame the poses are in: the first, unless its group is not the largest
 
     @property
     def used(self) -> list:
         return [p for p in self.pairs if p.status == "used"]
 
+    @property
+    def placed(self) -> list[bool]:
+        return [s.placed for s in self.scans]
+
     def __repr__(self) -> str:
-        return (f"MergeResult({len(self.poses)} scans, {len(self.used)} of {len(self.pairs)} pairs used, "
-                f"{self.seconds:.1f} s, {self.model!r})")
+        return (f"MergeResult({sum(self.placed)} of {len(self.poses)} scans placed, {len(self.used)} of "
+                f"{len(self.pairs)} pairs used, {self.rounds} round(s), {self.seconds:.1f} s, {self.model!r})")
 
-
-# ---- tasks: plain numpy in, plain numpy out (Open3D geometry does not pickle) ----
-
-@dataclass(frozen=True, eq=False)
-class Shared:
-    """What every task needs, shipped once per worker: the scans as plain arrays and the config."""
-
-    token: str  # identifies the scan set, for the per-process cache
-    scans: tuple  # dicts from scan_arrays
-    config: Config
-
-
-def scan_arrays(scan: Scan) -> dict:
-    """A scan as plain numpy arrays and strings (picklable, cheap to ship)."""
-    return {"points": scan.points, "viewpoint": scan.viewpoint, "name": scan.name, "units": scan.units,
-            "grid": None if scan.grid is None else scan.grid.index, "faces": scan.faces}
-
-
-def _token(scans: list[Scan], config: Config) -> str:
-    h = hashlib.sha1(repr(config).encode())
-    for s in scans:
-        h.update(s.name.encode())
-        h.update(np.ascontiguousarray(s.points).tobytes())
-    return h.hexdigest()
-
-
-_BUILT: dict[str, dict] = {}  # per process: token -> {scan index: (Scan, Surface)} and {("normals", k): (N, 3)}
-
-
-def clear_geometry_cache() -> None:
-    """Forget the scans built in this process (a benchmark's runs each start from none, as workers do)."""
-    _BUILT.clear()
-
-
-def _built(shared: Shared, k: int) -> tuple[Scan, Surface]:
-    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused."""
-    if shared.token not in _BUILT:
-        _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
-        _BUILT[shared.token] = {}
-    cache = _BUILT[shared.token]
-    if k not in cache:
-        d = shared.scans[k]
-        scan = Scan(points=d["points"], viewpoint=d["viewpoint"], name=d["name"], units=d["units"],
-                    grid=None if d["grid"] is None else RangeGrid(d["grid"]), faces=d["faces"])
-        cache[k] = (scan, Surface.from_scan(scan))
-    return cache[k]
-
-
-def _normals(shared: Shared, k: int) -> np.ndarray:
-    """(N, 3) normals of scan k (facing its sensor), once per process: only targets of a pair need them."""
-    cache = _BUILT[shared.token]
-    if ("normals", k) not in cache:
-        cache[("normals", k)] = sample_quality(_built(shared, k)[0])[0]
-    return cache[("normals", k)]
-
-
-def pair_seed(seed: int, i: int, j: int) -> int:
-    """The seed of pair (i, j): independent of where and in which order the pairs run."""
-    return int(np.random.SeedSequence([seed, i, j]).generate_state(1)[0])
-
-
-def overlap_task(shared: Shared, item: tuple) -> float:
-    """item (i, j, T_i_j) -> the smaller of the two overlap fractions (frustum and visibility)."""
-    i, j, T_i_j = item
-    (si, fi), (sj, fj) = _built(shared, i), _built(shared, j)
-    fracs = []
-    for src, tgt, surf, T in ((sj, si, fi, T_i_j), (si, sj, fj, invert(T_i_j))):
-        try:
-            fracs.append(prepare(src, tgt, T, shared.config.problem, surface=surf, seed=shared.config.seed).used.mean())
-        except InputError:
-            return 0.0
-    return float(min(fracs))
-
-
-def pair_task(shared: Shared, item: tuple) -> tuple[np.ndarray, float, float]:
-    """item (i, j, T0_i_j) -> (T_i_j, E, seconds): scan j registered onto scan i from T0, then polished."""
-    i, j, T0 = item
-    t0 = time.perf_counter()
-    target, surface = _built(shared, i)
-    normals = _normals(shared, i)
-    source = _built(shared, j)[0]
-    seed = pair_seed(shared.config.seed, i, j)
-    config = replace(shared.config, seed=seed)
-    problem = prepare(source, target, T0, config.problem, surface=surface, seed=seed)
-    res = register(source, target, T0, config, problem=problem)
-    T = polish(source.points, target, surface, normals, res.transform, max(source.spacing, target.spacing))
-    return T, float(res.error), time.perf_counter() - t0
-
-
-def polish(points: np.ndarray, target: Scan, surface: Surface, normals: np.ndarray, T: np.ndarray,
-           spacing: float) -> np.ndarray:
-    """Point-to-plane Gauss-Newton from T (T_target_source): points (N, 3) source frame, normals
-    (Nt, 3) at the target's points. Returns the polished T; T itself if too few correspondences."""
-    gate2 = (POLISH_GATE * spacing) ** 2
-    for _ in range(POLISH_STEPS):
-        p = apply(T, points)
-        c, d2 = surface.closest(p)
-        ok = d2 < gate2
-        if ok.sum() < 12:
-            break
-        p, c = p[ok], c[ok]
-        n = normals[target.tree.query(c)[1]]
-        centre = p.mean(0)
-        J = np.concatenate([np.cross(p - centre, n), n], axis=1)
-        r = np.einsum("ij,ij->i", n, p - c)
-        # einsum, not BLAS: the same sums in the same order whatever the thread count (bitwise-equal results)
-        A = np.einsum("ni,nj->ij", J, J)
-        b = -np.einsum("ni,n->i", J, r)
-        try:
-            x = np.linalg.solve(A, b)
-        except np.linalg.LinAlgError:
-            break
-        D = from_params(np.r_[0.0, 0.0, 0.0, x[:3]])
-        D[:3, 3] = centre - D[:3, :3] @ centre + x[3:]
-        T = D @ T
-        if np.linalg.norm(x[:3]) < 1e-7 and np.linalg.norm(x[3:]) < 1e-5 * spacing:
-            break
-    return T
-
-
-# ---- the merge ----
 
 def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Config | None = None,
           progress: Callable[[str], None] | None = None, build_model: bool = True, pairs: str | None = None,
-          map_tasks: TaskMap | None = None) -> MergeResult:
-    """Register and fuse ``scans``; ``initial``: T_world_scan per scan (None: stored guesses or a chain).
-
-    ``pairs``: "init", "overlap" or "chain" (None: "init" when there are initial poses, else "chain").
-    ``map_tasks``: runs the pairwise tasks (default :func:`serial_map`).
-    """
+          map_tasks: TaskMap | None = None, settings: MergeConfig | None = None) -> MergeResult:
+    """Register and fuse ``scans`` (module notes). ``initial``: T_world_scan per scan (None: the scans'
+    stored rough poses when all have one, else no guess); ``config.problem``'s rotation and translation
+    uncertainty: how far each initial pose may be off; ``pairs``: overrides ``settings.pairs``;
+    ``map_tasks``: runs the tasks (default :func:`serial_map`)."""
+    settings = settings or MergeConfig()
+    if pairs is not None:
+        settings = replace(settings, pairs=pairs)
+    settings.validate()
     if len(scans) < 2:
         raise InputError("merge needs at least two scans")
-    if pairs is not None and pairs not in PAIR_MODES:
-        raise InputError(f"pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
-    t0 = time.perf_counter()
-    say = progress or (lambda _msg: None)
-    run = map_tasks or serial_map
-    config = config or Config(method="hybrid", problem=ProblemConfig(rotation_uncertainty_deg=25.0))
+    config = replace(config or Config(), method="global")
     config.validate()
-    have_init = initial is not None or all(s.guess is not None for s in scans)
+    have = initial is not None or all(s.guess is not None for s in scans)
     if initial is None:
-        initial = [s.guess for s in scans] if have_init else [np.eye(4) for _ in scans]
+        initial = [s.guess for s in scans] if have else [np.eye(4) for _ in scans]
     if len(initial) != len(scans):
         raise InputError(f"{len(initial)} initial poses for {len(scans)} scans")
-    mode = pairs or ("init" if have_init else "chain")
-    chain = not have_init  # no initial poses: chain from the identity, no loop closure to test
-    shared = Shared(_token(scans, config), tuple(scan_arrays(s) for s in scans), config)
-    rel = lambda i, j: invert(initial[i]) @ initial[j]  # noqa: E731
-    n = len(scans)
-    if chain:
-        if mode != "chain":
-            raise InputError(f"pairs={mode!r} needs initial poses (--init, or stored guesses)")
-        # consecutive scans from the identity; checked up front, so that a scan that overlaps its
-        # neighbour nowhere is refused before any registration runs
-        say(f"measuring the overlap of {n - 1} consecutive pairs")
-        fracs = run(overlap_task, [(i, i + 1, np.eye(4)) for i in range(n - 1)], shared)
-        gaps = [f"{scans[i].name} and {scans[i + 1].name}" for i, f in zip(range(n - 1), fracs) if f <= 0]
-        if gaps:
-            raise InputError(f"{'; '.join(gaps)} do not overlap from the identity; give initial poses (--init)")
-        candidates = [(i, i + 1, f) for i, f in zip(range(n - 1), fracs)]
-    else:
-        if mode == "chain":
-            items = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
+    run = _Campaign(scans, [np.asarray(T, dtype=np.float64) for T in initial], have, config, settings,
+                    progress or (lambda _msg: None), map_tasks or serial_map)
+    return run.go(build_model)
+
+
+class _Campaign:
+    """One merge's state: the pairs registered so far and the graph of the trusted ones."""
+
+    def __init__(self, scans, initial, have, config, settings, say, run):
+        self.scans, self.initial, self.have, self.config, self.mc, self.say, self.map = (
+            scans, initial, have, config, settings, say, run)
+        self.n = len(scans)
+        self.shared = Shared(token(scans, config), tuple(scan_arrays(s) for s in scans), config,
+                             settings.polish_steps, settings.polish_gate, settings.polish_points)
+        self.spacing = float(np.median([s.spacing for s in scans]))
+        self.centers = [s.centroid for s in scans]
+        self.radius = [float(np.linalg.norm(s.points - s.centroid, axis=1).max()) for s in scans]
+        self.pairs: dict[tuple[int, int], PairResult] = {}
+        self.tried: dict[tuple[int, int], int] = {}  # registrations per pair
+        self.features: list | None = None
+        self.cue_cache: dict[tuple[int, int], float] = {}
+        self.infos: dict[tuple[int, int, int], np.ndarray] = {}
+        self.init_overlap: dict[tuple[int, int], float] = {}
+        self.shares: dict[tuple[int, int], float] = {}  # matching share under the poses found (the last measured)
+        self.last_graph: Graph | None = None
+        self.reference = 0  # the scan whose frame the poses are in
+        self.t_pairs = self.t_overlap = 0.0
+        self.round = 0
+        self.registrations = 0
+        pc = config.problem
+        if have:
+            self.stated = (pc.rotation_uncertainty_deg, pc.translation_uncertainty)
+        else:
+            self.stated = (180.0, None)
+        self.mode = settings.pairs or ("init" if have else ("all" if self.n <= settings.all_pairs_up_to else "features"))
+        if not have and self.mode in ("init", "overlap"):
+            raise InputError(f"pairs={self.mode!r} needs initial poses (--init, or stored rough poses)")
+
+    # ---- the rounds ----
+
+    def go(self, build_model: bool) -> MergeResult:
+        t0 = time.perf_counter()
+        tasks = self.first_tasks()
+        graph = None
+        while tasks and self.round < self.mc.max_rounds:
+            self.round += 1
+            self.register(tasks)
+            graph = self.graph()
+            if self.round < self.mc.max_rounds:
+                tasks = self.next_tasks(graph)
+        graph = graph or self.graph()
+        pairs, scans = self.statuses(graph)
+        model = None
+        if build_model:
+            placed = [k for k in range(self.n) if graph.poses[k] is not None]
+            self.say(f"fusing the {len(placed)} placed scans into one model")
+            model = fuse([self.scans[k] for k in placed], [graph.poses[k] for k in placed])
+        return MergeResult(list(graph.poses), pairs, scans, model, time.perf_counter() - t0, self.t_pairs,
+                           self.t_overlap, self.mode, self.round, self.registrations, self.reference)
+
+    def region(self, scale: float = 2.0) -> tuple[float, float | None]:
+        """A pair's region from the stated per-scan one (module notes, step 3)."""
+        rot, trans = self.stated
+        return min(180.0, scale * rot), None if trans is None else scale * trans
+
+    def rel(self, i: int, j: int) -> np.ndarray:
+        return invert(self.initial[i]) @ self.initial[j]
+
+    def first_tasks(self) -> list[PairTask]:
+        n, mode = self.n, self.mode
+        rot, trans = self.region()
+        if mode == "all":
+            chosen = [(i, j) for i in range(n) for j in range(i + 1, n)]
+        elif mode == "chain":
+            chosen = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
+        elif mode == "features":
+            chosen = self.cue_pairs()
         else:
             items = [(i, j) for i in range(n) for j in range(i + 1, n)]
-        say(f"measuring the overlap of {len(items)} pairs under the initial poses")
-        fracs = run(overlap_task, [(i, j, rel(i, j)) for i, j in items], shared)
-        overlaps = [(i, j, f) for (i, j), f in zip(items, fracs)]
-        candidates = _choose(overlaps, n, mode)
-    linked = {k for i, j, _ in candidates for k in (i, j)}
-    alone = [scans[k].name for k in range(n) if k not in linked]
-    if alone:
-        raise InputError(f"{', '.join(alone)} overlap(s) no other scan under the initial poses; "
-                         "give better initial poses (--init) or leave it out")
-    overlap_seconds = time.perf_counter() - t0
-    groups = _components(n, candidates)
-    if len(groups) > 1:
-        listed = "; ".join(", ".join(scans[k].name for k in g) for g in groups)
-        raise InputError(f"the overlapping pairs form {len(groups)} separate groups ({listed}); "
-                         "give better initial poses (--init)")
-    say(f"registering {len(candidates)} pairs")
-    out = run(pair_task, [(i, j, rel(i, j)) for i, j, _ in candidates], shared)
-    results = [PairResult(i, j, T, err, frac, sec) for (i, j, frac), (T, err, sec) in zip(candidates, out)]
-    pair_seconds = time.perf_counter() - t0
-    if not chain:  # a chain from the identity has no pair to spare
-        results = _drop_outliers(results, n)
-    poses, rejected = solve_pose_graph(n, [p for p in results if p.status == "used"], initial, chain, scans)
-    results = [replace(p, status="rejected") if (p.i, p.j) in rejected else p for p in results]
-    model = None
-    if build_model:
-        say("fusing the registered scans into one model")
-        model = fuse(scans, poses)
-    return MergeResult(poses, results, model, time.perf_counter() - t0, pair_seconds, overlap_seconds, mode)
+            self.init_overlap = dict(zip(items, self.initial_overlaps(items)))
+            chosen = [c[:2] for c in choose([(i, j, f) for (i, j), f in self.init_overlap.items()], n, mode, self.mc)]
+        start = "rough poses" if self.have else "no guess"
+        return [PairTask(i, j, self.rel(i, j), rot, trans, start=start) for i, j in chosen]
+
+    def initial_overlaps(self, items: list[tuple[int, int]]) -> list[float]:
+        """The overlap of each pair under the initial poses (core.merge_tasks.overlap_task)."""
+        self.say(f"measuring the overlap of {len(items)} pairs under the initial poses")
+        guesses = [self.rel(i, j) for i, j in items]
+        # where the stated region lets a scan move by about its size at its centroid (a rotation about an
+        # origin far from the scans: a sensor's, a turntable's), the rough poses say little about where it
+        # lies: its overlap is also measured with its centroid on the partner's, counting the points that
+        # face the partner's sensor (10-stop turntable, 15 deg about the sensor: round 1 then picks the
+        # 20 pairs within 2 stops, all trusted; measured as given, 14 pairs of which 8 far apart)
+        aligned = [k for k, ((i, j), T) in enumerate(zip(items, guesses)) if self.loose(i, j, T)]
+        fracs = self.timed_map(overlap_task, [(i, j, T) for (i, j), T in zip(items, guesses)]
+                               + [(*items[k], self.centred(*items[k], guesses[k]), True) for k in aligned], "overlaps")
+        for m, k in enumerate(aligned):
+            fracs[k] = max(fracs[k], fracs[len(items) + m])
+        return fracs[:len(items)]
+
+    def loose(self, i: int, j: int, T: np.ndarray) -> bool:
+        """Whether pair (i, j)'s region (guess T_i_j) lets scan j's centroid move by align_from x scan i's size."""
+        rot, trans = self.region()
+        pc = replace(self.config.problem, rotation_uncertainty_deg=rot, translation_uncertainty=trans)
+        return Region.stated(T, pc, self.scans[j], self.scans[i]).translation >= self.mc.align_from * self.scans[i].size
+
+    def centred(self, i: int, j: int, T: np.ndarray) -> np.ndarray:
+        """T_i_j moved so that scan j's centroid lands on scan i's."""
+        out = T.copy()
+        out[:3, 3] += self.centers[i] - (T[:3, :3] @ self.centers[j] + T[:3, 3])
+        return out
+
+    def register(self, tasks: list[PairTask]) -> None:
+        t0 = time.perf_counter()
+        self.say(f"round {self.round}: registering {len(tasks)} pairs")
+        out = self.map(pair_task, tasks, self.shared, label=f"pairs, round {self.round}")
+        for task, res in zip(tasks, out):
+            key = (task.i, task.j)
+            before = self.pairs.get(key)
+            self.pairs[key] = self.result(task, res, before)
+            self.tried[key] = self.tried.get(key, 0) + 1
+        self.registrations += len(tasks)
+        self.t_pairs += time.perf_counter() - t0
+
+    def result(self, task: PairTask, res: PairOutcome, before: PairResult | None) -> PairResult:
+        earlier = None if before is None else self.reason_of(before)
+        return PairResult(task.i, task.j, res.T, res.error, res.share, res.trusted, res.misfit, res.within_region,
+                          res.seconds, self.round, task.start, earlier=earlier, stop=res.stop)
+
+    def timed_map(self, fn, items: list, label: str) -> list:
+        t0 = time.perf_counter()
+        out = self.map(fn, items, self.shared, label=label)
+        dt = time.perf_counter() - t0
+        self.t_overlap += dt
+        self.t_pairs += dt
+        return out
+
+    # ---- the graph ----
+
+    def usable(self) -> tuple[list[tuple[int, int]], dict[tuple[int, int], str]]:
+        """The trusted pairs (keys) the graph may use, and why the others may not."""
+        why: dict[tuple[int, int], str] = {}
+        trusted = [k for k, p in self.pairs.items() if p.trusted]
+        for k, p in self.pairs.items():
+            if not p.trusted:
+                why[k] = (p.stop if p.stop.startswith("not registered") else
+                          "not trusted: too little of the pair overlaps to judge it" if p.misfit is None else
+                          f"not trusted (misfit {p.misfit:.3g})")
+        if len(trusted) >= 3:
+            median = float(np.median([self.pairs[k].error for k in trusted]))
+            for k in trusted:
+                if self.pairs[k].error > self.mc.outlier_error * median:
+                    why[k] = (f"E far above the other trusted pairs' ({self.pairs[k].error / median:.3g} x their "
+                              "median)")
+        return [k for k in trusted if k not in why], why
+
+    def graph(self) -> Graph:
+        keys, _ = self.usable()
+        edges = []
+        for i, j in keys:
+            p = self.pairs[i, j]
+            info_key = (i, j, self.tried[i, j])
+            if info_key not in self.infos:
+                self.infos[info_key] = information_matrix(self.scans[j].points, self.scans[i], 3 * self.spacing,
+                                                          p.T_i_j)
+            edges.append(Edge(i, j, p.T_i_j, weight(p), self.infos[info_key]))
+        tol = Tolerance(self.mc.cycle_rotation_deg, self.mc.cycle_translation * self.spacing)
+        g = solve(self.n, edges, self.centers, tol, 3 * self.spacing, self.config.seed)
+        # the poses are the first scan's frame when its group is the largest; else the largest group's
+        # (a first scan no trusted pair reaches leaves the others placed among themselves)
+        label = _labels(self.n, [keys[k] for k in g.kept])
+        size = {c: label.count(c) for c in set(label)}
+        best = max(size.values())
+        self.reference = 0 if size[label[0]] == best else min(k for k in range(self.n) if size[label[k]] == best)
+        if self.reference != 0:
+            g = solve(self.n, edges, self.centers, tol, 3 * self.spacing, self.config.seed, self.reference)
+        self.last_graph, self.last_keys = g, keys
+        self.say(f"pose graph: {len(g.kept)} of {len(self.pairs)} pairs used, {sum(g.placed)} of {self.n} scans placed")
+        return g
+
+    # ---- the next round ----
+
+    def next_tasks(self, g: Graph) -> list[PairTask]:
+        P, placed = g.poses, g.placed
+        keys, _ = self.usable()
+        used = {keys[k] for k in g.kept}
+        found = self.mc.found_rotation_deg
+        # pairs among placed scans: every pair not used (registered or not) that overlaps under the poses
+        near = [(i, j) for i in range(self.n) for j in range(i + 1, self.n)
+                if placed[i] and placed[j] and (i, j) not in used and self.close(P, i, j)]
+        shares = self.timed_map(share_task, [(i, j, invert(P[i]) @ P[j]) for i, j in near], "overlaps") if near else []
+        over = {(i, j): f for (i, j), f in zip(near, shares)}
+        self.shares.update(over)
+        tasks = []
+        # not used, registered once, and overlapping under the poses found: again from the graph's pose,
+        # before it is given up (a pair matching less than min_overlap cannot be trusted: the pair
+        # threshold asks 30 % of the source's sample to match)
+        for (i, j), f in over.items():
+            if (i, j) in self.pairs and self.tried[i, j] == 1 and f >= self.mc.min_overlap:
+                tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start="graph pose"))
+        # pairs that now overlap: each scan's best partners under the poses found, not registered yet
+        fresh = [(i, j, f) for (i, j), f in over.items() if (i, j) not in self.pairs]
+        for i, j, _ in choose(fresh + [(i, j, 1.0) for i, j in used], self.n, "init", self.mc):
+            if (i, j) not in self.pairs and (i, j) in over:
+                tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, start="graph pose"))
+        # scans no trusted pair joins to the first: per group of them (joined among themselves, or alone),
+        # the pairs across to the placed scans, by overlap under the rough poses (in their region), then
+        # by the cue (no guess)
+        label = _labels(self.n, [keys[k] for k in g.kept])
+        rot, trans = self.region()
+        for group in sorted({label[k] for k in range(self.n) if not placed[k]}):
+            inside = [k for k in range(self.n) if label[k] == group]
+            across = [_key(u, m) for u in inside for m in range(self.n) if placed[m] and _key(u, m) not in self.pairs]
+            rough = sorted((c for c in across if self.init_overlap.get(c, 0.0) >= self.mc.min_overlap_any),
+                           key=lambda c: -self.init_overlap[c])
+            cue = sorted((c for c in across if c not in rough), key=lambda c: (-self.cue(*c), c))
+            picks = [(c, True) for c in rough] + [(c, False) for c in cue]
+            for (i, j), by_pose in picks[:self.mc.reach_partners]:
+                tasks.append(PairTask(i, j, self.rel(i, j), rot if by_pose else 180.0, trans if by_pose else None,
+                                      start="rough poses" if by_pose else "no guess"))
+        return tasks
+
+    def close(self, P: list, i: int, j: int) -> bool:
+        """Whether scans i and j could overlap under poses P: their bounding spheres meet."""
+        ci = P[i][:3, :3] @ self.centers[i] + P[i][:3, 3]
+        cj = P[j][:3, :3] @ self.centers[j] + P[j][:3, 3]
+        return float(np.linalg.norm(ci - cj)) < self.radius[i] + self.radius[j]
+
+    # ---- the cue: which scans are likely neighbours when nothing is known ----
+
+    def cue(self, i: int, j: int) -> float:
+        """The share of mutually nearest FPFH features of scans i and j (higher: likelier neighbours)."""
+        if self.features is None:
+            self.say(f"computing the features of {self.n} scans (which scans are likely neighbours)")
+            self.features = self.timed_map(feature_task, list(range(self.n)), "features")
+            self.trees = [cKDTree(f) for f in self.features]
+        key = _key(i, j)
+        if key not in self.cue_cache:
+            a, b = self.features[i], self.features[j]
+            if len(a) == 0 or len(b) == 0:
+                self.cue_cache[key] = 0.0
+            else:
+                ab = self.trees[j].query(a)[1]
+                ba = self.trees[i].query(b)[1]
+                self.cue_cache[key] = float((ba[ab] == np.arange(len(a))).sum() / min(len(a), len(b)))
+        return self.cue_cache[key]
+
+    def cue_rank(self, u: int) -> list[int]:
+        """The other scans, likeliest neighbours of scan u first."""
+        others = [m for m in range(self.n) if m != u]
+        return sorted(others, key=lambda m: (-self.cue(u, m), m))
+
+    def cue_pairs(self) -> list[tuple[int, int]]:
+        """Each scan's cue_partners best partners by the cue; joined into one group by the best links."""
+        chosen = {_key(u, m) for u in range(self.n) for m in self.cue_rank(u)[:self.mc.cue_partners]}
+        while True:
+            label = _labels(self.n, chosen)
+            if len(set(label)) == 1:
+                break
+            links = [(self.cue(i, j), i, j) for i in range(self.n) for j in range(i + 1, self.n) if label[i] != label[j]]
+            _, i, j = max(links)
+            chosen.add((i, j))
+        return sorted(chosen)
+
+    # ---- the report ----
+
+    def statuses(self, g: Graph) -> tuple[list[PairResult], list[ScanReport]]:
+        keys, why = self.usable()
+        index = {k: e for e, k in enumerate(keys)}
+        out = []
+        for key, p in sorted(self.pairs.items()):
+            e = index.get(key)
+            if key in why:
+                status, reason = "rejected", why[key]
+            elif e in g.rejected:
+                status, reason = "rejected", g.rejected[e]
+            elif g.poses[p.i] is None:
+                status, reason = "rejected", (f"its scans are not joined to {self.scans[self.reference].name} "
+                                              "(the frame of the poses) by used pairs")
+            else:
+                status, reason = "used", ""
+            if status == "rejected" and self.tried[key] == 1 and self.shares.get(key, 1.0) < self.mc.min_overlap:
+                reason += (f"; not registered again: under the poses found its scans match by "
+                           f"{self.shares[key]:.0%}, too little to be trusted")
+            out.append(replace(p, status=status, reason=reason, cycle=g.cycle.get(e) if e is not None else None))
+        scans = []
+        for k, s in enumerate(self.scans):
+            trusted = tuple(sorted(p.j if p.i == k else p.i for p in out if p.trusted and k in (p.i, p.j)))
+            placed = g.poses[k] is not None
+            scans.append(ScanReport(s.name, placed, trusted, g.scan_cycle[k] if placed else None,
+                                    "" if placed else self.why_not(k, out)))
+        return out, scans
+
+    def reason_of(self, p: PairResult) -> str:
+        """Why pair p, as registered so far, is not used (it is about to be registered again)."""
+        if not p.trusted:
+            return "not trusted" + ("" if p.misfit is None else f" (misfit {p.misfit:.3g})")
+        keys, why = self.usable()
+        if (p.i, p.j) in why:
+            return why[p.i, p.j]
+        g = self.last_graph
+        e = {k: m for m, k in enumerate(self.last_keys)}.get((p.i, p.j)) if g is not None else None
+        return g.rejected.get(e, "not used") if e is not None else "not used"
+
+    def why_not(self, k: int, pairs: list[PairResult]) -> str:
+        mine = [p for p in pairs if k in (p.i, p.j)]
+        if not mine:
+            return "no pair with it was registered"
+        trusted = [p for p in mine if p.trusted]
+        if not trusted:
+            return f"no trusted pair reaches it ({len(mine)} registered, none trusted)"
+        return "its trusted pairs were rejected: " + "; ".join(
+            f"with {self.scans[p.j if p.i == k else p.i].name}: {p.reason}" for p in trusted)
 
 
-def _choose(overlaps: list, n: int, mode: str) -> list:
-    """Candidate pairs (i, j, overlap) from the measured overlaps."""
-    floor = MIN_OVERLAP_ANY if mode == "chain" else MIN_OVERLAP
+def weight(p: PairResult) -> float:
+    """A trusted pair's weight in the pose graph's consensus: its matching share over its misfit (the pair
+    threshold's, about 1 at the noise level), so a pair that fits at the noise level outweighs one the
+    threshold passed near its bound (simulated turntable, crops: right pairs misfit 0.4-0.6, wrong ones
+    the threshold trusted 1.8-4.4; bunny, right pairs 1.3-3.2)."""
+    return max(p.overlap, 1e-3) / max(p.misfit if p.misfit is not None else 1.0, 0.25)
+
+
+def choose(overlaps: list, n: int, mode: str, mc: MergeConfig) -> list:
+    """Candidate pairs (i, j, overlap) from measured overlaps: "overlap" every pair above min_overlap;
+    "init" each scan's max_partners best (both ways, or either where that leaves separate groups);
+    "chain" as given above min_overlap_any. A scan left with none keeps its best above min_overlap_any."""
+    floor = mc.min_overlap_any if mode == "chain" else mc.min_overlap
     candidates = [c for c in overlaps if c[2] >= floor]
     if mode == "init":
         # a pair both of whose scans count the other among their best partners (the union where that
         # leaves separate groups): a scan seen from behind can look overlapping near its silhouette
         # (12-stop turntable: 48 % "overlap" at 180 degrees, ranked 4th by the far scan alone)
-        best = {k: {c[:2] for c in sorted((c for c in candidates if k in c[:2]), key=lambda c: -c[2])[:MAX_PARTNERS]}
+        best = {k: {c[:2] for c in sorted((c for c in candidates if k in c[:2]), key=lambda c: -c[2])[:mc.max_partners]}
                 for k in range(n)}
         mutual = [c for c in candidates if c[:2] in best[c[0]] and c[:2] in best[c[1]]]
         either = [c for c in candidates if c[:2] in best[c[0]] or c[:2] in best[c[1]]]
-        candidates = mutual if len(_components(n, mutual)) == 1 else either
-    # A scan whose every overlap looks small under rough poses still gets its best partner.
+        candidates = mutual if len(set(_labels(n, [c[:2] for c in mutual]))) == 1 else either
     for k in range(n):
         if not any(k in c[:2] for c in candidates):
             mine = [c for c in overlaps if k in c[:2]]
-            best = max(mine, key=lambda c: c[2]) if mine else None
-            if best is not None and best[2] >= MIN_OVERLAP_ANY:
-                candidates.append(best)
+            top = max(mine, key=lambda c: c[2]) if mine else None
+            if top is not None and top[2] >= mc.min_overlap_any:
+                candidates.append(top)
     return sorted(candidates, key=lambda c: c[:2])
 
 
-def _components(n: int, pairs: list) -> list[list[int]]:
-    """Connected groups of scan indices under the pairs (i, j, ...)."""
-    parent = list(range(n))
-
-    def root(k):
-        while parent[k] != k:
-            k = parent[k]
-        return k
-
-    for i, j, *_ in pairs:
-        parent[root(i)] = root(j)
-    groups: dict[int, list[int]] = {}
-    for k in range(n):
-        groups.setdefault(root(k), []).append(k)
-    return list(groups.values())
+def _key(a: int, b: int) -> tuple[int, int]:
+    return (a, b) if a < b else (b, a)
 
 
-def _drop_outliers(pairs: list, n: int) -> list:
-    """A pair whose final E is far above the others' did not find its partner surface: leave it out,
-    unless that splits the scans into separate groups."""
-    if len(pairs) < 3:
-        return pairs
-    median = float(np.median([p.error for p in pairs]))
-    good = [(p.i, p.j) for p in pairs if p.error <= OUTLIER_PAIR * median]
-    if len(_components(n, good)) > 1:
-        return pairs
-    return [p if p.error <= OUTLIER_PAIR * median else replace(p, status="dropped") for p in pairs]
+def _labels(n: int, pairs) -> list[int]:
+    from .posegraph import components
+
+    return components(n, [tuple(p[:2]) for p in pairs])
+
+
+def stated_problem(rotation_deg: float | None, translation: float | None) -> ProblemConfig:
+    """The per-scan uncertainty as a ProblemConfig (None: ProblemConfig's default rotation)."""
+    base = ProblemConfig()
+    return replace(base, rotation_uncertainty_deg=base.rotation_uncertainty_deg if rotation_deg is None else rotation_deg,
+                   translation_uncertainty=translation)
+

@@ -12,6 +12,11 @@ Initial poses, as a user of a real turntable would have them:
   seeded perturbation (errors do not add up);
 - ``chain``: the nominal step from the previous scan's initial pose, each step perturbed (odometry:
   consecutive scans are close, but the errors add up round the table).
+
+And the families of :func:`rough_poses`, each from the truth (``FAMILIES``): ``frame``, each true pose
+turned by an offset about its scan frame's origin (the sensor, where a 4x4 pose's rotation acts) on a
+seeded random axis, plus a seeded shift; ``axis``, turned about the turntable's axis through the
+object by the offset either way, plus the shift; ``identity``, every pose the identity (no poses).
 """
 
 from __future__ import annotations
@@ -142,6 +147,37 @@ def make_campaign(seed: int = 0, config: TurntableConfig | None = None) -> Campa
         chain.append(chain[-1] @ step_k @ _perturbation(rng_chain, cfg.perturb_deg / 2, dist / 2,
                                                         apply(invert(nominal[k]), centre[None])[0]))
     return Campaign(scans, perturbed, chain, verts, faces, cfg, seed)
+
+
+FAMILIES = ("frame", "axis", "identity")
+
+
+def rough_poses(truth: list[np.ndarray], family: str, offset_deg: float, shift: float, seed: int,
+                center: np.ndarray | None = None, axis: np.ndarray | None = None) -> list[np.ndarray]:
+    """Rough T_world_scan per true pose (FAMILIES, module notes): ``offset_deg`` degrees and a shift of
+    length ``shift`` (units), one generator per scan (``[seed, k]``); ``center`` and ``axis``: the
+    turntable's axis (default the world z axis through the origin)."""
+    if family not in FAMILIES:
+        raise InputError(f"family must be one of {', '.join(FAMILIES)}, got {family!r}")
+    if family == "identity":
+        return [np.eye(4) for _ in truth]
+    center = np.zeros(3) if center is None else np.asarray(center, dtype=np.float64)
+    axis = np.array([0.0, 0.0, 1.0]) if axis is None else np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    out = []
+    for k, T in enumerate(truth):
+        rng = np.random.default_rng([seed, k])
+        if family == "frame":
+            turn = rng.normal(size=3)
+            R = from_params(np.r_[0, 0, 0, turn / np.linalg.norm(turn) * np.radians(offset_deg)])
+            rough = T @ R  # about the scan frame's origin
+        else:
+            R = from_params(np.r_[0, 0, 0, axis * np.radians(offset_deg) * rng.choice([-1.0, 1.0])])
+            rough = from_params(np.r_[center, 0, 0, 0]) @ R @ from_params(np.r_[-center, 0, 0, 0]) @ T
+        move = rng.normal(size=3)
+        rough = rough.copy()
+        rough[:3, 3] += move / np.linalg.norm(move) * shift
+        out.append(rough)
+    return out
 
 
 def conf_line(name: str, T_world_scan: np.ndarray) -> str:

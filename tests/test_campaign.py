@@ -39,7 +39,8 @@ def serial(folder):
 
     scans = sorted(folder.glob("scan*.ply"))
     a = argparse.Namespace(scans=[str(p) for p in scans], init=str(folder / "init" / "chain.conf"), truth=None,
-                           out=str(folder / "model.ply"), seed=0, json=True, workers=1, scheduler=None, pairs="chain")
+                           out=str(folder / "model.ply"), seed=0, json=True, workers=1, scheduler=None, pairs="chain",
+                           rotation_uncertainty=None, translation_uncertainty=None)
     import contextlib
     import io
 
@@ -49,6 +50,49 @@ def serial(folder):
     loaded = [load_scan(p) for p in scans]
     init = load_conf(folder / "init" / "chain.conf")
     return loaded, [init[s.name] for s in loaded], json.loads(buf.getvalue())
+
+
+def test_rough_pose_families_are_off_by_the_offset_where_they_say():
+    from core.transforms import from_params, invert, rotation_angle
+    from core.turntable import rough_poses
+
+    camp = make_campaign(3, SMALL)
+    truth = [s.pose for s in camp.scans]
+    frame = rough_poses(truth, "frame", 15.0, 20.0, seed=4)
+    axis = rough_poses(truth, "axis", 15.0, 20.0, seed=4)
+    assert all(np.array_equal(T, np.eye(4)) for T in rough_poses(truth, "identity", 15.0, 20.0, seed=4))
+    assert all(np.array_equal(a, b) for a, b in zip(frame, rough_poses(truth, "frame", 15.0, 20.0, seed=4)))
+    for T, R, A in zip(truth, frame, axis):
+        # about the scan frame's origin: the rotation is the offset, and the origin moves by the shift alone
+        D = invert(T) @ R
+        assert np.degrees(rotation_angle(D[:3, :3])) == pytest.approx(15.0)
+        assert np.linalg.norm(R[:3, 3] - T[:3, 3]) == pytest.approx(20.0)
+        # about the turntable's axis through the object: a turn about world z either way, then the shift
+        W = A @ invert(T)
+        turn = np.degrees(rotation_angle(W[:3, :3]))
+        assert turn == pytest.approx(15.0) and np.allclose(W[:3, :3] @ [0, 0, 1.0], [0, 0, 1.0])
+        sign = np.sign(W[1, 0])
+        Rz = from_params(np.r_[0, 0, 0, 0, 0, sign * np.radians(15.0)])
+        assert np.linalg.norm((A - Rz @ T)[:3, 3]) == pytest.approx(20.0)
+    from core.errors import InputError as Bad
+
+    with pytest.raises(Bad, match="family"):
+        rough_poses(truth, "sideways", 15.0, 20.0, seed=0)
+
+
+@pytest.mark.slow
+def test_a_turntable_from_identity_poses_places_every_scan():
+    """No poses at all: the cue picks each scan's likely neighbours, the rounds join the groups (~1 min)."""
+    from dataclasses import replace
+
+    camp = make_campaign(3, SMALL)
+    scans = [replace(s, pose=None, guess=None) for s in camp.scans]
+    res = merge(scans, None, build_model=False)
+    assert res.mode == "features" and all(res.placed)
+    for s, T in zip(camp.scans, res.poses):
+        rot, move = pose_error(T, np.linalg.inv(camp.scans[0].pose) @ s.pose, s.points.mean(0))
+        assert rot < 2.0 and move < 2.0, (s.name, rot, move)
+    assert all(p.start == "no guess" for p in res.pairs if p.round == 1)
 
 
 def test_the_campaign_is_a_closed_asymmetric_object_with_its_truth_in_a_conf(folder):
@@ -86,11 +130,17 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     size = make_campaign(3, SMALL).size
     assert max(rep["rotation_error_deg"]) < 1.0
     assert max(rep["translation_error"]) < 0.005 * size
-    # the graph: a chain round the table, closed by the last scan onto the first
-    assert rep["graph"]["mode"] == "chain" and rep["graph"]["pairs"] == len(scans)
+    # the first round: a chain round the table, closed by the last scan onto the first; the next rounds
+    # add the pairs that overlap under the poses found
+    assert rep["graph"]["mode"] == "chain"
+    first = [p for p in rep["pairs"] if p["round"] == 1]
+    assert len(first) == len(scans) and all(p["start"] == "rough poses" for p in first)
+    assert rep["graph"]["rounds"] >= 2 and len(rep["pairs"]) > len(first)
+    assert all(p["start"] == "graph pose" for p in rep["pairs"] if p["round"] > 1)
     closing = [p for p in rep["pairs"] if {p["source"], p["target"]} == {scans[0].name, scans[-1].name}]
     assert len(closing) == 1 and closing[0]["status"] in ("used", "rejected")
-    assert rep["graph"]["used"] + rep["graph"]["rejected"] + rep["graph"]["dropped"] == rep["graph"]["pairs"]
+    assert rep["graph"]["used"] + rep["graph"]["rejected"] == rep["graph"]["pairs"]
+    assert all(rep["placed"]) and all(r["cycle_residual"]["rotation_deg"] < 2.0 for r in rep["scan_reports"])
     assert rep["model"]["triangles"] > 0
     assert rep["workers"] == 1 and rep["threads_per_worker"] is None  # serial: the libraries' own threads
 
@@ -128,7 +178,7 @@ def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
         assert runner.map(_open3d_threads, range(4)) == [each] * 4  # what the tasks themselves see
     assert any(f"2 workers on a local cluster, {each} thread(s) each" in line for line in lines)
     assert any("dashboard http://127.0.0.1:" in line for line in lines)
-    assert any(line.startswith(f"pairs {len(scans)}/{len(scans)}") for line in lines)
+    assert any(line.startswith(f"pairs, round 1 {len(scans)}/{len(scans)}") for line in lines)
     for T, ref in zip(res.poses, rep["poses"]):
         assert np.array_equal(T, np.array(ref))  # JSON floats round-trip exactly
 
@@ -140,11 +190,18 @@ def test_one_thread_per_task_stream_reaches_the_tasks_and_leaves_the_poses_uncha
 
     scans, initial, rep = serial
     before = o3d.utility.get_max_threads()
-    with TaskRunner(1, threads=1) as runner:
+    lines = []
+    with TaskRunner(1, threads=1, progress=lines.append) as runner:
         assert runner.threading()["this process"]["open3d"] == 1
         assert runner.map(_open3d_threads, range(3)) == [1, 1, 1]
         res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
     assert o3d.utility.get_max_threads() == before  # the limit holds for the tasks only
+    # one progress count over every round: the second round's pairs add to the first's total
+    n1 = len(scans)
+    total = rep["graph"]["registrations"]
+    assert any(line.startswith(f"pairs, round 1 {n1}/{n1}") for line in lines)
+    last = [line for line in lines if line.startswith("pairs, round")][-1]
+    assert last.startswith(f"pairs, round {rep['graph']['rounds']} {total}/{total}") and last.endswith("done")
     # each closest point and ray is computed alone: the thread count does not change a bit of the result
     for T, ref in zip(res.poses, rep["poses"]):
         assert np.array_equal(T, np.array(ref))
@@ -224,3 +281,35 @@ def test_map_tasks_keeps_the_order_serially_and_on_a_cluster():
     items = list(range(7))
     assert map_tasks(abs, [-i for i in items], workers=1) == items
     assert map_tasks(abs, [-i for i in items], workers=2) == items
+
+
+def _slow_abs(x: int) -> int:
+    time.sleep(0.3)
+    return abs(x)
+
+
+def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch):
+    import app.distributed as dist
+
+    pays = dist.cluster_pays
+    assert not pays(0.5 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]
+    assert pays(2 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]
+    assert not pays(100.0, cores=1, load=0.0)[0]
+    busy, why = pays(100.0, cores=2, load=3.0)
+    assert not busy and "busy" in why
+    # little work: the plain loop, and it says why
+    with dist.TaskRunner(progress=[].append) as runner:
+        assert runner.map(abs, [-1, -2, -3]) == [1, 2, 3]
+        assert runner.serial and runner.client is None
+        assert runner.choice.startswith("plain loop in this process")
+    # work that pays (the bound lowered, a quiet machine): the rest of the map goes to a local cluster
+    monkeypatch.setattr(dist, "PAYBACK_SECONDS", 0.5)
+    monkeypatch.setattr(dist.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(dist, "default_workers", lambda: 2)
+    lines = []
+    with dist.TaskRunner(progress=lines.append) as runner:
+        assert runner.map(_slow_abs, [-k for k in range(8)]) == list(range(8))
+        assert not runner.serial and runner.client is not None
+        assert runner.choice.startswith("a local cluster of 2 workers: about")
+    assert any(line.startswith("starting a local cluster") for line in lines)
+    assert any(line.startswith("_slow_abss 8/8") and line.endswith("done") for line in lines)

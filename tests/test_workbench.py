@@ -347,3 +347,16 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     assert download("Model (PLY)").startswith(b"ply")
     assert download("Slice (PNG)").startswith(b"\x89PNG")
     page.close()
+
+
+def test_a_campaign_of_the_data_folder_merges_with_the_clis_progress(data_server, browser):
+    url, _ = data_server
+    page = open_page(browser, url)
+    show_tab(page, "Model")
+    page.get_by_role("button", name="Merge scans", exact=True).click()
+    # the report: every scan placed, and the last progress line as the CLI prints it (every round counted)
+    page.get_by_text(re.compile(r"right: placed")).first.wait_for(timeout=180_000)
+    body = page.locator("body").inner_text()
+    assert re.search(r"pairs, round \d+ (\d+)/\1, \d+:\d\d elapsed, done", body), body
+    assert "2 of 2 scans placed" in body and "left: placed" in body
+    page.close()

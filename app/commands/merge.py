@@ -3,9 +3,15 @@
 The output and side files are checked up front; the report is printed before the model is written
 (atomically, app.outputs), so a write that fails late loses nothing printed.
 
+The initial poses (``--init``, else the scans' stored rough poses, else none: no guess) come with the
+stated uncertainty (``--rotation-uncertainty``, ``--translation-uncertainty``, per scan, through
+app.options like ``register``'s). Exit status 0 when every scan is placed, 3 when some scan is not
+(the report says which and why; the model holds the placed ones), 2 on bad input.
+
 The pairwise registrations run as tasks (app.distributed): ``--workers 1`` a plain loop, ``--workers N``
-a local Dask cluster of N processes (default: one per core), ``--scheduler tcp://HOST:PORT`` an
-existing cluster; ``threads`` (when the parser has it) caps the threads of each task stream.
+a local Dask cluster of N processes, none given: the plain loop until the work left pays for a local
+cluster; ``--scheduler tcp://HOST:PORT`` an existing cluster; ``threads`` (when the parser has it)
+caps the threads of each task stream.
 """
 
 from __future__ import annotations
@@ -17,10 +23,11 @@ import time
 import numpy as np
 
 from app.options import Settings, read_text_file, to_config
-from app.outputs import check_output, write_output
+from app.outputs import check_output, library_prints_to_stderr, write_output
 from core.errors import InputError
 
 PROGRESS_DELAY = 1.0  # s: a run that fails sooner shows no progress lines
+NOT_PLACED = 3  # exit status: the merge ran, but some scan is not placed
 
 
 def _poses_for(conf: dict[str, np.ndarray], scans, what: str) -> list[np.ndarray]:
@@ -32,8 +39,8 @@ def _poses_for(conf: dict[str, np.ndarray], scans, what: str) -> list[np.ndarray
 
 class DelayedLines:
     """A progress sink for stderr that holds its lines until the inputs have passed every check (the
-    registrations have started: a line starting with ``release``) and the run has taken ``delay``
-    seconds, so that bad input (no overlap, a scan that overlaps nothing) prints one line, the error."""
+    registrations have started: a line containing ``release``) and the run has taken ``delay``
+    seconds, so that bad input prints one line, the error."""
 
     def __init__(self, delay: float = PROGRESS_DELAY, release: str = "registering", stream=None):
         self.t0, self.delay, self.release, self.stream = time.perf_counter(), delay, release, stream or sys.stderr
@@ -42,22 +49,28 @@ class DelayedLines:
 
     def __call__(self, line: str) -> None:
         self.held.append(f"  {line}\n")
-        self.released = self.released or line.startswith(self.release)
+        self.released = self.released or self.release in line
         if self.released and time.perf_counter() - self.t0 >= self.delay:
             self.stream.write("".join(self.held))
             self.stream.flush()
             self.held.clear()
 
 
+def stated_config(a, have_poses: bool):
+    """The registration config from the flags: the per-scan uncertainty of the initial poses (none: no guess)."""
+    rot, trans = getattr(a, "rotation_uncertainty", None), getattr(a, "translation_uncertainty", None)
+    if not have_poses and (rot is not None or trans is not None):
+        raise InputError("--rotation-uncertainty and --translation-uncertainty say how far the initial poses may be "
+                         "off; without --init or stored poses there are none (no guess: every pair is registered "
+                         "over all rotations)")
+    return to_config(Settings(method="global", seed=a.seed, rotation_uncertainty=rot, translation_uncertainty=trans))
+
+
 def run(a) -> int:
     from app.distributed import TaskRunner
     from core.e57 import count_scans, split_selection
-    from core.e57_write import world_poses, write_e57
-    from core.fuse import double_layer_fraction
     from core.io import load_conf, load_scans
-    from core.merge import PAIR_MODES, merge
-    from core.ply import write_ply
-    from core.transforms import invert, pose_error
+    from core.merge import MergeConfig, merge
 
     workers, scheduler, pairs = a.workers, a.scheduler, a.pairs
     threads = getattr(a, "threads", None)  # threads per task stream (app.distributed); None: its default
@@ -70,8 +83,8 @@ def run(a) -> int:
     out = check_output(a.out, "--out", (".ply", ".e57"), [p for p in (a.init, a.truth) if p],
                        [split_selection(p)[0] for p in a.scans])
     as_e57 = out.suffix.lower() == ".e57"  # the scans with their registered poses, not a fused model
-    if pairs is not None and pairs not in PAIR_MODES:
-        raise InputError(f"--pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
+    if pairs is not None and pairs not in MergeConfig.PAIR_MODES:
+        raise InputError(f"--pairs must be one of {', '.join(MergeConfig.PAIR_MODES)}, got {pairs!r}")
     scans = load_scans(a.scans)
     names = [s.name for s in scans]
     if len(set(names)) != len(names):
@@ -80,19 +93,72 @@ def run(a) -> int:
     truth = _poses_for(load_conf(a.truth), scans, a.truth) if a.truth else None
     if truth is None and all(s.pose is not None for s in scans):
         truth = [s.pose for s in scans]  # ground truth stored with the scans (sidecar or .conf beside them)
-    config = to_config(Settings(method="hybrid", seed=a.seed, rotation_uncertainty=25.0))
+    have = initial is not None or all(s.guess is not None for s in scans)
+    config = stated_config(a, have)
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
-    with TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
+    # --json: stdout holds the report alone (Open3D's C++ warnings go to stderr)
+    with library_prints_to_stderr(a.json), TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
         res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map, build_model=not as_e57)
+    report = build_report(res, scans, truth, config, have, runner, scheduler, out, as_e57)
+    try:
+        if a.json:
+            print(json.dumps(report))
+        else:
+            print_report(report, res, scans)
+        missing = [s.name for s in res.scans if not s.placed]
+        if missing:
+            sys.stderr.write(f"rangereg merge: {len(missing)} of {len(scans)} scans not placed ({', '.join(missing)}): "
+                             f"no trusted pair joins them to {report['reference']}; the "
+                             f"{'file' if as_e57 else 'model'} holds the placed scans\n")
+    finally:
+        if as_e57:
+            write_output(out, "--out", lambda p: _write_placed_e57(p, scans, res, initial), ".e57")
+        else:
+            from core.ply import write_ply
+
+            write_output(out, "--out", lambda p: write_ply(p, res.model.vertices, res.model.faces,
+                                                           comments=("rangereg fused model",)), ".ply")
+    return NOT_PLACED if not all(res.placed) else 0
+
+
+def _write_placed_e57(path, scans, res, initial) -> None:
+    """The placed scans with their registered poses, the reference scan kept where its initial pose (given or
+    stored) has it; a scan not placed is left out, never written at a pose nobody found."""
+    from core.e57_write import world_poses, write_e57
+
+    ref = res.reference
+    T_world_ref = initial[ref] if initial is not None else scans[ref].guess
+    placed = [k for k, T in enumerate(res.poses) if T is not None]
+    write_e57(path, [scans[k] for k in placed],
+              world_poses([scans[ref]], [res.poses[k] for k in placed], T_world_ref))
+
+
+def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, as_e57: bool = False) -> dict:
+    """Everything the merge found, as one JSON-ready dict (``--json`` prints it)."""
+    from core.fuse import double_layer_fraction
+    from core.transforms import invert, pose_error
+
+    names = [s.name for s in scans]
     gap = float(np.median([s.spacing for s in scans]))
+    pc = config.problem
+    rot, trans = (pc.rotation_uncertainty_deg, pc.translation_uncertainty) if have else (180.0, None)
     report = {
         "scans": names,
-        "poses": [np.asarray(T).tolist() for T in res.poses],
-        "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "overlap": p.overlap,
-                   "status": p.status, "seconds": p.seconds} for p in res.pairs],
+        "reference": names[res.reference],  # the poses are in its frame: the first scan's unless its group is not the largest
+        "placed": res.placed,
+        "poses": [None if T is None else np.asarray(T).tolist() for T in res.poses],
+        "scan_reports": [{"name": r.name, "placed": r.placed, "trusted_pairs": [names[k] for k in r.trusted],
+                          "cycle_residual": _residual(r.cycle), "why": r.why} for r in res.scans],
+        "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "trusted": p.trusted,
+                   "misfit": p.misfit, "within_region": p.within_region, "overlap": p.overlap, "status": p.status,
+                   "reason": p.reason, "cycle_residual": _residual(p.cycle), "round": p.round, "start": p.start,
+                   "earlier": p.earlier, "stop_reason": p.stop, "seconds": p.seconds} for p in res.pairs],
         "graph": {"mode": res.mode, "pairs": len(res.pairs), "used": len(res.used),
-                  "rejected": sum(p.status == "rejected" for p in res.pairs),
-                  "dropped": sum(p.status == "dropped" for p in res.pairs)},
+                  "rejected": sum(p.status == "rejected" for p in res.pairs), "rounds": res.rounds,
+                  "registrations": res.registrations},
+        "stated": {"no_guess": not have, "rotation_deg": rot, "translation": trans,
+                   "pair_rotation_deg": min(180.0, 2 * rot), "pair_translation": None if trans is None else 2 * trans},
+        "runner": runner.choice,
         "workers": 1 if runner.serial else (runner.workers if scheduler is None else None),
         "scheduler": scheduler,
         "threads_per_worker": runner.stream_threads,  # None: the libraries' defaults (or the scheduler's workers')
@@ -104,42 +170,57 @@ def run(a) -> int:
         "scans_out": str(out) if as_e57 else None,
     }
     if truth is not None:
-        errs = [pose_error(T, invert(truth[0]) @ Tt, s.points.mean(0)) for T, Tt, s in zip(res.poses, truth, scans)]
-        report["rotation_error_deg"] = [e[0] for e in errs]
-        report["translation_error"] = [e[1] for e in errs]
-    try:
-        _print(report, a.json, res, names, scans, truth, runner, scheduler, out)
-    finally:
-        if as_e57:
-            first = None if initial is None else initial[0]  # the first scan stays where --init or its stored pose has it
-            write_output(out, "--out", lambda p: write_e57(p, scans, world_poses(scans, res.poses, first)), ".e57")
-        else:
-            write_output(out, "--out", lambda p: write_ply(p, res.model.vertices, res.model.faces,
-                                                           comments=("rangereg fused model",)), ".ply")
-    return 0
+        errs = [None if T is None else pose_error(T, invert(truth[res.reference]) @ Tt, s.points.mean(0))
+                for T, Tt, s in zip(res.poses, truth, scans)]
+        report["rotation_error_deg"] = [None if e is None else e[0] for e in errs]
+        report["translation_error"] = [None if e is None else e[1] for e in errs]
+    return report
 
 
-def _print(report, as_json, res, names, scans, truth, runner, scheduler, out) -> None:
-    if as_json:
-        print(json.dumps(report))
-        return
-    g = report["graph"]
-    where = "1 process" if runner.serial else (scheduler or f"{runner.workers} local workers")
-    print(f"registered {g['pairs']} pairs ({g['mode']}) on {where} in {res.pair_seconds:.1f} s; "
-          f"{g['used']} used, {g['rejected']} rejected by the pose graph, {g['dropped']} dropped (E far above "
-          f"the others'); {res.seconds:.1f} s in all:")
+def _residual(r) -> dict | None:
+    return None if r is None else {"rotation_deg": r[0], "translation": r[1]}
+
+
+def _cycle_text(r: dict | None, units: str) -> str:
+    return "on no cycle" if r is None else f"cycle {r['rotation_deg']:.3g} deg / {r['translation']:.3g} {units}"
+
+
+def print_report(report: dict, res, scans) -> None:
+    """The report for people: the run, every pair, every scan, the model."""
+    g, st, units, names = report["graph"], report["stated"], scans[0].units, report["scans"]
+    where = "no guess (every pair over all rotations and translations)" if st["no_guess"] else (
+        f"initial poses within {st['rotation_deg']:g} deg" +
+        (f" and {st['translation']:g} {units}" if st["translation"] is not None else "") +
+        f" each (pairs: {st['pair_rotation_deg']:g} deg)")
+    print(f"{sum(report['placed'])} of {len(names)} scans placed; {g['pairs']} pairs ({g['used']} used, "
+          f"{g['rejected']} rejected) in {g['rounds']} round(s), {g['registrations']} registrations; "
+          f"{res.pair_seconds:.1f} s pairwise, {res.seconds:.1f} s in all")
+    print(f"start: {where}; first round: {g['mode']}")
+    print(f"ran on: {report['runner']}")
+    print("pairs (source -> target):")
     for p in report["pairs"]:
-        tag = "" if p["status"] == "used" else f"  [{p['status']}]"
-        print(f"  {p['source']} -> {p['target']}  E={p['error']:.4g}  overlap {p['overlap']:.0%}{tag}")
-    print(f"poses (into {names[0]}'s frame):")
-    for k, (name, T) in enumerate(zip(names, res.poses)):
-        line = f"  {name}: t={np.round(T[:3, 3], 6).tolist()}"
-        if truth is not None:
-            line += f"  vs truth {report['rotation_error_deg'][k]:.3f} deg, {report['translation_error'][k]:.4g} {scans[k].units}"
+        trust = "trusted" if p["trusted"] else "untrusted"
+        why = f": {p['reason']}" if p["reason"] else ""
+        cyc = f", {_cycle_text(p['cycle_residual'], units)}" if p["cycle_residual"] else ""
+        again = f"; before: {p['earlier']}" if p["earlier"] else ""
+        print(f"  {p['source']} -> {p['target']}  E={p['error']:.4g}  {trust}, overlap {p['overlap']:.0%}, "
+              f"round {p['round']} from {p['start']}: {p['status'].upper()}{why}{cyc}{again}")
+    print(f"scans (poses into {report['reference']}'s frame):")
+    for k, r in enumerate(report["scan_reports"]):
+        partners = ", ".join(r["trusted_pairs"]) or "none"
+        if r["placed"]:
+            T = np.asarray(report["poses"][k])
+            line = f"  {r['name']}: placed, t={np.round(T[:3, 3], 6).tolist()}; trusted pairs with {partners}; " \
+                   f"largest {_cycle_text(r['cycle_residual'], units)}"
+            if "rotation_error_deg" in report:
+                line += f"; vs truth {report['rotation_error_deg'][k]:.3f} deg, {report['translation_error'][k]:.4g} {units}"
+        else:
+            line = f"  {r['name']}: NOT PLACED: {r['why']}"
         print(line)
     m = report["model"]
     if m is None:
-        print(f"scans: {len(names)} with their registered poses (the first scan where its initial pose has it) -> {out}")
+        print(f"scans: the {sum(report['placed'])} placed with their registered poses ({report['reference']} where its "
+              f"initial pose has it) -> {report['scans_out']}")
         return
-    print(f"model: {m['vertices']} vertices, {m['triangles']} triangles, double layer on "
-          f"{m['double_layer_fraction']:.2%} of triangles -> {out}")
+    print(f"model of the {sum(report['placed'])} placed scans: {m['vertices']} vertices, {m['triangles']} triangles, "
+          f"double layer on {m['double_layer_fraction']:.2%} of triangles -> {m['path']}")

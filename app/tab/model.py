@@ -1,4 +1,5 @@
-"""The Model panel: fuse the two scans at the current pose into one mesh (core.fuse)."""
+"""The Model panel: fuse the two scans at the current pose into one mesh (core.fuse), or merge a campaign
+of the --data-dir's scans (core.merge, as ``rangereg merge`` does: the same progress lines, every round)."""
 
 from __future__ import annotations
 
@@ -11,12 +12,22 @@ import viser
 from app.tab import scene3d
 from app.tab.residuals import ResidualsPanel
 from app.tab.state import TabState
+from core.errors import InputError
+
+
+@dataclass(eq=False)
+class CampaignHandles:
+    scans: viser.GuiTextHandle  # a pattern of --data-dir's files (e.g. "bun*.ply"), "" every scan file
+    rotation: viser.GuiNumberHandle  # degrees each stored rough pose may be off
+    merge: viser.GuiButtonHandle
+    progress: viser.GuiMarkdownHandle
 
 
 @dataclass(eq=False)
 class ModelHandles:
     merge: viser.GuiButtonHandle
     show: viser.GuiCheckboxHandle
+    campaign: CampaignHandles | None  # None: the workbench has no --data-dir
 
 
 class ModelPanel:
@@ -24,10 +35,24 @@ class ModelPanel:
         self.tab, self.state = tab, tab.state
         gui = tab.gui
         self.h = ModelHandles(gui.add_button("Merge", hint="fuse the two scans at the current pose into one mesh"),
-                              gui.add_checkbox("Show model", False, disabled=True))
+                              gui.add_checkbox("Show model", False, disabled=True), self._campaign(gui, tab.wb))
         self.residuals = ResidualsPanel(tab)
         self.h.merge.on_click(lambda e: tab.guarded(self.start))
         self.h.show.on_update(lambda e: tab.guarded(tab.apply_visibility))
+        if self.h.campaign is not None:
+            self.h.campaign.merge.on_click(lambda e: tab.guarded(self.start_campaign))
+
+    @staticmethod
+    def _campaign(gui: viser.GuiApi, wb) -> CampaignHandles | None:
+        if getattr(wb, "data_dir", None) is None:
+            return None
+        with gui.add_folder("Campaign"):
+            return CampaignHandles(
+                gui.add_text("Scans", "", hint="a pattern of the data folder's files, e.g. bun*.ply (empty: all)"),
+                gui.add_number("Rotation uncertainty (deg)", 15.0, min=0.1, max=180.0, step=0.1,
+                               hint="how far each scan's stored rough pose may be off (scans with none: no guess)"),
+                gui.add_button("Merge scans", hint="register the scans' pairs, keep those that close, fuse the model"),
+                gui.add_markdown(""))
 
     def start(self) -> None:
         from core.fuse import fuse
@@ -55,6 +80,72 @@ class ModelPanel:
 
         threading.Thread(target=work, daemon=True, name="rangereg-merge").start()
 
+    def start_campaign(self) -> None:
+        """Merge the chosen data files on a worker thread; its progress lines and report go to the panel."""
+        from fnmatch import fnmatch
+
+        from app.options import Settings, to_config
+
+        c = self.h.campaign
+        st = self.state
+        st.require_idle()
+        pattern = c.scans.value.strip() or "*"
+        files = [f for f in self.tab.wb.data_files() if fnmatch(f, pattern)]
+        if len(files) < 2:
+            raise InputError(f"the pattern {pattern!r} matches {len(files)} scan file(s) of the data folder; "
+                             "a campaign needs two or more")
+        seed = self.tab.run_panel.settings().seed
+        config = to_config(Settings(method="global", seed=seed, rotation_uncertainty=c.rotation.value))
+        with st.lock:
+            pair = st.pair
+        c.merge.disabled = self.h.merge.disabled = True
+        lines: list[str] = []
+
+        def say(line: str) -> None:  # from the worker: the newest lines, shown by the refresher
+            lines.append(line)
+            text = "  \n".join(lines[-6:])
+            self.state.hand(lambda st: None, lambda: setattr(c.progress, "content", text))
+
+        def work() -> None:
+            from app.distributed import TaskRunner
+            from core.merge import merge
+
+            try:
+                scans = [self.tab.wb.load_data_file(f) for f in files]
+                # the plain loop: a cluster started from the page would outlive its work in the server
+                with TaskRunner(1, progress=say) as runner:
+                    res = merge(scans, None, config, progress=say, map_tasks=runner.map)
+            except Exception as exc:  # said on the page; the tab lives on
+                self.tab.notify("Campaign merge failed", str(exc))
+                self.state.hand(lambda st: None, self._unlock)
+                return
+
+            def apply(st: TabState) -> None:
+                if st.pair == pair and st.display is not None:
+                    st.model = res.model
+
+            counted = [line for line in lines if line.startswith("pairs")]
+            report = campaign_text(res) + (f"  \n{counted[-1]}" if counted else "")
+            self.state.hand(apply, lambda: self._campaign_done(res, report))
+
+        threading.Thread(target=work, daemon=True, name="rangereg-campaign").start()
+
+    def _unlock(self) -> None:
+        self.h.merge.disabled = False
+        if self.h.campaign is not None:
+            self.h.campaign.merge.disabled = False
+
+    def _campaign_done(self, res, report: str) -> None:
+        self._unlock()
+        self.h.campaign.progress.content = report
+        if self.state.model is res.model and self.tab.nodes is not None:
+            scene3d.show_model(self.tab.client.scene, self.tab.nodes, self.state)
+            self.h.show.disabled = False
+            self.h.show.value = True
+            self.tab.apply_visibility()
+        placed = sum(res.placed)
+        self.tab.notify("Campaign", f"{placed} of {len(res.poses)} scans placed", error=placed < len(res.poses))
+
     def _show(self, model) -> None:
         self.h.merge.disabled = False
         if self.state.model is not model:
@@ -71,3 +162,19 @@ class ModelPanel:
 
     def lock(self, running: bool) -> None:
         self.h.merge.disabled = running
+        if self.h.campaign is not None:
+            self.h.campaign.merge.disabled = running
+
+
+def campaign_text(res) -> str:
+    """A campaign's result for the panel: the counts, then per scan placed or why not."""
+    names = [s.name for s in res.scans]
+    lines = [f"**{sum(res.placed)} of {len(names)} scans placed** · {len(res.used)} of {len(res.pairs)} pairs used · "
+             f"{res.rounds} round(s) · {res.seconds:.1f} s"]
+    for s in res.scans:
+        if s.placed:
+            cyc = "on no cycle" if s.cycle is None else f"cycle {s.cycle[0]:.2g} deg"
+            lines.append(f"{s.name}: placed ({len(s.trusted)} trusted pairs, {cyc})")
+        else:
+            lines.append(f"{s.name}: **not placed**: {s.why}")
+    return "  \n".join(lines)

@@ -1,0 +1,252 @@
+"""The tasks of a merge (core.merge): plain numpy in, plain numpy out, so they run anywhere (this process
+or a Dask worker; Open3D geometry does not pickle). What every task needs is one :class:`Shared` (the
+scans as arrays and the config), sent once per worker; each process builds a scan's geometry once.
+
+    overlap_task   the overlap of a pair under poses (frustum and visibility: core.problem)
+    feature_task   a scan's FPFH features (the cue for which scans are neighbours when nothing is known)
+    pair_task      one pair registered by the ``global`` pipeline (core.register) in a stated region, then
+                   polished (point-to-plane) when trusted
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import InputError
+from .frustum import frustum_of, visible_from
+from .fuse import sample_quality
+from .register import Config, register
+from .scan import RangeGrid, Scan
+from .surface import Surface
+from .transforms import apply, from_params, invert, pose_error
+
+FEATURE_VOXEL = 5.0  # FPFH voxel in point spacings: Open3D's recipe scale (~1/60 of a bunny scan)
+OVERLAP_SAMPLE = 2000  # points of each scan an overlap is measured on (a share: +-1 % at 2000)
+
+
+@dataclass(frozen=True, eq=False)
+class Shared:
+    """What every task needs, shipped once per worker: the scans as plain arrays, the registration
+    config and the merge's polish knobs (steps, gate in point spacings, source points at most)."""
+
+    token: str  # identifies the scan set, for the per-process cache
+    scans: tuple  # dicts from scan_arrays
+    config: Config
+    polish_steps: int = 30
+    polish_gate: float = 1.5
+    polish_points: int = 10000
+
+
+@dataclass(frozen=True, eq=False)
+class PairTask:
+    """Register scan j onto scan i from T0 (T_i_j guess) in the stated region (rotation_deg about the
+    guess; translation in units, None: unstated); ``attempt`` numbers the registrations of this pair."""
+
+    i: int
+    j: int
+    T0: np.ndarray
+    rotation_deg: float
+    translation: float | None
+    attempt: int = 0
+    start: str = "rough poses"  # what the guess is, for the report: "rough poses", "no guess", "graph pose"
+
+
+@dataclass(frozen=True, eq=False)
+class PairOutcome:
+    """T: (4, 4) T_i_j found; error: robust E there (squared units); trusted: the pair threshold's verdict;
+    misfit: its measure (None: too little overlap to judge); within_region: inside the stated region;
+    share: the smaller share of either scan lying within the polish gate of the other at T; stop: why
+    the search stopped; seconds: the task's wall time."""
+
+    T: np.ndarray
+    error: float
+    trusted: bool
+    misfit: float | None
+    within_region: bool | None
+    share: float
+    stop: str
+    seconds: float
+
+
+def verdict(res) -> tuple[bool, float | None, bool | None]:
+    """(trusted, misfit, within_region) of a core Result: the one place a merge reads them."""
+    d = res.details
+    return bool(res.below_threshold), None if d is None else d.misfit, None if d is None else d.within_region
+
+
+def scan_arrays(scan: Scan) -> dict:
+    """A scan as plain numpy arrays and strings (picklable, cheap to ship)."""
+    return {"points": scan.points, "viewpoint": scan.viewpoint, "name": scan.name, "units": scan.units,
+            "grid": None if scan.grid is None else scan.grid.index, "faces": scan.faces}
+
+
+def token(scans: list[Scan], config: Config) -> str:
+    h = hashlib.sha1(repr(config).encode())
+    for s in scans:
+        h.update(s.name.encode())
+        h.update(np.ascontiguousarray(s.points).tobytes())
+    return h.hexdigest()
+
+
+_BUILT: dict[str, dict] = {}  # per process: token -> {scan index: (Scan, Surface)}, {("normals", k): (N, 3)}, ...
+
+
+def clear_geometry_cache() -> None:
+    """Forget the scans built in this process (a benchmark's runs each start from none, as workers do)."""
+    _BUILT.clear()
+
+
+def built(shared: Shared, k: int) -> tuple[Scan, Surface]:
+    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused."""
+    if shared.token not in _BUILT:
+        _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
+        _BUILT[shared.token] = {}
+    cache = _BUILT[shared.token]
+    if k not in cache:
+        d = shared.scans[k]
+        scan = Scan(points=d["points"], viewpoint=d["viewpoint"], name=d["name"], units=d["units"],
+                    grid=None if d["grid"] is None else RangeGrid(d["grid"]), faces=d["faces"])
+        cache[k] = (scan, Surface.from_scan(scan))
+    return cache[k]
+
+
+def _normals(shared: Shared, k: int) -> np.ndarray:
+    """(N, 3) normals of scan k (facing its sensor), once per process."""
+    built(shared, k)
+    cache = _BUILT[shared.token]
+    if ("normals", k) not in cache:
+        cache[("normals", k)] = sample_quality(built(shared, k)[0])[0]
+    return cache[("normals", k)]
+
+
+def pair_seed(seed: int, i: int, j: int, attempt: int = 0) -> int:
+    """The seed of pair (i, j)'s registration number ``attempt``: independent of where and in which
+    order the pairs run. Below 2**21: the global pipeline seeds Open3D's RANSAC with seed x 1000 + k,
+    which Open3D takes as a 32-bit int."""
+    key = [seed, i, j] if attempt == 0 else [seed, i, j, attempt]
+    return int(np.random.SeedSequence(key).generate_state(1)[0] % 2**21)
+
+
+def overlap_task(shared: Shared, item: tuple) -> float:
+    """item (i, j, T_i_j[, facing]) -> the smaller of the two overlap shares under T_i_j: of a fixed sample
+    of each scan's points (OVERLAP_SAMPLE), those inside the other's frustum and not hidden behind its
+    surface by more than the stated uncertainty allows (core.cut's test on a sample: a ray per point
+    over a whole 40k-point scan costs ~1 s a pair). ``facing``: instead of the rays, those whose normal
+    (turned by T) faces the other's sensor: for poses known only roughly (a rotation within tens of
+    degrees, the position not at all), where a surface the other sensor saw from behind must not count."""
+    i, j, T_i_j, *rest = item
+    facing = bool(rest and rest[0])
+    pc = shared.config.problem
+    fracs = []
+    for a, b, T in ((j, i, T_i_j), (i, j, invert(T_i_j))):
+        src, (tgt, surf) = built(shared, a)[0], built(shared, b)
+        step = max(1, len(src.points) // OVERLAP_SAMPLE)
+        pts = src.points[::step]
+        moved = apply(T, pts)
+        inside = frustum_of(tgt, pc.frustum).contains(moved)
+        if facing:
+            normals = _normals(shared, a)[::step] @ T[:3, :3].T
+            inside &= np.einsum("ij,ij->i", normals, tgt.viewpoint - moved) > 0
+        elif pc.visibility and inside.any():
+            radius = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
+            margin = pc.translation_uncertainty_for(tgt.size) + np.radians(pc.rotation_uncertainty_deg) * radius
+            inside[np.flatnonzero(inside)] = visible_from(surf, tgt.viewpoint, moved[inside], margin)
+        fracs.append(float(inside.mean()))
+    return min(fracs)
+
+
+def feature_task(shared: Shared, k: int) -> np.ndarray:
+    """(M, 33) float32 FPFH features of scan k on a voxel grid of FEATURE_VOXEL point spacings (Open3D's
+    recipe: normals within 2 voxels, features within 5)."""
+    import open3d as o3d
+
+    scan = built(shared, k)[0]
+    voxel = FEATURE_VOXEL * scan.spacing
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points)).voxel_down_sample(voxel)
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+    pcd.orient_normals_towards_camera_location(scan.viewpoint)
+    reg = o3d.pipelines.registration
+    f = reg.compute_fpfh_feature(pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+    return np.asarray(f.data, dtype=np.float32).T.copy()
+
+
+def share_at(shared: Shared, i: int, j: int, T_i_j: np.ndarray, sample: int = 2000) -> float:
+    """The smaller share of either scan's points (a fixed sample) within the polish gate of the other's
+    points under T_i_j: how much of the pair matches (the pose graph's edge weight)."""
+    (si, _), (sj, _) = built(shared, i), built(shared, j)
+    gate = shared.polish_gate * max(si.spacing, sj.spacing)
+    out = []
+    for a, b, T in ((sj, si, T_i_j), (si, sj, invert(T_i_j))):
+        step = max(1, len(a.points) // sample)
+        d, _ = b.tree.query(apply(T, a.points[::step]), distance_upper_bound=gate)
+        out.append(float(np.isfinite(d).mean()))
+    return min(out)
+
+
+def share_task(shared: Shared, item: tuple) -> float:
+    """item (i, j, T_i_j) -> :func:`share_at`."""
+    return share_at(shared, *item)
+
+
+def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
+    """Scan j registered onto scan i by the global pipeline in the task's region; polished when trusted."""
+    t0 = time.perf_counter()
+    target, surface = built(shared, task.i)
+    source = built(shared, task.j)[0]
+    seed = pair_seed(shared.config.seed, task.i, task.j, task.attempt)
+    problem = replace(shared.config.problem, rotation_uncertainty_deg=task.rotation_deg,
+                      translation_uncertainty=task.translation)
+    config = replace(shared.config, method="global", seed=seed, problem=problem)
+    try:
+        res = register(source, target, task.T0, config)
+    except InputError as exc:  # e.g. no overlap at the guess or at a candidate: a pair that did not register
+        return PairOutcome(task.T0, float("inf"), False, None, None, 0.0, f"not registered: {exc}",
+                           time.perf_counter() - t0)
+    trusted, misfit, within = verdict(res)
+    T = res.transform
+    if trusted:
+        spacing = max(source.spacing, target.spacing)
+        points = source.points[::max(1, len(source.points) // shared.polish_points)]
+        P = polish(points, target, surface, _normals(shared, task.i), T, spacing, shared.polish_steps,
+                   shared.polish_gate)
+        rot, move = pose_error(P, T, source.centroid)
+        if rot < 1.0 and move < 2 * spacing:  # a polish only polishes: one that wanders is not taken
+            T = P
+    return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
+                       res.stop_text, time.perf_counter() - t0)
+
+
+def polish(points: np.ndarray, target: Scan, surface: Surface, normals: np.ndarray, T: np.ndarray,
+           spacing: float, steps: int = 30, gate: float = 1.5) -> np.ndarray:
+    """Point-to-plane Gauss-Newton from T (T_target_source): points (N, 3) source frame, normals (Nt, 3)
+    at the target's points; ``steps`` at most, correspondences within ``gate`` point spacings. Returns
+    the polished T; T itself if too few correspondences."""
+    gate2 = (gate * spacing) ** 2
+    for _ in range(steps):
+        p = apply(T, points)
+        c, d2 = surface.closest(p)
+        ok = d2 < gate2
+        if ok.sum() < 12:
+            break
+        p, c = p[ok], c[ok]
+        n = normals[target.tree.query(c)[1]]
+        centre = p.mean(0)
+        J = np.concatenate([np.cross(p - centre, n), n], axis=1)
+        r = np.einsum("ij,ij->i", n, p - c)
+        # einsum, not BLAS: the same sums in the same order whatever the thread count (bitwise-equal results)
+        A = np.einsum("ni,nj->ij", J, J)
+        b = -np.einsum("ni,n->i", J, r)
+        try:
+            x = np.linalg.solve(A, b)
+        except np.linalg.LinAlgError:
+            break
+        D = from_params(np.r_[0.0, 0.0, 0.0, x[:3]])
+        D[:3, 3] = centre - D[:3, :3] @ centre + x[3:]
+        T = D @ T
+        if np.linalg.norm(x[:3]) < 1e-7 and np.linalg.norm(x[3:]) < 1e-5 * spacing:
+            break
+    return T

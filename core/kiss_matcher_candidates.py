@@ -30,6 +30,9 @@ from .kiss_matcher_child import HEAD, _read
 from .scan import Scan
 
 KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size; it refuses small ones (it is made for metres)
+# KISS-Matcher (1.0, the wheel here) crashes the process on small clouds: random clouds of 3-80 points
+# segfault, 100 do not; it asks for >= 50 final inliers anyway. Fewer voxels than this: no hypothesis.
+KISS_MIN_POINTS = 200
 CHILD = Path(__file__).with_name("kiss_matcher_child.py")
 
 
@@ -78,14 +81,22 @@ def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) ->
     if not kiss_available():
         return []
     a, b, k = voxel_clouds(source, target, spacing, voxel)
+    if min(len(a), len(b)) < KISS_MIN_POINTS:
+        return []
     try:
         found = _CHILD.estimate(a, b)
-    except OSError:  # the child could not start or died: the same serial estimate here (the same bits)
+    except ChildDied:  # it died on this input: never repeated in this process, where it would end the run
+        return []
+    except OSError:  # the child could not start: the same serial estimate here (the same bits)
         found = _estimate_here(a, b)
     if found is None:
         return []
     found[:3, 3] /= k
     return [found]
+
+
+class ChildDied(OSError):
+    """KISS-Matcher's process ended while it worked on a request (a crash on that input)."""
 
 
 class _Child:
@@ -99,19 +110,23 @@ class _Child:
 
     def estimate(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """T (4x4) for float32 clouds ``a`` (source) and ``b`` (target), or None when none is valid.
-        Raises OSError when the child cannot start or answer (it is then dropped)."""
+        Raises ChildDied when a signal ended the child on this input (a crash), OSError when it cannot
+        start or answer otherwise (it is then dropped)."""
         with self._lock:
             proc = self._started()
             try:
                 proc.stdin.write(HEAD.pack(len(a), len(b), KISS_VOXEL) + a.tobytes() + b.tobytes())
                 proc.stdin.flush()
                 reply = _read(proc.stdout, 1 + 16 * 8)
-            except EOFError as exc:
+            except (EOFError, OSError, ValueError) as exc:
+                try:
+                    code = proc.wait(timeout=1)
+                except subprocess.TimeoutExpired:
+                    code = None
                 self._drop()
-                raise OSError("KISS-Matcher's process ended") from exc
-            except (OSError, ValueError) as exc:
-                self._drop()
-                raise OSError(str(exc)) from exc
+                if code is not None and code < 0:  # ended by a signal while on this input: a crash
+                    raise ChildDied(f"KISS-Matcher's process ended by signal {-code}") from exc
+                raise OSError(f"KISS-Matcher's process did not answer: {exc}") from exc
         return np.frombuffer(reply[1:], dtype="<f8").reshape(4, 4).astype(np.float64) if reply[0] else None
 
     def _started(self) -> subprocess.Popen:

@@ -191,7 +191,7 @@ class TaskRunner:
         self.bars: dict[str, Progress] = {}
         self._most_left = -1.0
         if self.auto:
-            self.choice = "plain loop in this process: no work yet"
+            self.choice = "plain loop in this process: too few tasks at a time for a local cluster to pay"
         elif scheduler is None and workers == 1:
             self.choice = "plain loop in this process (--workers 1)"
         else:

@@ -249,3 +249,24 @@ def _flush_c_streams() -> None:
         ctypes.CDLL(None).fflush(None)
     except (OSError, AttributeError):  # no C library to ask (not a POSIX system): nothing is held there
         pass
+
+
+def strict_json(obj) -> str:
+    """``obj`` as JSON any strict parser reads: a NaN or infinite number (a pair that did not register
+    has no finite E) is written ``null``, never ``NaN`` or ``Infinity``."""
+    import json
+    import math
+
+    def clean(x):
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if hasattr(x, "item") and getattr(x, "ndim", None) == 0:  # a numpy scalar
+            return clean(x.item())
+        return x
+
+    return json.dumps(clean(obj), allow_nan=False)
+

@@ -49,11 +49,11 @@ from .merge_tasks import (
     token,
 )
 from .posegraph import Edge, Graph, Tolerance, information_matrix, solve
-from .problem import ProblemConfig
+from .problem import ProblemConfig, check_registrable
 from .region import Region
 from .register import Config
 from .scan import Scan
-from .transforms import invert
+from .transforms import check_rigid, invert
 
 __all__ = ["MergeConfig", "MergeResult", "PairResult", "ScanReport", "clear_geometry_cache", "merge", "serial_map"]
 
@@ -228,7 +228,12 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
         initial = [s.guess for s in scans] if have else [np.eye(4) for _ in scans]
     if len(initial) != len(scans):
         raise InputError(f"{len(initial)} initial poses for {len(scans)} scans")
-    run = _Campaign(scans, [np.asarray(T, dtype=np.float64) for T in initial], have, config, settings,
+    check_registrable(*scans)  # up front: a scan no pair can use is bad input, not a scan "not placed"
+    try:
+        initial = [check_rigid(T, f"the initial pose of {s.name}") for T, s in zip(initial, scans)]
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    run = _Campaign(scans, initial, have, config, settings,
                     progress or (lambda _msg: None), map_tasks or serial_map)
     return run.go(build_model)
 

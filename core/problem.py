@@ -89,23 +89,31 @@ class Problem:
 MIN_POINTS = 2 * NORMAL_NEIGHBOURS
 
 
+def check_registrable(*scans: Scan) -> None:
+    """Raise InputError unless every scan has enough points and is not flat, and all are in one unit
+    (each measured against the first)."""
+    for s in scans:
+        if len(s.points) < MIN_POINTS:
+            raise InputError(f"{s.name}: only {len(s.points)} points; registering needs at least {MIN_POINTS} "
+                             f"(the noise level is measured on neighbourhoods of 2 x {NORMAL_NEIGHBOURS} points)")
+        if s.flatness < 1e-3:
+            raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
+    first = scans[0]
+    for other in scans[1:]:
+        mismatch = scale_mismatch(other, first)
+        if mismatch and not (other.meta.get("units_stated") and first.meta.get("units_stated")
+                             and other.units == first.units):
+            raise InputError(f"{mismatch}; no rigid pose joins scans in different units: scale one, or state the "
+                             "same \"units\" in both sidecars if they are alike")
+
+
 def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: ProblemConfig = ProblemConfig(),
             surface: Surface | None = None, seed: int = 0) -> Problem:
     """Triangulate the target, cut the overlap under ``T_init`` and sample the source points
     (the sample drawn with ``seed``: a registration passes its ``Config.seed``)."""
     config.validate()
     T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
-    for s in (source, target):
-        if len(s.points) < MIN_POINTS:
-            raise InputError(f"{s.name}: only {len(s.points)} points; registering needs at least {MIN_POINTS} "
-                             f"(the noise level is measured on neighbourhoods of 2 x {NORMAL_NEIGHBOURS} points)")
-        if s.flatness < 1e-3:
-            raise InputError(f"{s.name}: the scan is flat (a plane); a plane cannot fix all six degrees of freedom")
-    mismatch = scale_mismatch(source, target)
-    if mismatch and not (source.meta.get("units_stated") and target.meta.get("units_stated")
-                         and source.units == target.units):
-        raise InputError(f"{mismatch}; no rigid pose joins scans in different units: scale one, or state the "
-                         "same \"units\" in both sidecars if they are alike")
+    check_registrable(source, target)
     surface = surface if surface is not None else Surface.from_scan(target)
     t_unc = config.translation_uncertainty_for(target.size)
     r_unc = np.radians(config.rotation_uncertainty_deg)

@@ -63,10 +63,39 @@ def test_merge_bad_conf_gets_one_line(tmp_path):
     bad.write_text("camera 0 0 0 0 0 0 1\nbmesh scan1.ply 0 0 zero 0 0 0 1\n")
     other = tmp_path / "other.conf"
     other.write_text("bmesh elsewhere.ply 0 0 0 0 0 0 1\n")
-    for conf, words in ((bad, "not a number"), (other, "no pose for"), (tmp_path / "none.conf", "no such file")):
+    nan = tmp_path / "nan.conf"
+    nan.write_text("bmesh scan1.ply 0 0 0 0 0 0 1\nbmesh scan2.ply nan 0 0 0 0 0 1\n")
+    for conf, words in ((bad, "not a number"), (other, "no pose for"), (tmp_path / "none.conf", "no such file"),
+                        (nan, "NaN or infinite")):
         r = rangereg("merge", a, b, "--init", str(conf))
         assert r.returncode == 2
         assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+
+
+def test_merge_refuses_a_scan_no_pair_could_use_before_any_registration(tmp_path):
+    # a flat or a tiny scan is bad input (status 2, one line), not a scan left "not placed" (status 3)
+    from core.io import load_scan
+    from core.ply import write_ply
+
+    a = load_scan(ASSETS / "corner" / "scan1.ply")
+    flat = a.points.copy()
+    flat[:, 2] = 0.0
+    write_ply(tmp_path / "flat.ply", flat)
+    write_ply(tmp_path / "few.ply", a.points[:10])
+    for name, words in (("flat", "flat"), ("few", "only 10 points")):
+        r = rangereg("merge", str(ASSETS / "corner" / "scan1.ply"), str(tmp_path / f"{name}.ply"),
+                     "--out", str(tmp_path / "m.ply"))
+        assert r.returncode == 2 and words in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and "round 1" not in r.stderr
+
+
+def test_merge_json_is_strict_when_a_pair_has_no_finite_error(tmp_path):
+    # a scan not placed: its pose null, any non-finite number null (never NaN or Infinity)
+    from app.outputs import strict_json
+
+    text = strict_json({"error": float("inf"), "pairs": [{"misfit": float("nan")}], "poses": [None, np.float64(1.5)]})
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in strict JSON")) == {
+        "error": None, "pairs": [{"misfit": None}], "poses": [None, 1.5]}
 
 
 def _right(scans, poses, deg: float = 2.0, metres: float = 0.002) -> list[tuple[str, float, float]]:

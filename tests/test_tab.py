@@ -277,3 +277,28 @@ def test_the_finished_line_advises_in_the_pages_words(scene):
     assert "Settings" in page_advice(result(True, "found 40 deg beyond")) and "--" not in page_advice(result(False))
     assert "drag the gizmo" in page_advice(result(False))
     assert page_advice(Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "hybrid", 1.0, Stop(StopReason.BELOW_THRESHOLD))) == ""
+
+
+def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():
+    from app.tab.model import ModelPanel
+
+    st = TabState()
+    button = lambda: SimpleNamespace(disabled=False)  # noqa: E731
+    campaign = SimpleNamespace(scans=SimpleNamespace(value="*"), rotation=SimpleNamespace(value=15.0),
+                               merge=button(), progress=SimpleNamespace(content=""))
+    panel = ModelPanel.__new__(ModelPanel)  # the panel's logic on stand-in handles (no server)
+    panel.state, panel.h = st, SimpleNamespace(merge=button(), show=button(), campaign=campaign)
+    panel.tab = SimpleNamespace(wb=SimpleNamespace(data_files=lambda: ["a.ply", "b.ply"]),
+                                run_panel=SimpleNamespace(settings=lambda: SimpleNamespace(seed=0)))
+    with st.lock:
+        st.campaign_busy = True  # a campaign is working (set under the lock by start_campaign)
+    with pytest.raises(InputError, match="campaign merge is working"):
+        panel.start_campaign()
+    panel.lock(False)  # a run ends: the campaign's buttons stay held
+    assert campaign.merge.disabled and panel.h.merge.disabled
+    from app.tab.model import _campaign_over
+
+    st.hand(_campaign_over, panel._unlock)  # the campaign's worker hands its end to the owner
+    for then in st.apply_handed():
+        then()
+    assert not st.campaign_busy and not campaign.merge.disabled and not panel.h.merge.disabled

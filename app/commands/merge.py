@@ -16,14 +16,13 @@ caps the threads of each task stream.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 
 import numpy as np
 
 from app.options import Settings, read_text_file, to_config
-from app.outputs import check_output, library_prints_to_stderr, write_output
+from app.outputs import check_output, library_prints_to_stderr, strict_json, write_output
 from core.errors import InputError
 
 PROGRESS_DELAY = 1.0  # s: a run that fails sooner shows no progress lines
@@ -102,7 +101,7 @@ def run(a) -> int:
     report = build_report(res, scans, truth, config, have, runner, scheduler, out, as_e57)
     try:
         if a.json:
-            print(json.dumps(report))
+            print(strict_json(report))
         else:
             print_report(report, res, scans)
         missing = [s.name for s in res.scans if not s.placed]

@@ -17,7 +17,7 @@ import time
 from argparse import Namespace
 
 from app.commands import pair
-from app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, write_outputs
+from app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, strict_json, write_outputs
 from core.errors import InputError
 
 TRACE_SUFFIXES = (".jsonl", ".ndjson", ".json")
@@ -121,7 +121,7 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
                "advice": advice(res, cfg)}
         if cfg.lock.active:
             out["lock"] = str(cfg.lock)
-        print(json.dumps(out))
+        print(strict_json(out))
         return
     it = res.iterations
     print(f"method      {res.method}")

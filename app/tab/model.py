@@ -97,6 +97,9 @@ class ModelPanel:
         seed = self.tab.run_panel.settings().seed
         config = to_config(Settings(method="global", seed=seed, rotation_uncertainty=c.rotation.value))
         with st.lock:
+            if st.campaign_busy:
+                raise InputError("a campaign merge is working: wait for its report")
+            st.campaign_busy = True
             pair = st.pair
         c.merge.disabled = self.h.merge.disabled = True
         lines: list[str] = []
@@ -117,10 +120,11 @@ class ModelPanel:
                     res = merge(scans, None, config, progress=say, map_tasks=runner.map)
             except Exception as exc:  # said on the page; the tab lives on
                 self.tab.notify("Campaign merge failed", str(exc))
-                self.state.hand(lambda st: None, self._unlock)
+                self.state.hand(_campaign_over, self._unlock)
                 return
 
             def apply(st: TabState) -> None:
+                _campaign_over(st)
                 if st.pair == pair and st.display is not None:
                     st.model = res.model
 
@@ -131,9 +135,9 @@ class ModelPanel:
         threading.Thread(target=work, daemon=True, name="rangereg-campaign").start()
 
     def _unlock(self) -> None:
-        self.h.merge.disabled = False
+        self.h.merge.disabled = self.state.running
         if self.h.campaign is not None:
-            self.h.campaign.merge.disabled = False
+            self.h.campaign.merge.disabled = self.state.running
 
     def _campaign_done(self, res, report: str) -> None:
         self._unlock()
@@ -161,9 +165,15 @@ class ModelPanel:
         self.h.show.value, self.h.show.disabled = False, True
 
     def lock(self, running: bool) -> None:
-        self.h.merge.disabled = running
+        busy = running or self.state.campaign_busy  # a run's end must not free a campaign's buttons
+        self.h.merge.disabled = busy
         if self.h.campaign is not None:
-            self.h.campaign.merge.disabled = running
+            self.h.campaign.merge.disabled = busy
+
+
+def _campaign_over(st: TabState) -> None:
+    """On the refresher, under the lock: the campaign's buttons may be given back."""
+    st.campaign_busy = False
 
 
 def campaign_text(res) -> str:

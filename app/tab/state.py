@@ -74,6 +74,7 @@ class TabState:
     slice: SliceView | None = None
     slice_busy: bool = False
     slice_cancel: threading.Event | None = None
+    campaign_busy: bool = False  # a campaign merge works (set and cleared under the lock): one at a time
     model: object | None = None  # core.fuse's model (vertices, faces)
     model_version: int = 0
     residual_rgb: np.ndarray | None = None  # (N, 3) uint8 source colours by distance to the target (Model tab)

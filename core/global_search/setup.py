@@ -15,7 +15,7 @@ from ..config import Config
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
 from ..noise import noise_floors_ahead
-from ..problem import Problem, prepare
+from ..problem import Problem, check_registrable, prepare
 from ..region import Region
 from ..scan import Scan
 from ..surface import Surface
@@ -77,6 +77,7 @@ def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config:
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
     T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
+    check_registrable(source, target)  # before any thread or process starts on them
     # KISS-Matcher's hypothesis is scored beside the guess when the rotation is stated wider than
     # guess_first_deg (.stages): then it starts first, on the other core. Else it is wanted only when the
     # guess alone is not trusted (at 5-15 deg, 6 of 60 sweep runs), and is made then (.stages.matched):

@@ -43,6 +43,10 @@ ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours 
 # confidence, after log(0.001) / log(1 - w^3) draws when a share w of the mutual matches is right: 20,000
 # serve w >= 0.07. The full 100,000 cost ~5 s here on a pair where nothing matches, where it never stops early.
 RANSAC_ITERATIONS = 20_000
+# cells of the coarser FPFH grid below which the finer grid is tried too: 5-spacing cells per scan,
+# measured: the bunny scans 4.0-4.6k, their crops (app/crops.py) 1.1-2.3k; the simulated turntables'
+# scans 115-277 (8 stops, 0.7-1.0k points) and 246-277 (24 stops, 1.7-1.9k points)
+FPFH_FINER_BELOW = 500
 
 
 @dataclass(frozen=True)
@@ -54,13 +58,13 @@ class CandidateConfig:
     sample: int = 160  # source points on the fixed basis (the paper's E: 165-341)
     min_overlap: float = 0.1  # share of each scan's sample that must fall in the other's frustum
     rotation_samples: int = ROTATION_SAMPLES  # over all of SO(3); those within the uncertainty are kept
-    # FPFH voxel sizes in point spacings, coarse first (a finer one runs only when nothing is trusted
-    # yet): Open3D's recipe uses 5 cm on scenes ~3 m across (~1/60 of the size); 5 spacings is ~1/60 of
-    # a bunny scan. On 224 bunny sweep runs (5 whole and 27 crop pairs, four modes, 15 and 90 deg) the
-    # trusted poses came from the guess and KISS-Matcher (171), the rotation samples (23), KISS-Matcher
-    # after them (23) and FPFH at 5 spacings (3): 2 spacings (~5 x the cost) added none there. On sparse
-    # scans it does: the 8-stop simulated turntable from identity poses (1.6-1.9k points a scan, ~70
-    # voxels at 5 spacings) has neighbour pairs (scan03 -> scan01) trusted only through it.
+    # FPFH voxel sizes in point spacings, coarse first; a finer one runs only when the coarser grid
+    # leaves a scan fewer than FPFH_FINER_BELOW cells. Open3D's recipe uses 5 cm on scenes ~3 m across
+    # (~1/60 of the size); 5 spacings is ~1/60 of a bunny scan. On 224 bunny sweep runs (5 whole and 27
+    # crop pairs, four modes, 15 and 90 deg) the trusted poses came from the guess and KISS-Matcher (171),
+    # the rotation samples (23), KISS-Matcher after them (23) and FPFH at 5 spacings (3): 2 spacings (~5 x
+    # the cost, run in 4) added none. On sparse scans it does: the 8-stop simulated turntable from identity
+    # poses (0.7-1.0k points a scan) has neighbour pairs trusted only through it.
     fpfh_voxels: tuple[float, ...] = (2.0, 5.0)
     fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
@@ -302,6 +306,11 @@ def _o3d_cloud(scan: Scan, voxel: float):
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
     pcd.orient_normals_towards_camera_location(scan.viewpoint)
     return pcd
+
+
+def voxel_cells(scan: Scan, size: float) -> int:
+    """How many cells of a grid of ``size`` (units) the scan's points occupy."""
+    return len(np.unique(np.floor(scan.points / size).astype(np.int64), axis=0))
 
 
 def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[float, ...], seeds: int,

@@ -169,3 +169,27 @@ def test_full_search_lifts_both_bounds_unless_a_time_is_given():
     full = to_config(Settings(full_search=True)).candidates
     assert full.time_limit is None and full.fallback_steps is None
     assert to_config(Settings(full_search=True, time_limit=20)).candidates.time_limit == 20.0
+
+
+def test_the_finer_fpfh_grid_runs_only_where_the_coarser_leaves_a_scan_few_cells(bunny):
+    # the bunny's scans fill ~4k cells of a 5-spacing grid: one FPFH stage; a scan of a few hundred
+    # points fills fewer than FPFH_FINER_BELOW: the 2-spacing stage follows
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from core.candidates import FPFH_FINER_BELOW, CandidateConfig, pair_spacing, voxel_cells
+    from core.global_search.stages import stages
+
+    source, target = bunny("bun045"), bunny("bun000")
+    sparse = replace(source, points=source.points[::100].copy(), grid=None, faces=None)
+
+    def fpfh_stages(src):
+        setup = SimpleNamespace(source=src, target=target, T_guess=np.eye(4),
+                                config=Config(candidates=CandidateConfig(fpfh_voxels=(2.0, 5.0))),
+                                region=SimpleNamespace(stated_rotation_deg=180.0))
+        return [s.name for s in stages(setup) if s.name.startswith("fpfh")]
+
+    size = 5.0 * pair_spacing(source, target)
+    assert voxel_cells(source, size) >= FPFH_FINER_BELOW > voxel_cells(sparse, size)
+    assert fpfh_stages(source) == ["fpfh-ransac 5 spacings"]
+    assert fpfh_stages(sparse) == ["fpfh-ransac 5 spacings", "fpfh-ransac 2 spacings"]

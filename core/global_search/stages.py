@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..candidates import fpfh_candidates, pair_spacing, rotation_candidates
+from ..candidates import FPFH_FINER_BELOW, fpfh_candidates, pair_spacing, rotation_candidates, voxel_cells
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from .setup import Setup
 
@@ -90,8 +90,18 @@ def stages(setup: Setup) -> Iterator[Stage]:
     if not cc.enabled:
         return
     yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
+    coarser = None
     for v in sorted(cc.fpfh_voxels, reverse=True):  # coarse first: 5 spacings costs ~1/5 of 2 spacings
+        if coarser is not None and not too_few_cells(setup, coarser):
+            break  # the coarser grid held enough of both scans: a finer one adds cost, not poses
         yield Stage(f"fpfh-ransac {v:g} spacings", lambda v=v: matched(setup, "fpfh-ransac", (v,)), cc.fpfh_seeds,
                     costly=True)
+        coarser = v
+
+
+def too_few_cells(setup: Setup, voxel: float) -> bool:
+    """Whether a grid of ``voxel`` point spacings leaves either scan fewer than FPFH_FINER_BELOW cells."""
+    size = voxel * pair_spacing(setup.source, setup.target)
+    return min(voxel_cells(setup.source, size), voxel_cells(setup.target, size)) < FPFH_FINER_BELOW
 
 

@@ -180,6 +180,7 @@ def rivals(n: int, edges: list[Edge], centers: list[np.ndarray], tol: Tolerance,
     edges at those scans that agree with it weigh at least RIVAL x those that agree with the consensus,
     the scans it moves are ambiguous (notes below)."""
     best = tree_poses(n, edges, tree, reference)
+    label = components(n, [(edges[e].i, edges[e].j) for e in tree])
     w = [e.weight for e in edges]
     out: dict[int, str] = {}
     for k in range(len(edges)):
@@ -190,6 +191,13 @@ def rivals(n: int, edges: list[Edge], centers: list[np.ndarray], tol: Tolerance,
         moved = {s for s in range(n) if not tol.holds(_pose_gap(best[s], other[s], centers[s]))}
         if not moved:
             continue
+        # the two placements differ by a motion of one group against the rest of its component: the
+        # smaller side is the one in doubt (measured from the reference, a wrong edge at the reference
+        # "moves" every other scan and the group's inner edges outweigh any boundary: a 24-scan ring of
+        # 96 edges, 25 of them wrong, placed 1 scan; with the smaller side 17, none wrong)
+        rest = {s for s in range(n) if label[s] == label[next(iter(moved))]} - moved
+        if len(rest) < len(moved):
+            moved = rest
         # every edge at the moved scans counts, those that agree with both placements on both sides: a
         # group attached by little against the weight inside it is left unplaced whenever a trusted pair
         # says it lies elsewhere. Counting only the edges that differ places more and places wrong: on

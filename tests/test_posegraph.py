@@ -158,3 +158,20 @@ def test_information_matrix_is_the_same_bits_every_run(scene):
     b = information_matrix(source.points, target, 3 * target.spacing, T)
     assert np.array_equal(a, b) and np.allclose(a, a.T)
     assert a[3, 3] > 100  # the matched points count on the translation diagonal
+
+
+def test_wrong_edges_at_the_reference_leave_the_rest_placed_and_none_wrong():
+    # a 12-scan ring, each scan tied to its 3 neighbours each way, 8 of its 36 edges wrong: a rival that
+    # takes a wrong edge at the reference "moves" every other scan, and weighed by all their edges it made
+    # all of them ambiguous (1 of 12 placed); the smaller side of the move is the one in doubt
+    n, seed = 12, 1
+    truth, centers = _truth(n, seed=seed)
+    rng = np.random.default_rng(seed)
+    edges = [_edge(truth, i, (i + d) % n, rng) for i in range(n) for d in (1, 2, 3)]
+    bad = sorted(np.random.default_rng(seed + 10).choice(len(edges), 8, replace=False).tolist())
+    for k in bad:
+        edges[k] = _corrupt(edges[k], float(np.random.default_rng(k).uniform(20, 170)) * (1 if k % 2 else -1))
+    assert any(0 in (edges[k].i, edges[k].j) for k in bad)
+    g = solve(n, edges, centers, TOL, max_distance=30.0)
+    assert set(bad) <= set(g.rejected)
+    assert all(g.placed) and _worst(g.poses, truth) < 0.5

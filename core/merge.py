@@ -277,6 +277,9 @@ class _Campaign:
         t0 = time.perf_counter()
         tasks = self.first_tasks()
         graph = None
+        if not tasks:  # no pair overlaps under the poses: the scans apart are reached by the cue at once
+            graph = self.graph()
+            tasks = self.next_tasks(graph)
         while tasks and self.round < self.mc.max_rounds:
             self.round += 1
             self.register(tasks)
@@ -349,16 +352,17 @@ class _Campaign:
         t0 = time.perf_counter()
         self.say(f"round {self.round}: registering {len(tasks)} pairs")
         out = self.map(pair_task, tasks, self.shared, label=f"pairs, round {self.round}")
+        # why each pair registered again was not used before: said from the results as they were, before
+        # any of this round's changes them (the outlier test weighs every trusted pair's E)
+        earlier = {(t.i, t.j): self.reason_of(self.pairs[t.i, t.j]) for t in tasks if (t.i, t.j) in self.pairs}
         for task, res in zip(tasks, out):
             key = (task.i, task.j)
-            before = self.pairs.get(key)
-            self.pairs[key] = self.result(task, res, before)
+            self.pairs[key] = self.result(task, res, earlier.get(key))
             self.tried[key] = self.tried.get(key, 0) + 1
         self.registrations += len(tasks)
         self.t_pairs += time.perf_counter() - t0
 
-    def result(self, task: PairTask, res: PairOutcome, before: PairResult | None) -> PairResult:
-        earlier = None if before is None else self.reason_of(before)
+    def result(self, task: PairTask, res: PairOutcome, earlier: str | None) -> PairResult:
         return PairResult(task.i, task.j, res.T, res.error, res.share, res.trusted, res.misfit, res.within_region,
                           res.seconds, self.round, task.start, earlier=earlier, stop=res.stop)
 
@@ -445,13 +449,19 @@ class _Campaign:
         rot, trans = self.region()
         for group in sorted({label[k] for k in range(self.n) if not placed[k]}):
             inside = [k for k in range(self.n) if label[k] == group]
-            across = [_key(u, m) for u in inside for m in range(self.n) if placed[m] and _key(u, m) not in self.pairs]
+            reach = [_key(u, m) for u in inside for m in range(self.n) if placed[m]]
+            across = [c for c in reach if c not in self.pairs]
             rough = sorted((c for c in across if self.init_overlap.get(c, 0.0) >= self.mc.min_overlap_any),
                            key=lambda c: -self.init_overlap[c])
-            cue = sorted((c for c in across if c not in rough), key=lambda c: (-self.cue(*c), c))
+            # a pair tried only from the rough poses gets one try with no guess: a rough pose may be
+            # further off than stated
+            again = [c for c in reach if c in self.pairs and self.tried[c] == 1
+                     and self.pairs[c].start == "rough poses" and not self.pairs[c].trusted]
+            cue = sorted((c for c in across + again if c not in rough), key=lambda c: (-self.cue(*c), c))
             picks = [(c, True) for c in rough] + [(c, False) for c in cue]
             for (i, j), by_pose in picks[:self.mc.reach_partners]:
                 tasks.append(PairTask(i, j, self.rel(i, j), rot if by_pose else 180.0, trans if by_pose else None,
+                                      attempt=self.tried.get((i, j), 0),
                                       start="rough poses" if by_pose else "no guess"))
         return tasks
 

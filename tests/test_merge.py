@@ -233,3 +233,19 @@ def test_candidate_pairs_per_mode():
     assert {c[:2] for c in best} == {(i, j) for i, j, _ in overlaps if ring(i, j) <= mc.max_partners // 2}
     chain = [(i, i + 1, 0.8) for i in range(n - 1)] + [(0, n - 1, 0.02)]
     assert [c[:2] for c in choose(chain, n, "chain", mc)] == [(i, i + 1) for i in range(n - 1)]
+
+
+def test_a_scan_whose_rough_pose_is_far_beyond_the_stated_uncertainty_is_found_with_no_guess(tmp_path):
+    # its only pair, tried from the rough poses, is not trusted: one more try with no guess places it
+    if not BUNNY.is_dir():
+        pytest.skip("the shared bunny scans are absent")
+    conf = tmp_path / "far.conf"
+    conf.write_text("bmesh bun000.ply 0 0 0 0 0 0 1\nbmesh bun045.ply 100 0 0 0 0 0 1\n")
+    r = rangereg("merge", str(BUNNY / "bun000.ply"), str(BUNNY / "bun045.ply"), "--init", str(conf),
+                 "--truth", str(BUNNY / "bun.conf"), "--out", str(tmp_path / "m.ply"), "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    (pair,) = rep["pairs"]
+    assert pair["start"] == "no guess" and pair["trusted"] and pair["earlier"] and rep["graph"]["rounds"] == 2
+    assert max(rep["rotation_error_deg"]) < 1.0 and max(rep["translation_error"]) < 0.002
+    assert all(s["placed"] and not s["checked"] for s in rep["scan_reports"])  # one pair: no loop checks it

@@ -147,7 +147,9 @@ def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, 
         "placed": res.placed,
         "poses": [None if T is None else np.asarray(T).tolist() for T in res.poses],
         "scan_reports": [{"name": r.name, "placed": r.placed, "trusted_pairs": [names[k] for k in r.trusted],
-                          "cycle_residual": _residual(r.cycle), "why": r.why} for r in res.scans],
+                          "cycle_residual": _residual(r.cycle),
+                          # placed through a cycle of used pairs that closes; False: by a bridge no cycle checks
+                          "checked": r.placed and r.cycle is not None, "why": r.why} for r in res.scans],
         "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "trusted": p.trusted,
                    "misfit": p.misfit, "within_region": p.within_region, "overlap": p.overlap, "status": p.status,
                    "reason": p.reason, "cycle_residual": _residual(p.cycle), "round": p.round, "start": p.start,
@@ -191,7 +193,9 @@ def print_report(report: dict, res, scans) -> None:
         f"initial poses within {st['rotation_deg']:g} deg" +
         (f" and {st['translation']:g} {units}" if st["translation"] is not None else "") +
         f" each (pairs: {st['pair_rotation_deg']:g} deg)")
-    print(f"{sum(report['placed'])} of {len(names)} scans placed; {g['pairs']} pairs ({g['used']} used, "
+    bridged = sum(r["placed"] and not r["checked"] for r in report["scan_reports"])
+    unchecked = f" ({bridged} on no loop of pairs that checks them)" if bridged else ""
+    print(f"{sum(report['placed'])} of {len(names)} scans placed{unchecked}; {g['pairs']} pairs ({g['used']} used, "
           f"{g['rejected']} rejected) in {g['rounds']} round(s), {g['registrations']} registrations; "
           f"{res.pair_seconds:.1f} s pairwise, {res.seconds:.1f} s in all")
     print(f"start: {where}; first round: {g['mode']}")

@@ -297,7 +297,9 @@ class _Campaign:
                            self.t_overlap, self.mode, self.round, self.registrations, self.reference)
 
     def region(self, scale: float = 2.0) -> tuple[float, float | None]:
-        """A pair's region from the stated per-scan one (module notes, step 3)."""
+        """A pair's region from the stated per-scan one (module notes, step 3). A translation not stated
+        stays unstated, not doubled: the pair's default (a share of the target's size, core.region), to
+        which the move the pair's rotation implies at the centroid is added."""
         rot, trans = self.stated
         return min(180.0, scale * rot), None if trans is None else scale * trans
 

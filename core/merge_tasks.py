@@ -57,7 +57,8 @@ class PairTask:
 
 @dataclass(frozen=True, eq=False)
 class PairOutcome:
-    """T: (4, 4) T_i_j found; error: robust E there (squared units); trusted: the pair threshold's verdict;
+    """T: (4, 4) T_i_j found (polished when trusted); error: the registration's robust E (squared units), at
+    its pose before the polish, which moves it by hundredths of a degree; trusted: the pair threshold's verdict;
     misfit: its measure (None: too little overlap to judge); within_region: inside the stated region;
     share: the smaller share of either scan lying within the polish gate of the other at T; stop: why
     the search stopped; seconds: the task's wall time."""

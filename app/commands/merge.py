@@ -55,13 +55,15 @@ class DelayedLines:
             self.held.clear()
 
 
-def stated_config(a, have_poses: bool):
-    """The registration config from the flags: the per-scan uncertainty of the initial poses (none: no guess)."""
+def stated_config(a, have_poses: bool, lacking: list[str] = ()):
+    """The registration config from the flags: the per-scan uncertainty of the initial poses (none: no guess).
+    ``lacking``: the scans with no stored rough pose when others have one."""
     rot, trans = getattr(a, "rotation_uncertainty", None), getattr(a, "translation_uncertainty", None)
     if not have_poses and (rot is not None or trans is not None):
+        why = (f"stored rough poses are missing for {', '.join(lacking)} (give every pose with --init)" if lacking
+               else "without --init or stored poses there are none")
         raise InputError("--rotation-uncertainty and --translation-uncertainty say how far the initial poses may be "
-                         "off; without --init or stored poses there are none (no guess: every pair is registered "
-                         "over all rotations)")
+                         f"off; {why} (no guess: every pair is registered over all rotations)")
     return to_config(Settings(method="global", seed=a.seed, rotation_uncertainty=rot, translation_uncertainty=trans))
 
 
@@ -84,21 +86,29 @@ def run(a) -> int:
     as_e57 = out.suffix.lower() == ".e57"  # the scans with their registered poses, not a fused model
     if pairs is not None and pairs not in MergeConfig.PAIR_MODES:
         raise InputError(f"--pairs must be one of {', '.join(MergeConfig.PAIR_MODES)}, got {pairs!r}")
+    say = DelayedLines() if not a.json or sys.stderr.isatty() else None
+    # the runner's flags (and a --scheduler's reach) are checked before any scan is read
+    runner = TaskRunner(workers, scheduler, progress=say, threads=threads)
     scans = load_scans(a.scans)
     names = [s.name for s in scans]
     if len(set(names)) != len(names):
         raise InputError(f"two scans share a name ({', '.join(names)}): rename one")
     initial = _poses_for(load_conf(a.init), scans, a.init) if a.init else None
     truth = _poses_for(load_conf(a.truth), scans, a.truth) if a.truth else None
+    truth_from = f"--truth {a.truth}" if a.truth else None
     if truth is None and all(s.pose is not None for s in scans):
         truth = [s.pose for s in scans]  # ground truth stored with the scans (sidecar or .conf beside them)
+        truth_from = "stored with the scans (their sidecars or a .conf beside them)"
     have = initial is not None or all(s.guess is not None for s in scans)
-    config = stated_config(a, have)
-    say = DelayedLines() if not a.json or sys.stderr.isatty() else None
+    lacking = [] if have or not any(s.guess is not None for s in scans) else [s.name for s in scans if s.guess is None]
+    config = stated_config(a, have, lacking)
+    if lacking and say is not None:
+        say(f"stored rough poses are missing for {', '.join(lacking)}: none is used (no guess)")
     # --json: stdout holds the report alone (Open3D's C++ warnings go to stderr)
-    with library_prints_to_stderr(a.json), TaskRunner(workers, scheduler, progress=say, threads=threads) as runner:
+    with library_prints_to_stderr(a.json), runner:
         res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map, build_model=not as_e57)
     report = build_report(res, scans, truth, config, have, runner, scheduler, out, as_e57)
+    report["truth_from"] = truth_from
     try:
         if a.json:
             print(strict_json(report))
@@ -208,13 +218,14 @@ def print_report(report: dict, res, scans) -> None:
         again = f"; before: {p['earlier']}" if p["earlier"] else ""
         print(f"  {p['source']} -> {p['target']}  E={p['error']:.4g}  {trust}, overlap {p['overlap']:.0%}, "
               f"round {p['round']} from {p['start']}: {p['status'].upper()}{why}{cyc}{again}")
-    print(f"scans (poses into {report['reference']}'s frame):")
+    truth = f"; truth {report['truth_from']}" if report.get("truth_from") else ""
+    print(f"scans (poses into {report['reference']}'s frame{truth}):")
     for k, r in enumerate(report["scan_reports"]):
         partners = ", ".join(r["trusted_pairs"]) or "none"
         if r["placed"]:
             T = np.asarray(report["poses"][k])
-            line = f"  {r['name']}: placed, t={np.round(T[:3, 3], 6).tolist()}; trusted pairs with {partners}; " \
-                   f"largest {_cycle_text(r['cycle_residual'], units)}"
+            line = f"  {r['name']}: placed, t={np.round(T[:3, 3], 6).tolist()}; trusted pairs with {partners}; " + \
+                   (f"largest {_cycle_text(r['cycle_residual'], units)}" if r["cycle_residual"] else "on no loop")
             if "rotation_error_deg" in report:
                 line += f"; vs truth {report['rotation_error_deg'][k]:.3f} deg, {report['translation_error'][k]:.4g} {units}"
         else:

@@ -49,7 +49,7 @@ from .merge_tasks import (
     token,
 )
 from .posegraph import Edge, Graph, Tolerance, information_matrix, solve
-from .problem import ProblemConfig, check_registrable
+from .problem import check_registrable
 from .region import Region
 from .register import Config
 from .scan import Scan
@@ -600,11 +600,3 @@ def _labels(n: int, pairs) -> list[int]:
     from .posegraph import components
 
     return components(n, [tuple(p[:2]) for p in pairs])
-
-
-def stated_problem(rotation_deg: float | None, translation: float | None) -> ProblemConfig:
-    """The per-scan uncertainty as a ProblemConfig (None: ProblemConfig's default rotation)."""
-    base = ProblemConfig()
-    return replace(base, rotation_uncertainty_deg=base.rotation_uncertainty_deg if rotation_deg is None else rotation_deg,
-                   translation_uncertainty=translation)
-

@@ -131,7 +131,6 @@ def test_bunny_set_from_rough_poses_comes_back_to_the_conf_poses(bunny):
     res = merge(scans, initial)
     assert all(res.placed) and not _right(scans, res.poses, 1.0, 0.001)
     assert double_layer_fraction(res.model.vertices, res.model.faces, scans[0].spacing) < 0.02
-    assert BUNNY.is_dir()
 
 
 def test_a_scan_no_trusted_pair_reaches_is_reported_not_placed(tmp_path):
@@ -249,3 +248,13 @@ def test_a_scan_whose_rough_pose_is_far_beyond_the_stated_uncertainty_is_found_w
     assert pair["start"] == "no guess" and pair["trusted"] and pair["earlier"] and rep["graph"]["rounds"] == 2
     assert max(rep["rotation_error_deg"]) < 1.0 and max(rep["translation_error"]) < 0.002
     assert all(s["placed"] and not s["checked"] for s in rep["scan_reports"])  # one pair: no loop checks it
+
+
+def test_the_clis_pair_modes_are_the_merges():
+    # the parser names them without importing the engine (a fast --help); they must stay the same
+    from app.cli import build_parser
+    from core.merge import MergeConfig
+
+    merge_parser = build_parser()._subparsers._group_actions[0].choices["merge"]
+    (pairs,) = [a for a in merge_parser._actions if a.dest == "pairs"]
+    assert tuple(pairs.choices) == MergeConfig.PAIR_MODES

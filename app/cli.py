@@ -182,7 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="largest upload accepted (default 200 MB)")
 
     s = sub.add_parser("merge", help="register a set of scans and fuse them into one model",
-                       description="Register overlapping pairs, make poses globally consistent, fuse one mesh.")
+                       description="Register overlapping pairs, make poses globally consistent, fuse one mesh. "
+                       "Exit status 0: every scan placed; 3: some scan not placed (the report says why); 2: bad input.")
     s.add_argument("scans", nargs="+", help="scan files; an .e57 without #K brings all its scans, with their stored "
                    "poses as the initial poses")
     s.add_argument("--init", help="initial poses: a Stanford .conf (default: the scans' stored rough poses, else "

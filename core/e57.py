@@ -417,13 +417,19 @@ def read_e57(path: str | Path, selector: str | None = None, viewpoint: np.ndarra
     path = Path(path)
     check_file(path)
     with _open(path) as imf, translated(str(path)):
-        scans = scan_nodes(imf)
-        entries = [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scans)]
-        if not entries:
-            raise InputError(f"{path}: the E57 file holds no scans")
+        scans, entries = _scans_of(imf, path)
         k = choose(entries, selector, path)
         scan = _read_one(imf, scans[k], entries[k], path, name or _scan_names(entries, path.stem)[k])
     return _with_viewpoint(scan, viewpoint)
+
+
+def _scans_of(imf, path: Path) -> tuple[list, list]:
+    """The file's scan nodes and their entries (index, name, size); raises InputError when it has none."""
+    scans = scan_nodes(imf)
+    entries = [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scans)]
+    if not entries:
+        raise InputError(f"{path}: the E57 file holds no scans")
+    return scans, entries
 
 
 def read_e57_all(path: str | Path) -> list[Scan]:
@@ -431,10 +437,7 @@ def read_e57_all(path: str | Path) -> list[Scan]:
     path = Path(path)
     check_file(path)
     with _open(path) as imf, translated(str(path)):
-        scans = scan_nodes(imf)
-        entries = [_entry(s, k, f"{path}#{k}") for k, s in enumerate(scans)]
-        if not entries:
-            raise InputError(f"{path}: the E57 file holds no scans")
+        scans, entries = _scans_of(imf, path)
         names = _scan_names(entries, path.stem)
         return [_read_one(imf, s, e, path, n) for s, e, n in zip(scans, entries, names)]
 

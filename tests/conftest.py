@@ -117,6 +117,18 @@ def browser():
         b.close()
 
 
+@pytest.fixture(scope="module")
+def bench():
+    """A workbench server in this process on the bundled scene: (Workbench, its URL), one per test module."""
+    from app.access import free_port
+    from app.workbench import ServeOptions, Workbench
+
+    port = free_port()
+    wb = Workbench(ServeOptions(port=port))
+    yield wb, f"http://127.0.0.1:{port}"
+    wb.server.stop()
+
+
 @pytest.fixture
 def rangereg(capsys):
     """Run the CLI in this process: (exit status, stdout, stderr)."""

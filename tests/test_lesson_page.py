@@ -10,23 +10,12 @@ import re
 import numpy as np
 import pytest
 
-from app.access import free_port
 from tests.test_teach import open_tab, wait_for
 from tests.test_workbench import show_tab
 
 pytestmark = pytest.mark.browser
 # the console lines viser's own client writes whatever the page shows (its three.js, software WebGL's driver notes)
 CLIENT_NOISE = ("THREE.Clock", "GL Driver Message", "websocket is not connected")
-
-
-@pytest.fixture(scope="module")
-def bench():
-    from app.workbench import ServeOptions, Workbench
-
-    port = free_port()
-    wb = Workbench(ServeOptions(port=port))
-    yield wb, f"http://127.0.0.1:{port}"
-    wb.server.stop()
 
 
 def lesson_line(page) -> str:

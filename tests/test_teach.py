@@ -12,21 +12,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from app.access import free_port
 from tests.conftest import wait_for
 from tests.test_workbench import open_page, show_tab
 
 pytestmark = pytest.mark.browser
-
-
-@pytest.fixture(scope="module")
-def bench():
-    from app.workbench import ServeOptions, Workbench
-
-    port = free_port()
-    wb = Workbench(ServeOptions(port=port))
-    yield wb, f"http://127.0.0.1:{port}"
-    wb.server.stop()
 
 
 def open_tab(bench, browser):

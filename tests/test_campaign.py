@@ -138,7 +138,7 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     assert rep["graph"]["rounds"] >= 2 and len(rep["pairs"]) > len(first)
     assert all(p["start"] == "graph pose" for p in rep["pairs"] if p["round"] > 1)
     closing = [p for p in rep["pairs"] if {p["source"], p["target"]} == {scans[0].name, scans[-1].name}]
-    assert len(closing) == 1 and closing[0]["status"] in ("used", "rejected")
+    assert len(closing) == 1 and closing[0]["status"] == "used" and closing[0]["trusted"]
     assert rep["graph"]["used"] + rep["graph"]["rejected"] == rep["graph"]["pairs"]
     assert all(rep["placed"]) and all(r["cycle_residual"]["rotation_deg"] < 2.0 for r in rep["scan_reports"])
     assert rep["model"]["triangles"] > 0

@@ -92,6 +92,12 @@ class MergeConfig:
     # Measured, right pairs: bunny 0.6-1.8e-8 (wrong minima >= 1e-6, untrusted); 10-stop turntable of
     # 40k-point scans 0.015-0.13 (8.6 x its median); 24-stop turntable, every family: none beyond 20 x
     outlier_error: float = 20.0
+    # ... or whose misfit (the pair threshold's measure) exceeds this many times the trusted pairs' median:
+    # the scans of one campaign share a sensor, so right pairs agree at much the same level. Measured,
+    # right pairs over the median: 24-stop turntable (frame, identity) <= 1.44; the four bunny scans
+    # (rough seed 0, no poses) <= 2.26; bunny crops <= 1.03. Wrong pairs the pair threshold trusted on
+    # crops of the 24-stop turntable (misfit 2.5-3.4, right ones 0.3-0.7): >= 4.9. 3.3: their geometric mean
+    outlier_misfit: float = 3.3
     # no guess: every pair is registered up to this many scans (15 pairs); beyond, the cue picks
     all_pairs_up_to: int = 6
     # no guess, more scans: each scan's best partners by the cue (15-stop turntable, seed 0: the best 2
@@ -119,8 +125,8 @@ class MergeConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < (0 if name == "polish_steps" else 1):
                 raise InputError(f"{name} must be a whole number >= {0 if name == 'polish_steps' else 1}, got {v!r}")
-        for name in ("polish_gate", "outlier_error", "found_rotation_deg", "cycle_rotation_deg", "cycle_translation",
-                     "align_from"):
+        for name in ("polish_gate", "outlier_error", "outlier_misfit", "found_rotation_deg", "cycle_rotation_deg",
+                     "cycle_translation", "align_from"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a number > 0, got {v!r}")
@@ -389,10 +395,15 @@ class _Campaign:
                           f"not trusted (misfit {p.misfit:.3g})")
         if len(trusted) >= 3:
             median = float(np.median([self.pairs[k].error for k in trusted]))
+            misfits = [self.pairs[k].misfit for k in trusted if self.pairs[k].misfit is not None]
+            typical = float(np.median(misfits)) if misfits else None
             for k in trusted:
-                if self.pairs[k].error > self.mc.outlier_error * median:
-                    why[k] = (f"E far above the other trusted pairs' ({self.pairs[k].error / median:.3g} x their "
-                              "median)")
+                p = self.pairs[k]
+                if p.error > self.mc.outlier_error * median:
+                    why[k] = f"E far above the other trusted pairs' ({p.error / median:.3g} x their median)"
+                elif typical and p.misfit is not None and p.misfit > self.mc.outlier_misfit * typical:
+                    why[k] = (f"misfit far above the other trusted pairs' ({p.misfit:.3g}, {p.misfit / typical:.3g} x "
+                              "their median)")
         return [k for k in trusted if k not in why], why
 
     def graph(self) -> Graph:

@@ -219,6 +219,34 @@ def test_a_trusted_pair_that_does_not_close_is_registered_again_from_the_graphs_
     assert all(r.cycle is not None and r.cycle[0] < 1e-4 for r in res.scans)
 
 
+def test_a_trusted_pair_whose_misfit_is_far_above_the_others_is_not_used():
+    # scan 3's only trusted pair is a wrong pose trusted at 6 x the campaign's typical misfit (turntable crops:
+    # wrong poses trusted at 2.5-3.4 where right ones sit at 0.3-0.7): scan 3 is not placed, not placed wrong
+    from core.merge_tasks import PairOutcome, pair_task
+    from core.transforms import from_params
+
+    scans = _four_views()
+    truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
+    twin = from_params(np.r_[0, 0, 0, 0, 0, np.radians(120.0)])
+
+    def run(fn, items, shared, label=None):
+        if fn is not pair_task:
+            return [0.5 for _ in items]
+        out = []
+        for t in items:
+            if t.j == 3:
+                T, trusted, misfit = (truth(t.i, t.j) @ twin, True, 3.0) if t.i == 2 else (t.T0, False, 9.0)
+            else:
+                T, trusted, misfit = truth(t.i, t.j), True, 0.5
+            out.append(PairOutcome(T, 1e-3, trusted, misfit, True, 0.5, "scripted", 0.0))
+        return out
+
+    res = merge(scans, None, build_model=False, map_tasks=run)
+    assert res.placed == [True, True, True, False] and res.poses[3] is None
+    pair = next(p for p in res.pairs if (p.i, p.j) == (2, 3))
+    assert pair.status == "rejected" and "misfit far above" in pair.reason
+
+
 def test_candidate_pairs_per_mode():
     from core.merge import MergeConfig, choose
 

@@ -311,6 +311,8 @@ class TaskRunner:
         batches = [items[k:k + size] for k in range(0, len(items), size)]
         [ref] = self.client.scatter([shared], broadcast=True, hash=False)
         futures = self.client.map(_run_batch, [fn] * len(batches), [ref] * len(batches), batches, pure=False)
+        from concurrent.futures import CancelledError
+
         from distributed import KilledWorker
         from distributed.comm.core import CommClosedError
 
@@ -321,7 +323,8 @@ class TaskRunner:
                 for _ in range(len(batches[futures.index(fut)])):
                     bar.step()
             return [r for part in self.client.gather(futures) for r in part]
-        except (KilledWorker, CommClosedError) as exc:  # the cluster, not the input: one line (app.cli)
+        # the cluster, not the input: one line (app.cli); a lost scheduler cancels the futures
+        except (KilledWorker, CommClosedError, CancelledError) as exc:
             raise OSError(f"the Dask cluster lost a worker or its connection ({type(exc).__name__}); run again, "
                           "or with --workers 1") from exc
         finally:

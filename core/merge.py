@@ -96,7 +96,9 @@ class MergeConfig:
     # the scans of one campaign share a sensor, so right pairs agree at much the same level. Measured,
     # right pairs over the median: 24-stop turntable (frame, identity) <= 1.44; the four bunny scans
     # (rough seed 0, no poses) <= 2.26; bunny crops <= 1.03. Wrong pairs the pair threshold trusted on
-    # crops of the 24-stop turntable (misfit 2.5-3.4, right ones 0.3-0.7): >= 4.9. 3.3: their geometric mean
+    # crops of the 24-stop turntable (misfit 2.5-3.4, right ones 0.3-0.7): >= 4.9. 3.3: their geometric mean.
+    # Its limit: across scenes right pairs span 1.0-3.2 (core.threshold's evidence: bowl to bun315->bun045),
+    # so a campaign of mostly clean pairs (median ~1) could lose a right pair with range bias (~3.4)
     outlier_misfit: float = 3.3
     # no guess: every pair is registered up to this many scans (15 pairs); beyond, the cue picks
     all_pairs_up_to: int = 6

@@ -195,6 +195,8 @@ def rivals(n: int, edges: list[Edge], centers: list[np.ndarray], tol: Tolerance,
         # smaller side is the one in doubt (measured from the reference, a wrong edge at the reference
         # "moves" every other scan and the group's inner edges outweigh any boundary: a 24-scan ring of
         # 96 edges, 25 of them wrong, placed 1 scan; with the smaller side 17, none wrong)
+        # (When that side holds the reference, the reference may end up unplaced: a caller then solves
+        # again from its largest group, as core.merge does.)
         rest = {s for s in range(n) if label[s] == label[next(iter(moved))]} - moved
         if len(rest) < len(moved):
             moved = rest

@@ -89,7 +89,7 @@ def test_merge_refuses_a_scan_no_pair_could_use_before_any_registration(tmp_path
         assert len(r.stderr.strip().splitlines()) == 1 and "round 1" not in r.stderr
 
 
-def test_merge_json_is_strict_when_a_pair_has_no_finite_error(tmp_path):
+def test_strict_json_writes_null_for_every_non_finite_number():
     # a scan not placed: its pose null, any non-finite number null (never NaN or Infinity)
     from app.outputs import strict_json
 
@@ -143,7 +143,8 @@ def test_a_scan_no_trusted_pair_reaches_is_reported_not_placed(tmp_path):
     out = tmp_path / "model.ply"
     r = rangereg("merge", tmp_path / "left.ply", tmp_path / "right.ply", "--out", out, "--json", "--workers", "1")
     assert r.returncode == 3, r.stderr
-    rep = json.loads(r.stdout)  # stdout holds the JSON alone
+    # stdout holds the JSON alone, and strict JSON (a pair with no finite number has null there)
+    rep = json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"{c} in --json"))
     assert rep["placed"] == [True, False] and rep["poses"][1] is None and rep["reference"] == "left"
     assert rep["stated"]["no_guess"] and rep["pairs"][0]["start"] == "no guess"
     assert rep["pairs"][0]["status"] == "rejected" and not rep["pairs"][0]["trusted"]
@@ -245,6 +246,30 @@ def test_a_trusted_pair_whose_misfit_is_far_above_the_others_is_not_used():
     assert res.placed == [True, True, True, False] and res.poses[3] is None
     pair = next(p for p in res.pairs if (p.i, p.j) == (2, 3))
     assert pair.status == "rejected" and "misfit far above" in pair.reason
+
+
+def test_when_no_pair_overlaps_under_the_rough_poses_the_scans_are_reached_with_no_guess_at_once():
+    from core.merge_tasks import PairOutcome, feature_task, pair_task
+
+    scans = _four_views()
+    truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
+    far = [np.eye(4) for _ in scans]
+    for k, T in enumerate(far):
+        T[0, 3] = 1e6 * k  # rough poses that put every scan far from every other: no pair overlaps
+    asked = []
+
+    def run(fn, items, shared, label=None):
+        if fn is feature_task:
+            return [fn(shared, k) for k in items]
+        if fn is not pair_task:
+            return [0.0 for _ in items]
+        asked.extend(t.start for t in items)
+        return [PairOutcome(truth(t.i, t.j), 1e-3, True, 0.5, True, 0.5, "scripted", 0.0) for t in items]
+
+    res = merge(scans, far, build_model=False, map_tasks=run)
+    assert asked and set(asked) == {"no guess"} and all(res.placed)
+    for k in range(4):
+        assert pose_error(res.poses[k], truth(0, k))[0] < 1e-4
 
 
 def test_candidate_pairs_per_mode():

@@ -302,3 +302,26 @@ def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():
     for then in st.apply_handed():
         then()
     assert not st.campaign_busy and not campaign.merge.disabled and not panel.h.merge.disabled
+    # a campaign that starts holds the tab until its worker hands back its end, a failure too
+    said, gate = [], threading.Event()
+
+    def load(name):
+        gate.wait(5)
+        raise InputError(f"{name}: unreadable")
+
+    panel.tab.wb.load_data_file = load
+    panel.tab.notify = lambda title, text, error=True: said.append(text)
+    panel.start_campaign()
+    assert st.campaign_busy and campaign.merge.disabled and panel.h.merge.disabled
+    with st.lock:
+        st.source = object()  # a pair is open
+    with pytest.raises(InputError, match="campaign merge is working"):
+        panel.start()  # the two-scan merge waits too (the campaign's end sets the model)
+    gate.set()
+    deadline = time.monotonic() + 5
+    while not st._handed and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert st.campaign_busy  # the worker never writes the state itself
+    for then in st.apply_handed():
+        then()
+    assert not st.campaign_busy and not campaign.merge.disabled and said == ["a.ply: unreadable"]

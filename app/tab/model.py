@@ -61,6 +61,8 @@ class ModelPanel:
         st.require_scans()
         st.require_idle()
         with st.lock:
+            if st.campaign_busy:  # its end sets the model: one merge at a time
+                raise InputError("a campaign merge is working: wait for its report")
             source, target, T, surfaces, pair = st.source, st.target, st.T, st.surfaces, st.pair
         self.h.merge.disabled = True
 
@@ -151,7 +153,7 @@ class ModelPanel:
         self.tab.notify("Campaign", f"{placed} of {len(res.poses)} scans placed", error=placed < len(res.poses))
 
     def _show(self, model) -> None:
-        self.h.merge.disabled = False
+        self.h.merge.disabled = self.state.running or self.state.campaign_busy
         if self.state.model is not model:
             return
         scene3d.show_model(self.tab.client.scene, self.tab.nodes, self.state)

@@ -32,10 +32,10 @@ from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .fuse import fuse
+from .merge_cue import NeighbourCue
 from .merge_result import MergeResult, PairResult, ScanReport
 from .merge_tasks import (
     PairOutcome,
@@ -49,7 +49,7 @@ from .merge_tasks import (
     share_task,
     token,
 )
-from .posegraph import Edge, Graph, Tolerance, information_matrix, solve
+from .posegraph import Edge, Graph, Tolerance, components, information_matrix, solve
 from .problem import check_registrable
 from .region import Region
 from .register import Config
@@ -191,8 +191,7 @@ class _Campaign:
         self.radius = [float(np.linalg.norm(s.points - s.centroid, axis=1).max()) for s in scans]
         self.pairs: dict[tuple[int, int], PairResult] = {}
         self.tried: dict[tuple[int, int], int] = {}  # registrations per pair
-        self.features: list | None = None
-        self.cue_cache: dict[tuple[int, int], float] = {}
+        self.neighbours = NeighbourCue(self.n, self._features)
         self.infos: dict[tuple[int, int, int], np.ndarray] = {}
         self.init_overlap: dict[tuple[int, int], float] = {}
         self.shares: dict[tuple[int, int], float] = {}  # matching share under the poses found (the last measured)
@@ -306,6 +305,10 @@ class _Campaign:
     def result(self, task: PairTask, res: PairOutcome, earlier: str | None) -> PairResult:
         return PairResult(task.i, task.j, res.T, res.error, res.share, res.trusted, res.misfit, res.within_region,
                           res.seconds, self.round, task.start, earlier=earlier, stop=res.stop)
+
+    def _features(self) -> list[np.ndarray]:
+        self.say(f"computing the features of {self.n} scans (which scans are likely neighbours)")
+        return self.timed_map(feature_task, list(range(self.n)), "features")
 
     def timed_map(self, fn, items: list, label: str) -> list:
         t0 = time.perf_counter()
@@ -421,37 +424,11 @@ class _Campaign:
 
     def cue(self, i: int, j: int) -> float:
         """The share of mutually nearest FPFH features of scans i and j (higher: likelier neighbours)."""
-        if self.features is None:
-            self.say(f"computing the features of {self.n} scans (which scans are likely neighbours)")
-            self.features = self.timed_map(feature_task, list(range(self.n)), "features")
-            self.trees = [cKDTree(f) for f in self.features]
-        key = _key(i, j)
-        if key not in self.cue_cache:
-            a, b = self.features[i], self.features[j]
-            if len(a) == 0 or len(b) == 0:
-                self.cue_cache[key] = 0.0
-            else:
-                ab = self.trees[j].query(a)[1]
-                ba = self.trees[i].query(b)[1]
-                self.cue_cache[key] = float((ba[ab] == np.arange(len(a))).sum() / min(len(a), len(b)))
-        return self.cue_cache[key]
-
-    def cue_rank(self, u: int) -> list[int]:
-        """The other scans, likeliest neighbours of scan u first."""
-        others = [m for m in range(self.n) if m != u]
-        return sorted(others, key=lambda m: (-self.cue(u, m), m))
+        return self.neighbours.score(i, j)
 
     def cue_pairs(self) -> list[tuple[int, int]]:
         """Each scan's cue_partners best partners by the cue; joined into one group by the best links."""
-        chosen = {_key(u, m) for u in range(self.n) for m in self.cue_rank(u)[:self.mc.cue_partners]}
-        while True:
-            label = _labels(self.n, chosen)
-            if len(set(label)) == 1:
-                break
-            links = [(self.cue(i, j), i, j) for i in range(self.n) for j in range(i + 1, self.n) if label[i] != label[j]]
-            _, i, j = max(links)
-            chosen.add((i, j))
-        return sorted(chosen)
+        return self.neighbours.pairs(self.mc.cue_partners)
 
     # ---- the report ----
 
@@ -541,6 +518,4 @@ def _key(a: int, b: int) -> tuple[int, int]:
 
 
 def _labels(n: int, pairs) -> list[int]:
-    from .posegraph import components
-
     return components(n, [tuple(p[:2]) for p in pairs])

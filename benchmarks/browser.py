@@ -22,17 +22,17 @@ def launch(playwright):
 
 
 @contextmanager
-def bunny_page(folder: Path, viewport: tuple[int, int], pair: tuple[str, str] = ("bun045.ply", "bun000.ply"),
-               ) -> Iterator[tuple[object, object, object]]:
-    """(workbench, browser, page): ``pair`` (source, target files; bun045 -> bun000) of ``folder`` served by a
-    workbench in this process on a free port, opened in Chromium at ``viewport`` (width, height) pixels, once
-    the page shows the initial E. The tabs and the server are closed afterwards."""
+def served_page(viewport: tuple[int, int], source: str | None = None, target: str | None = None,
+                ) -> Iterator[tuple[object, object, object]]:
+    """(workbench, browser, page): a workbench in this process on a free port (``source`` -> ``target``
+    files, else its bundled scene), opened in Chromium at ``viewport`` (width, height) pixels, once the
+    page shows the initial E. The tabs and the server are closed afterwards."""
     from playwright.sync_api import sync_playwright
 
     from app.workbench import ServeOptions, Workbench
 
     port = free_port()
-    wb = Workbench(ServeOptions(source=str(folder / pair[0]), target=str(folder / pair[1]), port=port))
+    wb = Workbench(ServeOptions(source=source, target=target, port=port))
     try:
         with sync_playwright() as p:
             browser = launch(p)
@@ -45,3 +45,11 @@ def bunny_page(folder: Path, viewport: tuple[int, int], pair: tuple[str, str] = 
         for tab in list(wb.tabs.values()):
             tab.close()
         wb.server.stop()
+
+
+@contextmanager
+def bunny_page(folder: Path, viewport: tuple[int, int], pair: tuple[str, str] = ("bun045.ply", "bun000.ply"),
+               ) -> Iterator[tuple[object, object, object]]:
+    """:func:`served_page` on ``pair`` (source, target files; bun045 -> bun000) of ``folder``."""
+    with served_page(viewport, str(folder / pair[0]), str(folder / pair[1])) as opened:
+        yield opened

@@ -72,51 +72,35 @@ def scans_camera(st) -> np.ndarray:
 
 def lesson_shot(viewport: tuple[int, int] = (1600, 1000)) -> None:
     """docs/lesson.png: the Lesson tab played to its end."""
-    from playwright.sync_api import sync_playwright
+    from benchmarks.browser import served_page
 
-    from app.access import free_port
-    from app.workbench import ServeOptions, Workbench
-    from benchmarks.browser import launch
-
-    port = free_port()
-    wb = Workbench(ServeOptions(port=port))
-    try:
-        with sync_playwright() as p:
-            browser = launch(p)
-            page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
-            page.goto(f"http://127.0.0.1:{port}")
-            page.get_by_text("Initial E =").wait_for(timeout=120_000)
-            tab = next(iter(wb.tabs.values()))
-            page.get_by_role("tab", name="Lesson", exact=True).click()
-            page.get_by_role("button", name="Open the lesson", exact=True).click()
-            wait_for(lambda: tab.lesson.story is not None and tab.landscape.terrain is not None, 300, "the lesson")
-            nxt = page.get_by_role("button", name="Next", exact=True)
-            while tab.lesson.story.step not in ("below", "gave-up") or tab.state.running:
-                wait_for(lambda: nxt.is_enabled() or not tab.state.running and tab.lesson.story.step == "below", 300,
-                         "Next")
-                if nxt.is_enabled():
-                    nxt.click()
-                    time.sleep(0.3)  # the click reaches the server
-            wait_for(lambda: "from the truth" in tab.lesson.line, 120, "the lesson's end")
-            tab.scans.h.show.frustums.value = False
-            tab.apply_visibility()
-            page.evaluate(CLOSE_NOTICE_JS)
-            camera = tab.client.camera
-            camera.position = LESSON_VIEW  # the direction Fit view keeps: above and in front of scans and terrain
-            camera.look_at = LOOK_AT
-            wait_for(lambda: np.allclose(camera.position, LESSON_VIEW, atol=1e-3), 30, "the camera")
-            page.get_by_role("button", name="Fit view", exact=True).click()
-            wait_for(lambda: not np.allclose(camera.position, LESSON_VIEW, atol=1e-3), 30, "Fit view")
-            time.sleep(3.0)  # the terrain's labels settle
-            page.mouse.move(5, 5)
-            out = ROOT / "docs" / "lesson.png"
-            page.screenshot(path=str(out))
-            print(f"wrote {out}")
-            browser.close()
-    finally:
-        for tab in list(wb.tabs.values()):
-            tab.close()
-        wb.server.stop()
+    with served_page(viewport) as (wb, _browser, page):
+        tab = next(iter(wb.tabs.values()))
+        page.get_by_role("tab", name="Lesson", exact=True).click()
+        page.get_by_role("button", name="Open the lesson", exact=True).click()
+        wait_for(lambda: tab.lesson.story is not None and tab.landscape.terrain is not None, 300, "the lesson")
+        nxt = page.get_by_role("button", name="Next", exact=True)
+        while tab.lesson.story.step not in ("below", "gave-up") or tab.state.running:
+            wait_for(lambda: nxt.is_enabled() or not tab.state.running and tab.lesson.story.step == "below", 300,
+                     "Next")
+            if nxt.is_enabled():
+                nxt.click()
+                time.sleep(0.3)  # the click reaches the server
+        wait_for(lambda: "from the truth" in tab.lesson.line, 120, "the lesson's end")
+        tab.scans.h.show.frustums.value = False
+        tab.apply_visibility()
+        page.evaluate(CLOSE_NOTICE_JS)
+        camera = tab.client.camera
+        camera.position = LESSON_VIEW  # the direction Fit view keeps: above and in front of scans and terrain
+        camera.look_at = LOOK_AT
+        wait_for(lambda: np.allclose(camera.position, LESSON_VIEW, atol=1e-3), 30, "the camera")
+        page.get_by_role("button", name="Fit view", exact=True).click()
+        wait_for(lambda: not np.allclose(camera.position, LESSON_VIEW, atol=1e-3), 30, "Fit view")
+        time.sleep(3.0)  # the terrain's labels settle
+        page.mouse.move(5, 5)
+        out = ROOT / "docs" / "lesson.png"
+        page.screenshot(path=str(out))
+        print(f"wrote {out}")
 
 
 def main() -> None:

@@ -17,13 +17,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from app.cases import Case
-from core.errors import InputError
-from core.problem import ProblemConfig, prepare
-from core.register import METHODS, Config, register
-from core.simulate import SCENES, make_scene, true_transform
-from core.transforms import invert, perturb, pose_error, random_perturbation
+from rangereg.app.cases import Case
+from rangereg.core.errors import InputError
+from rangereg.core.problem import ProblemConfig, prepare
+from rangereg.core.register import METHODS, Config, register
+from rangereg.core.simulate import SCENES, make_scene, true_transform
+from rangereg.core.transforms import invert, perturb, pose_error, random_perturbation
 
 BUNNY_PAIRS = (("bun045", "bun000"), ("bun315", "bun000"), ("bun090", "bun045"), ("bun090", "bun000"))
 SCENE_START = {"corner": 250.0, "wing": 250.0 * 3 / 4, "bowl": 250.0 * 600 / 1219.2}  # mm, 5 deg rotation
@@ -44,7 +43,7 @@ def scene_cases() -> list[Case]:
 
 
 def bunny_cases(folder: Path, pairs=BUNNY_PAIRS, rot=15.0, trans=0.025) -> list[Case]:
-    from core.io import load_scan
+    from rangereg.core.io import load_scan
 
     if not folder.is_dir():
         return []
@@ -108,7 +107,7 @@ LESSON_METHODS = ("icp", "sa", "hybrid")
 
 
 def lesson_case(assets: Path) -> Case:
-    from core.scenes import LESSON
+    from rangereg.core.scenes import LESSON
 
     source, target = LESSON.scans(assets)
     return Case(f"{LESSON.scene} (lesson)", source, target, true_transform(source, target), 0.0, 0.0, 1.0,
@@ -118,8 +117,8 @@ def lesson_case(assets: Path) -> Case:
 def lesson(runs: int | None, say) -> list[dict]:
     """The lesson's rows (``rangereg bench --lesson``): each method from the first ``runs`` of its starts (all by
     default), run k with seed k; each row adds the share of runs stuck above the threshold off the truth."""
-    from app.workbench import ASSETS
-    from core.scenes import LESSON
+    from rangereg.app.workbench import ASSETS
+    from rangereg.core.scenes import LESSON
 
     n = len(LESSON.starts) if runs is None else runs
     if n > len(LESSON.starts):

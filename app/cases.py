@@ -6,9 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from core.problem import ProblemConfig
-from core.scan import Scan
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.scan import Scan
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,7 +15,7 @@ import signal
 import sys
 from pathlib import Path
 
-from app.process import Handlers, Interrupted, discard_open_outputs, error_line, exit_now, quiet_stdout, streams_ready
+from rangereg.app.process import Handlers, Interrupted, discard_open_outputs, error_line, exit_now, quiet_stdout, streams_ready
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 
@@ -28,7 +28,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _knob(name: str):
     """An argparse type checking ``app.options.KNOBS[name]`` (the one place each range is written)."""
-    from app.options import KNOBS, check_value
+    from rangereg.app.options import KNOBS, check_value
 
     def parse(text: str):
         v = check_value(KNOBS[name], text)
@@ -42,8 +42,7 @@ def _knob(name: str):
 
 def _vec3(text: str):
     import numpy as np
-
-    from core.scan import check_coordinates
+    from rangereg.core.scan import check_coordinates
 
     try:
         v = np.array([float(t) for t in text.replace(" ", "").split(",")])
@@ -58,11 +57,11 @@ def _vec3(text: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from app.options import KNOBS
-    from core.frustum import KINDS
-    from core.problem import ProblemConfig
-    from core.register import METHODS, Config
-    from core.simulate import SCENES
+    from rangereg.app.options import KNOBS
+    from rangereg.core.frustum import KINDS
+    from rangereg.core.problem import ProblemConfig
+    from rangereg.core.register import METHODS, Config
+    from rangereg.core.simulate import SCENES
 
     p = _Parser(prog="rangereg", description="Register 3-D range scans with the hybrid simulated annealing + ICP "
                 "algorithm of Luck, Hoff, Underwood and Little (ICRA 2000).")
@@ -249,14 +248,14 @@ def _run(argv: list[str] | None, command: list) -> int:
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
         return exc.code if isinstance(exc.code, int) else 2
     command[0] = args.command
-    status = importlib.import_module(f"app.commands.{args.command}").run(args)
+    status = importlib.import_module(f"rangereg.app.commands.{args.command}").run(args)
     sys.stdout.flush()
     return status
 
 
 def _failed(command: str | None, exc: BaseException) -> int:
     """The one line and the status for a command that raised ``exc``; anything unexpected is raised again."""
-    from core.errors import InputError
+    from rangereg.core.errors import InputError
 
     if isinstance(exc, BrokenPipeError):  # the reader went away (`| head`): nothing more to say
         quiet_stdout()

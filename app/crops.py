@@ -22,9 +22,8 @@ import zlib
 from dataclasses import replace
 
 import numpy as np
-
-from core.errors import InputError
-from core.scan import RangeGrid, Scan
+from rangereg.core.errors import InputError
+from rangereg.core.scan import RangeGrid, Scan
 
 SHARE_LOW, SHARE_HIGH = 0.25, 0.60
 ASPECT = 2.0

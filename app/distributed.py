@@ -9,7 +9,7 @@ or on Dask distributed. The only module that imports dask.
   cluster's start); then the rest of that map and every later one on the cluster. ``choice`` says
   which was chosen and why.
 - ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` + ``dask worker``); its
-  workers must import this project (run them with the same PYTHONPATH / environment).
+  workers must import ``rangereg`` (run them in an environment where it is installed).
 
 Tasks get plain numpy data (Open3D geometry does not pickle). What every task needs (``shared``, e.g.
 the scans) is sent once to every worker (``scatter(broadcast=True)``) and the task function builds its
@@ -43,7 +43,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from core.errors import InputError
+from rangereg.core.errors import InputError
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 # A local cluster's housekeeping, slowed down: the workers' statistical profiler off (it samples the
@@ -384,8 +384,7 @@ def open3d_threads(threads: int | None) -> Iterator[None]:
 
 def _warm() -> None:
     import open3d  # noqa: F401
-
-    import core.merge  # noqa: F401
+    import rangereg.core.merge  # noqa: F401
 
 
 def _thread_settings() -> dict:

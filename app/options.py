@@ -14,8 +14,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
-
-from core.errors import InputError
+from rangereg.core.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -150,8 +149,8 @@ class Settings:
     lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
-        from core.frustum import KINDS
-        from core.register import METHODS
+        from rangereg.core.frustum import KINDS
+        from rangereg.core.register import METHODS
 
         for f in fields(self):
             v = getattr(self, f.name)
@@ -182,7 +181,7 @@ def to_config(s: Settings):
     A setting left ``None`` keeps the core's default. The annealing knobs reach both the hybrid's
     annealing and annealing alone (each keeps its own default where not given).
     """
-    from core.register import Config
+    from rangereg.core.register import Config
 
     def given(**kw):
         return {k: v for k, v in kw.items() if v is not None}
@@ -192,7 +191,7 @@ def to_config(s: Settings):
         max_points=s.max_points, frustum=s.frustum, rotation_uncertainty_deg=s.rotation_uncertainty,
         translation_uncertainty=s.translation_uncertainty))
     if s.no_guess and (s.method or base.method) == "global":
-        from core.region import no_guess
+        from rangereg.core.region import no_guess
 
         problem = no_guess(problem)
     anneal = given(t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling, max_evaluations=s.sa_max_evaluations)
@@ -214,7 +213,7 @@ def parse_lock(value, label: str = "--lock"):
     ``translation``: three at once; ``turntable:px,py,pz,dx,dy,dz``: rotation about that line in the
     target's frame only; ``turntable+translation:...``: and free translation; ``none``), a Lock, or None.
     A refusal names ``label`` (the page names its field)."""
-    from core.lock import Lock
+    from rangereg.core.lock import Lock
 
     if isinstance(value, Lock):
         try:
@@ -233,7 +232,7 @@ def parse_lock(value, label: str = "--lock"):
 def read_text_file(path: str | Path, what: str, limit: int | None = None, pipe: bool = False) -> str:
     """The UTF-8 text of a side file (``--init``, ``.conf``, a trace) given by flag ``what``: a regular file
     of at most ``limit`` bytes (or, with ``pipe``, a pipe read once: core.files), every failure as InputError."""
-    from core.files import TRACE_LIMIT, read_bytes
+    from rangereg.core.files import TRACE_LIMIT, read_bytes
 
     data = read_bytes(path, f"{what} {path}", TRACE_LIMIT if limit is None else limit, "a text file", pipe)
     try:
@@ -249,8 +248,8 @@ def parse_init(text: str) -> np.ndarray:
     """``--init``: 16 numbers (row-major T_target_source, spaces or commas) given inline, or a file
     holding them (or JSON with ``transform``), read once: a pipe (``--init <(...)``) is read as it comes
     (core.files). Returns a checked rigid (4, 4) float64 matrix."""
-    from core.files import TRANSFORM_LIMIT
-    from core.sidefiles import names_a_file, parse_transform, transform_from_text
+    from rangereg.core.files import TRANSFORM_LIMIT
+    from rangereg.core.sidefiles import names_a_file, parse_transform, transform_from_text
 
     if text is None or not str(text).strip():
         raise InputError("--init: expected 16 numbers or a file, got nothing")

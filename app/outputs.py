@@ -21,7 +21,7 @@ import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
-from core.errors import InputError
+from rangereg.core.errors import InputError
 
 
 def _is_special(p: Path) -> bool:

@@ -9,9 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from app.figures import MINIMUM_RGB, PHASE_LABEL, PHASE_RGB, axis_label, log_values, squared_unit, unit_fraction
-from core.landscape import Slice
+from rangereg.app.figures import MINIMUM_RGB, PHASE_LABEL, PHASE_RGB, axis_label, log_values, squared_unit, unit_fraction
+from rangereg.core.landscape import Slice
 
 
 def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] | None = None,

@@ -147,7 +147,7 @@ def quiet_stdout() -> None:
 
 def discard_open_outputs() -> None:
     """Temporary files of outputs still being written (a trace) go, whatever the command was doing."""
-    outputs = sys.modules.get("app.outputs")
+    outputs = sys.modules.get("rangereg.app.outputs")
     if outputs is not None:
         try:
             outputs.discard_open()

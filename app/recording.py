@@ -20,12 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from app.access import free_port
-from app.figures import LEGEND, MINIMUM_RGB, PHASE_LABEL, PHASE_TABLE, SOURCE_RGB, TARGET_RGB, fmt, squared_unit
-from app.tab.scene3d import set_lights
-from app.views import Display, Trail, temperature_of
-from core.errors import InputError
+from rangereg.app.access import free_port
+from rangereg.app.figures import LEGEND, MINIMUM_RGB, PHASE_LABEL, PHASE_TABLE, SOURCE_RGB, TARGET_RGB, fmt, squared_unit
+from rangereg.app.tab.scene3d import set_lights
+from rangereg.app.views import Display, Trail, temperature_of
+from rangereg.core.errors import InputError
 
 MAX_POINTS = 20000  # per scan in the recording: the file stays a few MB
 FRAMES = 150  # poses the recording steps through (evenly over the run's events)
@@ -129,9 +128,8 @@ def _part(scene, name: str, points: np.ndarray, phase: np.ndarray) -> None:
 def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hold: float = HOLD) -> bytes:
     """The recording (.viser bytes): the pair, then the scan moving along the run with its path growing."""
     import viser
-
-    from app.access import Guard, guarded_viser
-    from app.tab.terrain import PathOnSlice, Terrain, on_surface
+    from rangereg.app.access import Guard, guarded_viser
+    from rangereg.app.tab.terrain import PathOnSlice, Terrain, on_surface
 
     if not run.events:
         raise InputError("no run yet: nothing to record")

@@ -10,8 +10,8 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-from core.events import Cancelled, Event
-from core.register import Result
+from rangereg.core.events import Cancelled, Event
+from rangereg.core.register import Result
 
 POLL = 0.05  # seconds a paused run sleeps between looks at its controls (Pause/Cancel act within 0.2 s)
 

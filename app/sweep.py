@@ -44,15 +44,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from app.crops import crop
-from app.distributed import map_tasks, stderr_lines
-from core.errors import InputError
-from core.problem import ProblemConfig
-from core.region import no_guess
-from core.register import Config, register
-from core.scan import Scan
-from core.transforms import invert, perturb, pose_error, random_perturbation, rotation_matrix
+from rangereg.app.crops import crop
+from rangereg.app.distributed import map_tasks, stderr_lines
+from rangereg.core.errors import InputError
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.region import no_guess
+from rangereg.core.register import Config, register
+from rangereg.core.scan import Scan
+from rangereg.core.transforms import invert, perturb, pose_error, random_perturbation, rotation_matrix
 
 SWEEP_LEVELS = ((5.0, 0.010), (15.0, 0.025), (30.0, 0.050), (60.0, 0.075), (90.0, 0.075), (180.0, 0.075))
 MODES = ("origin", "turntable", "centroid", "no-guess")
@@ -128,7 +127,7 @@ class View:
         return Path(self.path).stem + ("" if self.crop is None else f"-crop{self.crop}")
 
     def load(self) -> Scan:
-        from core.io import load_scan
+        from rangereg.core.io import load_scan
 
         scan = load_scan(self.path)
         return scan if self.crop is None else crop(scan, self.crop)
@@ -136,8 +135,8 @@ class View:
 
 def pair_overlap(source: Scan, target: Scan, T: np.ndarray) -> float:
     """The smaller share, both ways, of a 160-point sample that matches the other scan at pose T."""
-    from core.candidates import make_basis
-    from core.surface import Surface
+    from rangereg.core.candidates import make_basis
+    from rangereg.core.surface import Surface
 
     share = []
     for a, b, Tab in ((source, target, T), (target, source, invert(T))):
@@ -150,7 +149,7 @@ def sweep_pairs(folder: Path, families: tuple[str, ...] = FAMILIES) -> list[tupl
     """(family, source view, target view, overlap) for every pair of views of the scans named in a .conf in
     ``folder`` that overlaps by MIN_PAIR_OVERLAP both ways at the truth; never two views of one scan. A
     whole pair's target is the scan named first in the .conf; a crop-whole pair's source is the crop."""
-    from core.io import load_conf, load_scan
+    from rangereg.core.io import load_conf, load_scan
 
     out = []
     for conf in sorted(folder.glob("*.conf")):

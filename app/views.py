@@ -8,9 +8,7 @@ scene node placed at its own centroid; moving it is a change of that node's pose
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from app.figures import (
+from rangereg.app.figures import (
     MINIMUM_RGB,
     PHASE_LABEL,
     PHASE_NAMES,
@@ -21,9 +19,10 @@ from app.figures import (
     phase_code,
     squared_unit,
 )
-from core.events import Event
-from core.landscape import Slice
-from core.scan import Scan
+from rangereg.core.events import Event
+from rangereg.core.landscape import Slice
+from rangereg.core.scan import Scan
+from scipy.spatial.transform import Rotation
 
 MAX_PATH_POINTS = 300  # the drawn path is thinned to at most this many points, plus its phase ends and minima
 # (the trace keeps them all). Each segment is a fat line of 6 triangles: in software WebGL (headless Chromium,
@@ -233,7 +232,7 @@ def ply_bytes(points: np.ndarray, faces: np.ndarray | None = None, colors: np.nd
     import tempfile
     from pathlib import Path
 
-    from core.ply import write_ply
+    from rangereg.core.ply import write_ply
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "out.ply"
@@ -246,7 +245,7 @@ def png_bytes(sl: Slice, path_xy, phases, current, title, units: str = "") -> by
     import tempfile
     from pathlib import Path
 
-    from app.plots import slice_png
+    from rangereg.app.plots import slice_png
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "slice.png"

@@ -17,13 +17,13 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
-from core.e57 import split_selection
-from core.errors import InputError
-from core.files import TRACE_LIMIT, read_bytes, stat_regular
-from core.io import load_scan
-from core.scan import Scan
-from core.scenes import scene_paths
-from core.simulate import SCENES
+from rangereg.core.e57 import split_selection
+from rangereg.core.errors import InputError
+from rangereg.core.files import TRACE_LIMIT, read_bytes, stat_regular
+from rangereg.core.io import load_scan
+from rangereg.core.scan import Scan
+from rangereg.core.scenes import scene_paths
+from rangereg.core.simulate import SCENES
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".obj", ".stl", ".off", ".e57", ".las", ".laz")
@@ -83,8 +83,7 @@ def check_port(host: str, port: int) -> None:
 class Workbench:
     def __init__(self, options: ServeOptions):
         import viser
-
-        from app.access import Guard, guarded_viser
+        from rangereg.app.access import Guard, guarded_viser
 
         self.options = options
         self.scene_names = list(SCENES)
@@ -116,9 +115,9 @@ class Workbench:
 
     def _check_trace(self, path: str) -> tuple[str, bytes]:
         """(name, bytes) of a trace that parses and is of the first pair; else one InputError, before serving."""
-        from app.tab.replay import read_checked
-        from core.problem import prepare, relative_guess
-        from core.register import estimate_threshold
+        from rangereg.app.tab.replay import read_checked
+        from rangereg.core.problem import prepare, relative_guess
+        from rangereg.core.register import estimate_threshold
 
         content = read_bytes(path, f"--trace {path}", TRACE_LIMIT, "a text file")
         source, target = self.first_pair
@@ -130,7 +129,7 @@ class Workbench:
     @property
     def urls(self) -> list[str]:
         """Where a browser finds the page: each address of this machine when listening on every interface."""
-        from app.access import reachable_addresses
+        from rangereg.app.access import reachable_addresses
 
         return [f"http://{f'[{a}]' if ':' in a else a}:{self.options.port}"
                 for a in reachable_addresses(self.options.host)]
@@ -166,7 +165,7 @@ class Workbench:
     def _guard_uploads(self, client) -> None:
         """The client's uploads held to the cap while they arrive (app.access.UploadGuard): viser buffers them
         in the client's own GUI state. The tab checks the size again when one completes."""
-        from app.access import UploadGuard
+        from rangereg.app.access import UploadGuard
 
         def refuse(client_id, text: str) -> None:
             tab = self.tabs.get(client_id)
@@ -176,7 +175,7 @@ class Workbench:
         UploadGuard(self.upload_cap, refuse).install(client.gui)
 
     def _connect(self, client) -> None:
-        from app.tab.page import Tab
+        from rangereg.app.tab.page import Tab
 
         self._guard_uploads(client)
         tab = Tab(self, client)
@@ -196,7 +195,7 @@ class Workbench:
 
 def serve(options: ServeOptions, stop: threading.Event | None = None) -> int:
     """Entry point of ``rangereg serve``; blocks until interrupted or ``stop`` is set."""
-    from app.access import WILDCARDS
+    from rangereg.app.access import WILDCARDS
 
     # The optimiser's worker thread is busy Python; a short switch interval lets the server's threads
     # (events, page pushes) take the GIL within milliseconds, so Pause and the 10 Hz path stay live.

@@ -1,4 +1,4 @@
-"""The bad-input table: every case runs ``python -m app.cli ...`` as a real subprocess and must meet
+"""The bad-input table: every case runs ``python -m rangereg.app.cli ...`` as a real subprocess and must meet
 the CLI's contract: exit status 2 (or 128 + the signal for a signal sent to it, or 0 for an input that
 must be accepted: a pipe given as --init, a .conf beside a scan that is not a regular file), exactly
 one line on stderr holding the expected fragment (none for an accepted input unless it warns), no
@@ -630,8 +630,8 @@ def write_round_two(f: Path) -> None:
     shutil.copy(CORNER / "scan2.ply", f / os.fsdecode(b"caf\xe9.ply"))
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
-    from core.io import load_scan
-    from core.ply import write_range_grid_ply
+    from rangereg.core.io import load_scan
+    from rangereg.core.ply import write_range_grid_ply
 
     src = load_scan(f / "src.ply")
     write_range_grid_ply(f / "src_m.ply", src.points / 1000, src.grid.index)
@@ -732,9 +732,9 @@ def write_trace_fixtures(f: Path, event: str) -> None:
     """Traces (a header line, then ``event``) that do not match the pair src.ply -> tgt.ply, or are not traces."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
-    from core.config import Config
-    from core.io import load_scan
-    from core.trace import TraceHeader
+    from rangereg.core.config import Config
+    from rangereg.core.io import load_scan
+    from rangereg.core.trace import TraceHeader
 
     src, tgt = load_scan(f / "src.ply"), load_scan(f / "tgt.ply")
     wing = [load_scan(WING / f"{n}.ply") for n in ("scan2", "scan1")]
@@ -818,7 +818,7 @@ def _await(case: Case, proc: subprocess.Popen, work: Path, timeout: float) -> No
 
 def _run(case: Case, work: Path, env: dict, timeout: float) -> tuple[int | None, str, str, float]:
     """(status or None when it timed out, stdout, stderr, seconds to judge: the run, or signal to exit)."""
-    args = [sys.executable, "-m", "app.cli", *case.args]
+    args = [sys.executable, "-m", "rangereg.app.cli", *case.args]
     fds: tuple = ()
     writer = None
     if case.pipe is not None:  # as <(...) does: the read end of a pipe, named /dev/fd/N

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from app.access import free_port
+from rangereg.app.access import free_port
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
          "--disable-component-update", "--disable-sync"]
@@ -28,8 +28,7 @@ def served_page(viewport: tuple[int, int], source: str | None = None, target: st
     files, else its bundled scene), opened in Chromium at ``viewport`` (width, height) pixels, once the
     page shows the initial E. The tabs and the server are closed afterwards."""
     from playwright.sync_api import sync_playwright
-
-    from app.workbench import ServeOptions, Workbench
+    from rangereg.app.workbench import ServeOptions, Workbench
 
     port = free_port()
     wb = Workbench(ServeOptions(source=source, target=target, port=port))

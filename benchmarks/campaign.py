@@ -50,11 +50,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from app.distributed import TaskRunner, stderr_lines  # noqa: E402
-from core.merge import MergeConfig, clear_geometry_cache, merge  # noqa: E402
-from core.simulate import Scanner  # noqa: E402
-from core.transforms import invert, pose_error  # noqa: E402
-from core.turntable import (  # noqa: E402
+from rangereg.app.distributed import TaskRunner, stderr_lines  # noqa: E402
+from rangereg.core.merge import MergeConfig, clear_geometry_cache, merge  # noqa: E402
+from rangereg.core.simulate import Scanner  # noqa: E402
+from rangereg.core.transforms import invert, pose_error  # noqa: E402
+from rangereg.core.turntable import (  # noqa: E402
     FAMILIES,
     TurntableConfig,
     make_campaign,
@@ -69,7 +69,8 @@ LARGE = Scanner(rows=310, cols=310, fov_deg=(24.0, 24.0), noise=0.3, outliers=0.
 
 
 def families(a) -> int:
-    from app.crops import crop
+    from rangereg.app.crops import crop
+
     from benchmarks.campaign_runs import load, ours, peer, table
 
     camp = make_campaign(a.seed, TurntableConfig(scans=a.scans))
@@ -100,7 +101,8 @@ def large(a) -> int:
     import json
     import tempfile
 
-    from app.cli import main as cli
+    from rangereg.app.cli import main as cli
+
     from benchmarks.campaign_runs import load
 
     cfg = TurntableConfig(scans=10, scanner=LARGE)

@@ -26,10 +26,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from app.crops import crop  # noqa: E402
+from rangereg.app.crops import crop  # noqa: E402
+from rangereg.core.io import load_scan  # noqa: E402
+from rangereg.core.turntable import rough_poses  # noqa: E402
+
 from benchmarks.campaign_runs import load, ours, peer, table  # noqa: E402
-from core.io import load_scan  # noqa: E402
-from core.turntable import rough_poses  # noqa: E402
 
 BUNNY = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bunny"
 NAMES = ("bun000", "bun045", "bun090", "bun315")

@@ -13,13 +13,13 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from rangereg.app.distributed import TaskRunner
+from rangereg.core.merge import clear_geometry_cache, merge
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.register import Config
+from rangereg.core.transforms import invert, pose_error
 
-from app.distributed import TaskRunner
 from benchmarks.multiway import multiway
-from core.merge import clear_geometry_cache, merge
-from core.problem import ProblemConfig
-from core.register import Config
-from core.transforms import invert, pose_error
 
 RIGHT_DEG, RIGHT_MM = 2.0, 2.0
 MM = {"m": 1000.0, "mm": 1.0, "cm": 10.0}

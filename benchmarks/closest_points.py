@@ -19,9 +19,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from core.io import load_scan  # noqa: E402
-from core.problem import prepare  # noqa: E402
-from core.surface import Surface  # noqa: E402
+from rangereg.core.io import load_scan  # noqa: E402
+from rangereg.core.problem import prepare  # noqa: E402
+from rangereg.core.surface import Surface  # noqa: E402
 
 
 def median_time(fn, repeats=7) -> float:

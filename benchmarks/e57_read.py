@@ -36,9 +36,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from app.cli import main as rangereg  # noqa: E402
-from core.io import load_scan  # noqa: E402
-from core.transforms import from_params, invert, pose_error  # noqa: E402
+from rangereg.app.cli import main as rangereg  # noqa: E402
+from rangereg.core.io import load_scan  # noqa: E402
+from rangereg.core.transforms import from_params, invert, pose_error  # noqa: E402
 
 PAIRS = (("bun000", "bun045"), ("bun000", "bun315"), ("bun045", "bun090"))
 
@@ -90,7 +90,8 @@ def cli(*args) -> dict:
 
 def build(bunny: Path, path: Path, names, family: str, seed: int) -> list[np.ndarray]:
     """An E57 of ``names`` with stored poses turned 10 degrees by ``family``; returns the true poses."""
-    from core.e57_write import write_e57
+    from rangereg.core.e57_write import write_e57
+
     from tests.test_e57 import rotated_about_centroid, sensor_frame
 
     scans, truth, stored = [], [], []
@@ -110,7 +111,7 @@ def build(bunny: Path, path: Path, names, family: str, seed: int) -> list[np.nda
 
 
 def registrations(bunny: Path, folder: Path, seeds: int, origin_seeds: int) -> None:
-    from core.e57 import read_e57
+    from rangereg.core.e57 import read_e57
 
     print("registering two-scan bunny E57 files both ways from their stored poses (default settings)")
     for family in ("about the centroid", "both about centroids", "about the sensor origin"):
@@ -138,7 +139,7 @@ def registrations(bunny: Path, folder: Path, seeds: int, origin_seeds: int) -> N
 
 
 def merges(bunny: Path, folder: Path) -> None:
-    from core.e57 import read_e57_all
+    from rangereg.core.e57 import read_e57_all
 
     print("merge FILE.e57 --out registered.e57 (stored poses as initial poses, the scans written back)")
     for names in (("bun000", "bun045"), ("bun000", "bun045", "bun090", "bun315")):
@@ -153,7 +154,8 @@ def merges(bunny: Path, folder: Path) -> None:
 
 
 def las_vs_ply(bunny: Path, folder: Path) -> None:
-    from core.sidefiles import load_conf
+    from rangereg.core.sidefiles import load_conf
+
     from tests.test_las import write_las
 
     ply = load_scan(bunny / "bun045.ply")

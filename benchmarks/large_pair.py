@@ -33,9 +33,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from core.io import load_scan, write_sidecar  # noqa: E402
-from core.ply import write_ply  # noqa: E402
-from core.transforms import invert, pose_error  # noqa: E402
+from rangereg.core.io import load_scan, write_sidecar  # noqa: E402
+from rangereg.core.ply import write_ply  # noqa: E402
+from rangereg.core.transforms import invert, pose_error  # noqa: E402
 
 
 def _reset_peak() -> bool:
@@ -71,7 +71,7 @@ class Stages:
 
 
 def generate(folder: Path, n_points: int, seed: int, mesh_n: int = 601) -> tuple[Path, Path]:
-    from core.simulate import make_large_pair
+    from rangereg.core.simulate import make_large_pair
 
     t0 = time.perf_counter()
     target, source = make_large_pair(n_points, seed, mesh_n=mesh_n)
@@ -89,9 +89,9 @@ def generate(folder: Path, n_points: int, seed: int, mesh_n: int = 601) -> tuple
 def in_process(source_path: Path, target_path: Path, seed: int) -> None:
     from dataclasses import replace
 
-    from core.problem import prepare, relative_guess
-    from core.register import Config, estimate_threshold, register
-    from core.surface import Surface
+    from rangereg.core.problem import prepare, relative_guess
+    from rangereg.core.register import Config, estimate_threshold, register
+    from rangereg.core.surface import Surface
 
     st = Stages()
     print("the hybrid's stages (in this process):")
@@ -118,7 +118,8 @@ def in_process(source_path: Path, target_path: Path, seed: int) -> None:
 
 
 def cli(source_path: Path, target_path: Path, seed: int) -> None:
-    cmd = [sys.executable, "-m", "app.cli", "register", str(source_path), str(target_path), "--json", "--seed", str(seed)]
+    cmd = [sys.executable, "-m", "rangereg.app.cli", "register", str(source_path), str(target_path),
+           "--json", "--seed", str(seed)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()

@@ -25,11 +25,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from core.landscape import compute_slice  # noqa: E402
-from core.problem import ProblemConfig, prepare  # noqa: E402
-from core.register import Config, register  # noqa: E402
-from core.scenes import LESSON  # noqa: E402
-from core.simulate import (  # noqa: E402
+from rangereg.core.landscape import compute_slice  # noqa: E402
+from rangereg.core.problem import ProblemConfig, prepare  # noqa: E402
+from rangereg.core.register import Config, register  # noqa: E402
+from rangereg.core.scenes import LESSON  # noqa: E402
+from rangereg.core.simulate import (  # noqa: E402
     Scanner,
     corner_mesh,
     look_at,
@@ -37,7 +37,7 @@ from core.simulate import (  # noqa: E402
     scan_mesh,
     true_transform,
 )
-from core.transforms import perturb, pose_error, random_perturbation  # noqa: E402
+from rangereg.core.transforms import perturb, pose_error, random_perturbation  # noqa: E402
 
 EYES = ((1750, 1150, 1350), (1150, 1750, 1300))  # the corner scene's (core/simulate.py)
 TARGETS = ((250, 520, 420), (520, 250, 420))

@@ -23,9 +23,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from core import Config, load_conf, load_scan, register  # noqa: E402
-from core.lock import Lock  # noqa: E402
-from core.transforms import invert, perturb, pose_error, to_params  # noqa: E402
+from rangereg.core import Config, load_conf, load_scan, register  # noqa: E402
+from rangereg.core.lock import Lock  # noqa: E402
+from rangereg.core.transforms import invert, perturb, pose_error, to_params  # noqa: E402
 
 ANGLES_DEG = (-30.0, -15.0, 15.0, 30.0)
 

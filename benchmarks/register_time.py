@@ -29,8 +29,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from app.sweep import MODES, SWEEP_LEVELS, SweepTask, View, start_pose, sweep_pairs, sweep_tasks, told  # noqa: E402
-from core.transforms import invert, pose_error  # noqa: E402
+from rangereg.app.sweep import MODES, SWEEP_LEVELS, SweepTask, View, start_pose, sweep_pairs, sweep_tasks, told  # noqa: E402
+from rangereg.core.transforms import invert, pose_error  # noqa: E402
 
 
 def flags(task: SweepTask, T0: np.ndarray) -> list[str]:
@@ -48,7 +48,7 @@ def one_run(task: SweepTask) -> dict:
     """One `rangereg register --json` of ``task``: seconds, import seconds, right or not, trusted or not."""
     s, t = task.source.load(), task.target.load()
     T0 = start_pose(task, s, t)
-    cmd = [sys.executable, "-m", "app.cli", "register", task.source.path, task.target.path, *flags(task, T0),
+    cmd = [sys.executable, "-m", "rangereg.app.cli", "register", task.source.path, task.target.path, *flags(task, T0),
            "--seed", str(task.start), "--json"]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
     if out.returncode != 0:
@@ -66,7 +66,7 @@ def unregistrable_runs(folder: Path, starts: int) -> list[dict]:
     import tempfile
     from dataclasses import replace
 
-    from core.io import load_scan, save_scan
+    from rangereg.core.io import load_scan, save_scan
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -76,7 +76,8 @@ def unregistrable_runs(folder: Path, starts: int) -> list[dict]:
             save_scan(mirrored, replace(src, points=src.points * [-1.0, 1.0, 1.0], viewpoint=src.viewpoint * [-1.0, 1.0, 1.0],
                                         pose=None, guess=None, faces=None))
             for k in range(starts):
-                cmd = [sys.executable, "-m", "app.cli", "register", str(mirrored), t_view.path, "--seed", str(k), "--json"]
+                cmd = [sys.executable, "-m", "rangereg.app.cli", "register", str(mirrored), t_view.path,
+                       "--seed", str(k), "--json"]
                 out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT,
                                      env={**os.environ, "PYTHONPATH": str(ROOT)})
                 if out.returncode != 0:

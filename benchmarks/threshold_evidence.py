@@ -28,17 +28,17 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from app.sweep import shared_pairs  # noqa: E402
-from core.candidates import CandidateConfig, make_basis  # noqa: E402
-from core.config import Config  # noqa: E402
-from core.global_search import refine  # noqa: E402
-from core.io import load_scan  # noqa: E402
-from core.noise import noise_floor  # noqa: E402
-from core.problem import ProblemConfig  # noqa: E402
-from core.simulate import SCENES, make_scene, true_transform  # noqa: E402
-from core.surface import Surface  # noqa: E402
-from core.threshold import FACTOR, MIN_TRUST_OVERLAP, pair_threshold  # noqa: E402
-from core.transforms import apply, invert, perturb, pose_error, random_perturbation  # noqa: E402
+from rangereg.app.sweep import shared_pairs  # noqa: E402
+from rangereg.core.candidates import CandidateConfig, make_basis  # noqa: E402
+from rangereg.core.config import Config  # noqa: E402
+from rangereg.core.global_search import refine  # noqa: E402
+from rangereg.core.io import load_scan  # noqa: E402
+from rangereg.core.noise import noise_floor  # noqa: E402
+from rangereg.core.problem import ProblemConfig  # noqa: E402
+from rangereg.core.simulate import SCENES, make_scene, true_transform  # noqa: E402
+from rangereg.core.surface import Surface  # noqa: E402
+from rangereg.core.threshold import FACTOR, MIN_TRUST_OVERLAP, pair_threshold  # noqa: E402
+from rangereg.core.transforms import apply, invert, perturb, pose_error, random_perturbation  # noqa: E402
 
 
 def cases(folder: Path | None):

@@ -26,7 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from app.access import free_port  # noqa: E402
+from rangereg.app.access import free_port  # noqa: E402
+
 from benchmarks.browser import launch  # noqa: E402
 
 PAUSE_JS = """() => new Promise(done => {
@@ -79,7 +80,7 @@ def main() -> None:
         (Path(a.bunny), ("bun045.ply", "bun000.ply"))
     print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (the figures are noisy above ~2)")
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", *(str(folder / f) for f in pair),
+    proc = subprocess.Popen([sys.executable, "-m", "rangereg.app.cli", "serve", *(str(folder / f) for f in pair),
                              "--port", str(port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         while "rangereg workbench:" not in proc.stdout.readline():

@@ -23,7 +23,7 @@ ESCAPE = ("corner", 10.0, 400.0, 4)
 
 @cache
 def _bunny(name: str):
-    from core.io import load_scan
+    from rangereg.core.io import load_scan
 
     return load_scan(BUNNY / f"{name}.ply")
 
@@ -37,7 +37,7 @@ def bunny():
 
 @cache
 def _scene(name: str, seed: int = 0):
-    from core.simulate import make_scene
+    from rangereg.core.simulate import make_scene
 
     return make_scene(name, seed)
 
@@ -83,8 +83,8 @@ def brute_closest(point: np.ndarray, tris: np.ndarray) -> float:
 def scene_start(scene):
     """(target, source, T_true, T_start) of a simulated scene: the truth perturbed by a seeded random
     rotation of ``rot_deg`` and translation of ``trans`` about the source's centroid."""
-    from core.simulate import true_transform
-    from core.transforms import apply, perturb, random_perturbation
+    from rangereg.core.simulate import true_transform
+    from rangereg.core.transforms import apply, perturb, random_perturbation
 
     def make(name: str, rot_deg: float, trans: float, seed: int = 0):
         a, b = scene(name)
@@ -98,7 +98,7 @@ def scene_start(scene):
 
 def run_cli(*args, timeout: float = 600):
     """``rangereg ARGS`` as a real subprocess (the exit status and stderr as a user sees them)."""
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "rangereg.app.cli", *map(str, args)], capture_output=True, text=True, cwd=ROOT,
                           timeout=timeout)
 
 
@@ -120,8 +120,8 @@ def browser():
 @pytest.fixture(scope="module")
 def bench():
     """A workbench server in this process on the bundled scene: (Workbench, its URL), one per test module."""
-    from app.access import free_port
-    from app.workbench import ServeOptions, Workbench
+    from rangereg.app.access import free_port
+    from rangereg.app.workbench import ServeOptions, Workbench
 
     port = free_port()
     wb = Workbench(ServeOptions(port=port))
@@ -133,7 +133,7 @@ def bench():
 def rangereg(capsys):
     """Run the CLI in this process: (exit status, stdout, stderr)."""
 
-    from app.cli import main
+    from rangereg.app.cli import main
 
     def run(*args):
         code = main([str(a) for a in args])
@@ -147,10 +147,10 @@ def rangereg(capsys):
 def serving(*args, host: str | None = None, timeout: float = 120.0) -> Iterator[tuple[str, int, list[str]]]:
     """``rangereg serve ARGS --port P`` in a subprocess until it says where it listens: (url, port, the lines
     it printed up to then); ended when the block ends."""
-    from app.access import free_port
+    from rangereg.app.access import free_port
 
     port = free_port()
-    cmd = [sys.executable, "-m", "app.cli", "serve", *map(str, args), "--port", str(port)]
+    cmd = [sys.executable, "-m", "rangereg.app.cli", "serve", *map(str, args), "--port", str(port)]
     proc = subprocess.Popen(cmd + (["--host", host] if host else []), cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from rangereg.app.access import Guard, allowed_hosts, reachable_addresses
 from websockets.datastructures import Headers
-
-from app.access import Guard, allowed_hosts, reachable_addresses
 
 
 @pytest.mark.parametrize("host", ["127.0.0.1:8080", "localhost:8080", "LOCALHOST", "[::1]:8080"])

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.anneal import AnnealConfig, anneal
-from core.errors import InputError
+from rangereg.core.anneal import AnnealConfig, anneal
+from rangereg.core.errors import InputError
 
 
 def _rastrigin(x):
@@ -60,9 +59,9 @@ def test_annealing_works_on_a_one_dimensional_simplex():
 
 
 def test_a_locked_search_anneals_over_the_free_coordinates_only(monkeypatch, scene_start):
-    import core.search.state as state_module
-    from core import Config, register
-    from core.lock import Lock
+    import rangereg.core.search.state as state_module
+    from rangereg.core import Config, register
+    from rangereg.core.lock import Lock
 
     starts = []
 

@@ -12,14 +12,14 @@ import time
 
 import numpy as np
 import pytest
+from rangereg.app.access import free_port
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_conf, load_scan
+from rangereg.core.merge import merge
+from rangereg.core.simulate import Scanner
+from rangereg.core.transforms import pose_error
+from rangereg.core.turntable import TurntableConfig, make_campaign, write_campaign
 
-from app.access import free_port
-from core.errors import InputError
-from core.io import load_conf, load_scan
-from core.merge import merge
-from core.simulate import Scanner
-from core.transforms import pose_error
-from core.turntable import TurntableConfig, make_campaign, write_campaign
 from tests.conftest import ROOT
 
 SMALL = TurntableConfig(scans=8, scanner=Scanner(rows=48, cols=48, fov_deg=(24.0, 24.0), noise=0.3, outliers=0.02))
@@ -35,7 +35,7 @@ def folder(tmp_path_factory):
 @pytest.fixture(scope="module")
 def serial(folder):
     """The small campaign merged by the CLI's code with one worker: (scans, initial, report)."""
-    from app.commands.merge import run as main
+    from rangereg.app.commands.merge import run as main
 
     scans = sorted(folder.glob("scan*.ply"))
     a = argparse.Namespace(scans=[str(p) for p in scans], init=str(folder / "init" / "chain.conf"), truth=None,
@@ -53,8 +53,8 @@ def serial(folder):
 
 
 def test_rough_pose_families_are_off_by_the_offset_where_they_say():
-    from core.transforms import from_params, invert, rotation_angle
-    from core.turntable import rough_poses
+    from rangereg.core.transforms import from_params, invert, rotation_angle
+    from rangereg.core.turntable import rough_poses
 
     camp = make_campaign(3, SMALL)
     truth = [s.pose for s in camp.scans]
@@ -74,7 +74,7 @@ def test_rough_pose_families_are_off_by_the_offset_where_they_say():
         sign = np.sign(W[1, 0])
         Rz = from_params(np.r_[0, 0, 0, 0, 0, sign * np.radians(15.0)])
         assert np.linalg.norm((A - Rz @ T)[:3, 3]) == pytest.approx(20.0)
-    from core.errors import InputError as Bad
+    from rangereg.core.errors import InputError as Bad
 
     with pytest.raises(Bad, match="family"):
         rough_poses(truth, "sideways", 15.0, 20.0, seed=0)
@@ -146,7 +146,7 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
 
 
 def test_merge_takes_threads_per_task_stream_from_the_command_line(folder, capsys):
-    from app.cli import main
+    from rangereg.app.cli import main
 
     scans = sorted(str(p) for p in folder.glob("scan*.ply"))
     argv = ["merge", *scans, "--init", str(folder / "init" / "chain.conf"), "--workers", "1", "--threads", "1",
@@ -162,7 +162,7 @@ def _open3d_threads(_item) -> int:
 
 
 def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
-    from app.distributed import TaskRunner
+    from rangereg.app.distributed import TaskRunner
 
     scans, initial, rep = serial  # the serial run kept the libraries' threads (all cores)
     lines = []
@@ -185,8 +185,7 @@ def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
 
 def test_one_thread_per_task_stream_reaches_the_tasks_and_leaves_the_poses_unchanged(serial):
     import open3d as o3d
-
-    from app.distributed import TaskRunner
+    from rangereg.app.distributed import TaskRunner
 
     scans, initial, rep = serial
     before = o3d.utility.get_max_threads()
@@ -208,7 +207,7 @@ def test_one_thread_per_task_stream_reaches_the_tasks_and_leaves_the_poses_uncha
 
 
 def test_an_explicit_thread_count_reaches_every_worker():
-    from app.distributed import TaskRunner
+    from rangereg.app.distributed import TaskRunner
 
     with TaskRunner(2, threads=1) as runner:
         assert runner.map(_open3d_threads, range(4)) == [1, 1, 1, 1]
@@ -216,7 +215,7 @@ def test_an_explicit_thread_count_reaches_every_worker():
 
 
 def test_a_scheduler_started_apart_gives_the_same_poses(serial):
-    from app.distributed import TaskRunner
+    from rangereg.app.distributed import TaskRunner
 
     scans, initial, rep = serial
     port = free_port()
@@ -263,7 +262,7 @@ def test_a_scheduler_started_apart_gives_the_same_poses(serial):
 
 
 def test_bad_runner_settings_are_one_clear_error():
-    from app.distributed import TaskRunner
+    from rangereg.app.distributed import TaskRunner
 
     for kw, words in (({"workers": 0}, "--workers"), ({"scheduler": "localhost:8786"}, "tcp://HOST:PORT"),
                       ({"threads": 0}, "--threads"), ({"threads": 1.5}, "--threads")):
@@ -276,7 +275,7 @@ def test_bad_runner_settings_are_one_clear_error():
 
 
 def test_map_tasks_keeps_the_order_serially_and_on_a_cluster():
-    from app.distributed import map_tasks
+    from rangereg.app.distributed import map_tasks
 
     items = list(range(7))
     assert map_tasks(abs, [-i for i in items], workers=1) == items
@@ -289,7 +288,7 @@ def _slow_abs(x: int) -> int:
 
 
 def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch):
-    import app.distributed as dist
+    import rangereg.app.distributed as dist
 
     pays = dist.cluster_pays
     assert not pays(0.5 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]

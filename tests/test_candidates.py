@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.candidates import CandidateConfig, make_basis, super_fibonacci
-from core.problem import ProblemConfig, prepare
-from core.register import Config, register
-from core.surface import Surface
-from core.transforms import apply, invert, perturb, pose_error, rotation_angle
+from rangereg.core.candidates import CandidateConfig, make_basis, super_fibonacci
+from rangereg.core.problem import ProblemConfig, prepare
+from rangereg.core.register import Config, register
+from rangereg.core.surface import Surface
+from rangereg.core.transforms import apply, invert, perturb, pose_error, rotation_angle
 
 
 def test_candidate_scores_match_a_per_pose_loop(scene):
@@ -59,8 +58,8 @@ def test_super_fibonacci_rotations_cover_so3_evenly():
 
 def test_an_empty_frustum_cut_widens_and_the_pair_still_registers(scene):
     target, source = scene("corner")
-    from core.frustum import frustum_of
-    from core.simulate import true_transform
+    from rangereg.core.frustum import frustum_of
+    from rangereg.core.simulate import true_transform
 
     T_true = true_transform(source, target)
     # the guess moves the source 2 m sideways, out of the target's view: the frustum cut is empty
@@ -93,7 +92,7 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
 
 
 def test_with_candidates_off_only_the_guess_is_tried(scene):
-    from core.simulate import true_transform
+    from rangereg.core.simulate import true_transform
 
     target, source = scene("corner")
     T_true = true_transform(source, target)
@@ -104,7 +103,7 @@ def test_with_candidates_off_only_the_guess_is_tried(scene):
 
 
 def test_candidates_are_events_of_their_own_phase_in_one_numbered_stream(scene):
-    from core.simulate import true_transform
+    from rangereg.core.simulate import true_transform
 
     target, source = scene("corner")
     T_true = true_transform(source, target)

@@ -125,14 +125,14 @@ def test_an_output_never_overwrites_an_input(rangereg, tmp_path):
 def test_a_failed_run_keeps_an_existing_trace(rangereg, tmp_path, monkeypatch):
     import importlib
 
-    from core.errors import InputError
-    from core.events import Event
+    from rangereg.core.errors import InputError
+    from rangereg.core.events import Event
 
     def failing_register(source, target, T_init, cfg, listener):
         listener(Event("icp", 1, 1, 1, np.eye(4), 1.0))
         raise InputError("the scans do not overlap (simulated)")
 
-    monkeypatch.setattr(importlib.import_module("core.register"), "register", failing_register)
+    monkeypatch.setattr(importlib.import_module("rangereg.core.register"), "register", failing_register)
     trace = tmp_path / "run.jsonl"
     trace.write_text("an earlier run\n")
     code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--trace", trace, "--out", tmp_path / "T.json")
@@ -180,10 +180,10 @@ def test_a_result_above_the_threshold_says_what_to_try(rangereg):
 
 
 def test_the_cli_defaults_make_the_config_they_made_before():
-    from app.cli import build_parser
-    from app.commands import pair
-    from core.problem import ProblemConfig
-    from core.register import Config
+    from rangereg.app.cli import build_parser
+    from rangereg.app.commands import pair
+    from rangereg.core.problem import ProblemConfig
+    from rangereg.core.register import Config
 
     a = build_parser().parse_args(["register", "s.ply", "t.ply", "--seed", "5", "--method", "icp", "--polish"])
     assert pair.config(a) == Config(method="icp", seed=5, problem=ProblemConfig(max_points=300), polish=True,
@@ -191,13 +191,13 @@ def test_the_cli_defaults_make_the_config_they_made_before():
 
 
 def test_serve_hands_the_workbench_typed_options(rangereg, monkeypatch):
-    import app.workbench
+    import rangereg.app.workbench
 
     seen = []
-    monkeypatch.setattr(app.workbench, "serve", lambda options: seen.append(options) or 0)
+    monkeypatch.setattr(rangereg.app.workbench, "serve", lambda options: seen.append(options) or 0)
     code, _, err = rangereg("serve", "--scene", "bowl", "--port", "8123", "--upload-cap-mb", "5")
     assert code == 0, err
-    assert seen == [app.workbench.ServeOptions(scene="bowl", port=8123, upload_cap_mb=5.0)]
+    assert seen == [rangereg.app.workbench.ServeOptions(scene="bowl", port=8123, upload_cap_mb=5.0)]
     code, _, err = rangereg("serve", "--trace", "no-such-trace.jsonl")
     assert code == 2 and "no such file" in err
 
@@ -248,7 +248,7 @@ def test_no_guess_and_no_flags_is_no_guess_at_all(rangereg):
 
 
 def test_register_says_when_a_viewpoint_was_estimated(rangereg, tmp_path):
-    from core.io import load_scan
+    from rangereg.core.io import load_scan
 
     src = load_scan(ASSETS / "corner" / "scan2.ply")
     xyz = tmp_path / "scan2.xyz"

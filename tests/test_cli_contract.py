@@ -34,7 +34,7 @@ def test_a_fast_subset_of_the_bad_input_table_meets_the_contract():
 
 def test_a_closed_pipe_ends_quietly():
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    p = subprocess.Popen([sys.executable, "-m", "app.cli", "info", str(ASSETS / "corner" / "scan1.ply")], cwd=ROOT,
+    p = subprocess.Popen([sys.executable, "-m", "rangereg.app.cli", "info", str(ASSETS / "corner" / "scan1.ply")], cwd=ROOT,
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     p.stdout.close()  # as `| head` does once it has its lines: the command's writes meet a closed pipe
     err = p.stderr.read().decode()
@@ -46,7 +46,7 @@ def test_a_closed_pipe_ends_quietly():
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
 def test_the_entry_point_reports_a_full_disk_in_one_line():
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    r = subprocess.run([sys.executable, "-m", "app.cli", "info", str(ASSETS / "corner" / "scan1.ply"), "--json"],
+    r = subprocess.run([sys.executable, "-m", "rangereg.app.cli", "info", str(ASSETS / "corner" / "scan1.ply"), "--json"],
                        cwd=ROOT, env=env, stdout=open("/dev/full", "w"), stderr=subprocess.PIPE, text=True, timeout=120)
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.returncode == 2

@@ -1,4 +1,4 @@
-"""app.outputs: output paths checked before the work, atomic writes, a trace put in place only at the end."""
+"""rangereg.app.outputs: output paths checked before the work, atomic writes, a trace put in place only at the end."""
 
 from __future__ import annotations
 
@@ -7,9 +7,8 @@ import re
 from pathlib import Path
 
 import pytest
-
-from app.outputs import TraceFile, check_distinct, check_output, check_output_folder, write_output, write_outputs
-from core.errors import InputError
+from rangereg.app.outputs import TraceFile, check_distinct, check_output, check_output_folder, write_output, write_outputs
+from rangereg.core.errors import InputError
 
 
 @pytest.mark.parametrize("name, suffixes, fragment", [

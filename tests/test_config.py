@@ -6,11 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from core import prepare
-from core.config import Config, IcpConfig, SearchConfig, ThresholdConfig
-from core.errors import InputError
-from core.search import SearchState
+from rangereg.core import prepare
+from rangereg.core.config import Config, IcpConfig, SearchConfig, ThresholdConfig
+from rangereg.core.errors import InputError
+from rangereg.core.search import SearchState
 
 
 def test_the_defaults_are_the_measured_constants():
@@ -49,7 +48,7 @@ def test_threshold_config_refuses_nonsense(bad):
                                           (dict(refine=0), "refine >= 1"), (dict(sample=5), "at least 10"),
                                           (dict(normal_neighbours=2), "at least 3 neighbours")])
 def test_candidate_config_refuses_nonsense(bad, message):
-    from core.candidates import CandidateConfig
+    from rangereg.core.candidates import CandidateConfig
 
     with pytest.raises(InputError, match=message):
         Config(candidates=CandidateConfig(**bad)).validate()

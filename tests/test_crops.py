@@ -2,10 +2,9 @@
 
 import numpy as np
 import pytest
-
-from app.crops import SHARE_HIGH, SHARE_LOW, crop
-from core.errors import InputError
-from core.surface import Surface
+from rangereg.app.crops import SHARE_HIGH, SHARE_LOW, crop
+from rangereg.core.errors import InputError
+from rangereg.core.surface import Surface
 
 
 def test_a_crop_holds_its_share_keeps_its_frame_and_is_the_same_every_time(scene):

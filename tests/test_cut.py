@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.cut import CUTS, MIN_SHARE, _widened, overlap_cut
-from core.frustum import frustum_of
-from core.simulate import true_transform
-from core.surface import Surface
+from rangereg.core.cut import CUTS, MIN_SHARE, _widened, overlap_cut
+from rangereg.core.frustum import frustum_of
+from rangereg.core.simulate import true_transform
+from rangereg.core.surface import Surface
 
 
 @pytest.fixture
@@ -37,7 +36,7 @@ def test_at_the_truth_the_cut_is_the_frustum_cut_itself(corner):
 def test_a_widening_holds_every_point_the_narrower_one_holds(corner):
     target, source, _, T = corner
     f = frustum_of(target)
-    from core.transforms import apply
+    from rangereg.core.transforms import apply
 
     moved = apply(sideways(T, target, 2000.0), source.points)
     assert np.array_equal(_widened(f, moved, 0.0), f.contains(moved))

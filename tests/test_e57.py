@@ -8,15 +8,15 @@ import json
 
 import numpy as np
 import pytest
+from rangereg.core.e57 import choose, list_scans, read_e57, read_e57_all, split_selection
+from rangereg.core.e57_write import world_poses, write_e57
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_scan, load_scans
+from rangereg.core.scan import RangeGrid, Scan
+from rangereg.core.surface import Surface
+from rangereg.core.transforms import apply, from_params, invert, pose_error
+from rangereg.core.viewpoint import grid_normals
 
-from core.e57 import choose, list_scans, read_e57, read_e57_all, split_selection
-from core.e57_write import world_poses, write_e57
-from core.errors import InputError
-from core.io import load_scan, load_scans
-from core.scan import RangeGrid, Scan
-from core.surface import Surface
-from core.transforms import apply, from_params, invert, pose_error
-from core.viewpoint import grid_normals
 from tests.conftest import run_cli
 
 pye57 = pytest.importorskip("pye57")
@@ -253,7 +253,7 @@ def test_scans_without_names_are_named_by_file_and_index(tmp_path):
 def test_two_single_scan_files_give_the_relative_guess_from_their_stored_poses(bunny, tmp_path):
     from argparse import Namespace
 
-    from app.commands import pair
+    from rangereg.app.commands import pair
 
     truth = []
     for n in ("bun000", "bun045"):
@@ -428,7 +428,7 @@ def test_scans_from_other_formats_are_written_with_the_sensor_at_their_origin(bu
 # ---- the page's Scans tab ----
 
 def test_the_scans_tab_offers_each_scan_of_an_e57(bunny, tmp_path):
-    from app.tab.scans import choice_labels, data_choices, load_upload_all
+    from rangereg.app.tab.scans import choice_labels, data_choices, load_upload_all
 
     bunny_e57(bunny, tmp_path / "site.e57")
     write_raw(tmp_path / "plain.e57", [{"fields": _fields(50)}, {"fields": _fields(50)}])  # scans without names
@@ -452,7 +452,8 @@ def test_the_page_opens_scans_of_an_e57_from_the_data_folder_and_from_an_upload(
     import subprocess
     import sys
 
-    from app.access import free_port
+    from rangereg.app.access import free_port
+
     from tests.conftest import ROOT
     from tests.test_workbench import open_page, show_tab
 
@@ -460,7 +461,7 @@ def test_the_page_opens_scans_of_an_e57_from_the_data_folder_and_from_an_upload(
     folder.mkdir()
     bunny_e57(bunny, folder / "site.e57", names=("bun000", "bun045", "bun090"))
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--data-dir", str(folder)],
+    proc = subprocess.Popen([sys.executable, "-m", "rangereg.app.cli", "serve", "--port", str(port), "--data-dir", str(folder)],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         while "rangereg workbench:" not in proc.stdout.readline():
@@ -498,9 +499,9 @@ def test_a_panorama_is_read_and_said_to_surround_its_sensor(tmp_path, rangereg):
 
 
 def test_merge_of_ply_scans_into_an_e57_keeps_the_project_frame_of_init(bunny, tmp_path, rangereg):
+    from rangereg.core.sidefiles import load_conf
     from scipy.spatial.transform import Rotation
 
-    from core.sidefiles import load_conf
     from tests.conftest import BUNNY
 
     truth = load_conf(BUNNY / "bun.conf")
@@ -524,7 +525,7 @@ def test_merge_of_ply_scans_into_an_e57_keeps_the_project_frame_of_init(bunny, t
 
 
 def test_the_selector_offered_for_a_scan_picks_that_scan(tmp_path):
-    from core.e57 import selector_for
+    from rangereg.core.e57 import selector_for
 
     names = ["Station 1", "2", "a#b", " padded ", "twin", "TWIN", "", "Station 8"]
     write_raw(tmp_path / "s.e57", [{"name": n, "fields": _fields(20)} for n in names])

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import pytest
-
-from app.tab.fields import Range, parse_number, parse_setting, parse_vector, show_number
-from core.errors import InputError
+from rangereg.app.tab.fields import Range, parse_number, parse_setting, parse_vector, show_number
+from rangereg.core.errors import InputError
 
 
 @pytest.mark.parametrize("text, value", [("2.5e-3", 2.5e-3), ("1e-3", 1e-3), (" -4 ", -4.0), (".5", 0.5),

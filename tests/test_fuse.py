@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 import numpy as np
-
-from core.fuse import fuse
-from core.simulate import true_transform
+from rangereg.core.fuse import fuse
+from rangereg.core.simulate import true_transform
 
 
 def test_the_same_scans_fuse_to_the_same_mesh_every_run(scene):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from rangereg.core.frustum import frustum_of, segment_overlap
+from rangereg.core.scan import Scan
+from rangereg.core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
+from rangereg.core.transforms import apply, delta_between, from_params, invert, perturb, rotation_angle, rotation_matrix
 
-from core.frustum import frustum_of, segment_overlap
-from core.scan import Scan
-from core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
-from core.transforms import apply, delta_between, from_params, invert, perturb, rotation_angle, rotation_matrix
 from tests.conftest import brute_closest
 
 _vec = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
@@ -206,7 +206,7 @@ def test_nonconvex_frustum_drops_what_the_convex_one_keeps():
 
 
 def test_distances_within_a_radius_are_exact_there_and_inf_only_beyond_it(scene):
-    from core.surface import Surface
+    from rangereg.core.surface import Surface
 
     target, _ = scene("corner")
     surface = Surface.from_scan(target)

@@ -7,11 +7,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
-from core.problem import ProblemConfig
-from core.region import Region, no_guess
-from core.register import Config, register
-from core.transforms import invert, pose_error, rotation_matrix
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.region import Region, no_guess
+from rangereg.core.register import Config, register
+from rangereg.core.transforms import invert, pose_error, rotation_matrix
 
 rng = np.random.default_rng(7)
 
@@ -76,8 +75,8 @@ def test_no_hypothesis_is_dropped_a_trusted_pose_beyond_the_region_comes_back_an
 def test_when_nothing_is_trusted_the_fallback_takes_exactly_its_steps_and_says_what_to_do(scene):
     from dataclasses import replace
 
-    from app.commands.register import advice
-    from core.candidates import CandidateConfig
+    from rangereg.app.commands.register import advice
+    from rangereg.core.candidates import CandidateConfig
 
     corner, _ = scene("corner")
     _, bowl = scene("bowl")  # two different objects: no pose is right, none is trusted
@@ -102,9 +101,9 @@ WARNS = """
 import sys
 import numpy as np
 import open3d as o3d
-import core.global_search.setup  # noqa: F401
-import core.global_search as gs
-from app.cli import main
+import rangereg.core.global_search.setup  # noqa: F401
+import rangereg.core.global_search as gs
+from rangereg.app.cli import main
 
 real = gs.setup.make_basis
 
@@ -148,7 +147,7 @@ def test_json_stays_json_when_open3d_warns_on_stdout():
 def test_past_the_time_bound_no_stage_starts_and_the_run_says_so(scene):
     from dataclasses import replace
 
-    from core.candidates import CandidateConfig
+    from rangereg.core.candidates import CandidateConfig
 
     corner, _ = scene("corner")
     _, bowl = scene("bowl")
@@ -163,7 +162,7 @@ def test_past_the_time_bound_no_stage_starts_and_the_run_says_so(scene):
 
 
 def test_full_search_lifts_both_bounds_unless_a_time_is_given():
-    from app.options import Settings, to_config
+    from rangereg.app.options import Settings, to_config
 
     assert to_config(Settings()).candidates.time_limit == 2.5
     full = to_config(Settings(full_search=True)).candidates
@@ -177,8 +176,8 @@ def test_the_finer_fpfh_grid_runs_only_where_the_coarser_leaves_a_scan_few_cells
     from dataclasses import replace
     from types import SimpleNamespace
 
-    from core.candidates import FPFH_FINER_BELOW, CandidateConfig, pair_spacing, voxel_cells
-    from core.global_search.stages import stages
+    from rangereg.core.candidates import FPFH_FINER_BELOW, CandidateConfig, pair_spacing, voxel_cells
+    from rangereg.core.global_search.stages import stages
 
     source, target = bunny("bun045"), bunny("bun000")
     sparse = replace(source, points=source.points[::100].copy(), grid=None, faces=None)

@@ -61,8 +61,8 @@ RUNS = (
 
 @cache
 def _case(scene: str, rot_deg: float, trans_mm: float, start_seed: int):
-    from core.simulate import SCENES, make_scene, true_transform
-    from core.transforms import perturb, random_perturbation
+    from rangereg.core.simulate import SCENES, make_scene, true_transform
+    from rangereg.core.transforms import perturb, random_perturbation
 
     target, source = make_scene(scene, SCENES.index(scene))  # the bundled scenes' seeds
     T_true = true_transform(source, target)
@@ -72,8 +72,8 @@ def _case(scene: str, rot_deg: float, trans_mm: float, start_seed: int):
 
 
 def _config(run: Run):
-    from core.anneal import AnnealConfig
-    from core.register import Config
+    from rangereg.core.anneal import AnnealConfig
+    from rangereg.core.register import Config
 
     kw = dict(run.options)
     for key in ("anneal", "sa_alone"):
@@ -98,7 +98,7 @@ RESULT_KEYS = ("error", "iterations", "local_minima", "evaluations", "method", "
 
 def record(run: Run) -> dict:
     """Register ``run`` and describe its trace and result (every float rounded to 10 digits)."""
-    from core.register import register
+    from rangereg.core.register import register
 
     source, target, T0 = _case(run.scene, run.rot_deg, run.trans_mm, run.start_seed)
     events = []
@@ -133,8 +133,8 @@ def test_trace_is_unchanged(run):
 
 def test_a_trace_read_back_gives_the_same_poses_and_final_pose():
     # register -> events -> JSON lines -> Event.from_json: what `register --trace` and `slice --trace` do
-    from core.events import Event
-    from core.register import register
+    from rangereg.core.events import Event
+    from rangereg.core.register import register
 
     run = next(r for r in RUNS if r.name == "escape-hybrid")  # ICP and annealing events, a local minimum
     source, target, T0 = _case(run.scene, run.rot_deg, run.trans_mm, run.start_seed)

@@ -19,8 +19,8 @@ import uuid
 
 import numpy as np
 import pytest
+from rangereg.core.errors import InputError
 
-from core.errors import InputError
 from tests.conftest import ASSETS, ROOT
 
 _spec = importlib.util.spec_from_file_location("bad_inputs", ROOT / "benchmarks" / "bad_inputs.py")
@@ -62,7 +62,7 @@ def test_the_table_holds_300_distinct_cases_and_names_the_subsets():
 
 @pytest.mark.parametrize("name", IN_PROCESS)
 def test_a_bad_input_meets_the_contract_in_process(name, folder, monkeypatch, capsys):
-    from app.cli import main
+    from rangereg.app.cli import main
 
     case = next(c for c in bad_inputs.CASES if c.name == name)
     monkeypatch.chdir(folder)
@@ -98,7 +98,7 @@ def test_the_smallest_and_spread_selections():
 # ---- core.files: what a path is decides, before a byte is read ----------------------------------------
 
 def test_a_fifo_is_refused_at_once_and_a_pipe_given_as_a_side_file_is_read_once(tmp_path):
-    from core.files import read_bytes
+    from rangereg.core.files import read_bytes
 
     os.mkfifo(tmp_path / "f")
     t0 = time.perf_counter()
@@ -113,10 +113,10 @@ def test_a_fifo_is_refused_at_once_and_a_pipe_given_as_a_side_file_is_read_once(
 
 
 def test_a_pipe_that_sends_nothing_or_too_much_is_given_up(tmp_path, monkeypatch):
-    import core.files
-    from core.files import read_bytes
+    import rangereg.core.files
+    from rangereg.core.files import read_bytes
 
-    monkeypatch.setattr(core.files, "PIPE_WAIT", 0.3)
+    monkeypatch.setattr(rangereg.core.files, "PIPE_WAIT", 0.3)
     os.mkfifo(tmp_path / "f")
     with pytest.raises(InputError, match="sent nothing for 0.3 s"):
         read_bytes(tmp_path / "f", "f", 100, "a transform", pipe=True)
@@ -128,7 +128,7 @@ def test_a_pipe_that_sends_nothing_or_too_much_is_given_up(tmp_path, monkeypatch
 
 
 def test_links_devices_and_sparse_files_are_named_for_what_they_are(tmp_path):
-    from core.files import read_bytes
+    from rangereg.core.files import read_bytes
 
     (tmp_path / "a").symlink_to("b")
     (tmp_path / "b").symlink_to("a")
@@ -144,7 +144,7 @@ def test_links_devices_and_sparse_files_are_named_for_what_they_are(tmp_path):
 
 
 def test_a_scan_larger_than_memory_can_read_is_refused_from_its_size(tmp_path):
-    from core.files import check_memory
+    from rangereg.core.files import check_memory
 
     with pytest.raises(InputError, match="reading it takes about 5 x its size in memory; 1 GB is free"):
         check_memory(300_000_000, 5, "big.ply", available=1_000_000_000)
@@ -159,7 +159,7 @@ def test_a_scan_larger_than_memory_can_read_is_refused_from_its_size(tmp_path):
     (np.array([[1, 0.5, 0], [0, 1, 0], [0, 0, 1.0]]), "stretches by 1.28078, 1, 0.780776"),
 ])
 def test_a_transform_that_is_not_rigid_says_what_it_is(R, words):
-    from core.transforms import check_rigid
+    from rangereg.core.transforms import check_rigid
 
     T = np.eye(4)
     T[:3, :3] = R
@@ -170,8 +170,8 @@ def test_a_transform_that_is_not_rigid_says_what_it_is(R, words):
 def test_scans_in_units_1000_apart_are_told_from_a_part_scanned_finely():
     from dataclasses import replace
 
-    from core.io import load_scan
-    from core.scan import scale_mismatch
+    from rangereg.core.io import load_scan
+    from rangereg.core.scan import scale_mismatch
 
     scan = load_scan(ASSETS / "corner" / "scan1.ply")
     metres = replace(scan, points=scan.points / 1000, name="metres")
@@ -184,15 +184,15 @@ def test_scans_in_units_1000_apart_are_told_from_a_part_scanned_finely():
 def test_a_tiny_scan_is_refused_for_registration_and_max_points_3_runs():
     from dataclasses import replace
 
-    from core.io import load_scan
-    from core.problem import ProblemConfig, prepare
-    from core.register import Config, register
+    from rangereg.core.io import load_scan
+    from rangereg.core.problem import ProblemConfig, prepare
+    from rangereg.core.register import Config, register
 
     scan = load_scan(ASSETS / "corner" / "scan1.ply")
     with pytest.raises(InputError, match="only 20 points; registering needs at least 24"):
         prepare(replace(scan, points=scan.points[:20], grid=None), scan)
     other = load_scan(ASSETS / "corner" / "scan2.ply")
-    from core.problem import relative_guess
+    from rangereg.core.problem import relative_guess
 
     res = register(other, scan, relative_guess(other, scan),
                    Config(method="icp", problem=ProblemConfig(max_points=3)))
@@ -206,11 +206,10 @@ def page():
     """A workbench in this process (1 MB upload cap) and a WebSocket client speaking viser's protocol."""
     import msgspec
     import viser
+    from rangereg.app.access import free_port
+    from rangereg.app.workbench import ServeOptions, Workbench
     from viser import _messages
     from websockets.sync.client import connect
-
-    from app.access import free_port
-    from app.workbench import ServeOptions, Workbench
 
     port = free_port()
     wb = Workbench(ServeOptions(port=port, upload_cap_mb=1.0))

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from core.errors import InputError
-from core.horn import constrained_horn, locked_horn, weighted_horn
-from core.lock import Lock
-from core.transforms import apply, from_params
+from rangereg.core.errors import InputError
+from rangereg.core.horn import constrained_horn, locked_horn, weighted_horn
+from rangereg.core.lock import Lock
+from rangereg.core.transforms import apply, from_params
 
 
 @settings(max_examples=60, deadline=None)
@@ -96,7 +95,7 @@ def test_constrained_horn_refuses_bad_input():
 
 
 def test_pair_alignment_under_a_turntable_lock_finds_a_large_turn():
-    from core.transforms import perturb
+    from rangereg.core.transforms import perturb
 
     rng = np.random.default_rng(5)
     x = rng.normal(0, 50, (6, 3))  # six picked pairs

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core import prepare
-from core.errors import InputError
-from core.icp import IcpConfig, icp
-from core.transforms import apply, pose_error
+from rangereg.core import prepare
+from rangereg.core.errors import InputError
+from rangereg.core.icp import IcpConfig, icp
+from rangereg.core.transforms import apply, pose_error
 
 
 def test_icp_converges_from_a_small_offset(scene_start):
@@ -72,9 +71,9 @@ def test_icp_config_refuses_nonsense(bad):
 
 
 def test_locked_icp_turns_about_the_turntable_axis_only_and_lowers_e(scene):
-    from core.lock import Lock
-    from core.simulate import SCENES, true_transform
-    from core.transforms import invert, perturb
+    from rangereg.core.lock import Lock
+    from rangereg.core.simulate import SCENES, true_transform
+    from rangereg.core.transforms import invert, perturb
 
     target, source = scene("bowl", SCENES.index("bowl"))
     Tt = true_transform(source, target)

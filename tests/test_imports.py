@@ -11,12 +11,13 @@ PACKAGES = ("core", "app")
 
 
 def modules() -> dict[str, Path]:
-    """Dotted name -> file, for every module of the packages (a package is its __init__)."""
+    """Installed dotted name (``rangereg.core.icp``) -> file, for every module of the packages (a package is its
+    __init__): the folders core/ and app/ install as rangereg.core and rangereg.app."""
     out = {}
     for pkg in PACKAGES:
         for p in sorted((ROOT / pkg).rglob("*.py")):
             parts = p.relative_to(ROOT).with_suffix("").parts
-            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+            out[".".join(("rangereg", *(parts[:-1] if parts[-1] == "__init__" else parts)))] = p
     return out
 
 
@@ -83,9 +84,9 @@ def test_the_cycle_finder_finds_a_cycle_through_three_modules_and_nothing_in_a_c
 
 def test_relative_imports_resolve_to_modules():
     edges = graph()
-    assert "core.transforms" in edges["core.icp"]  # from .transforms import ...
-    assert "core.robust_error" in edges["core.search.state"]  # from ..robust_error import ...
-    assert "app.tab.scene3d" in edges["app.tab.page"]  # from app.tab import scene3d
+    assert "rangereg.core.transforms" in edges["rangereg.core.icp"]  # from .transforms import ...
+    assert "rangereg.core.robust_error" in edges["rangereg.core.search.state"]  # from ..robust_error import ...
+    assert "rangereg.app.tab.scene3d" in edges["rangereg.app.tab.page"]  # from app.tab import scene3d
 
 
 def test_no_module_imports_back_into_a_module_that_imports_it():
@@ -102,4 +103,5 @@ def test_core_imports_neither_the_app_nor_viser():
                 names = [node.module]
             else:
                 continue
-            assert not any(n.split(".")[0] in ("app", "viser") for n in names), f"{path.name} imports {names}"
+            assert not any(n.split(".")[0] in ("app", "viser") or n.startswith("rangereg.app") for n in names), \
+                f"{path.name} imports {names}"

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.errors import InputError
-from core.io import load_scan, save_scan
-from core.ply import write_ply
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_scan, save_scan
+from rangereg.core.ply import write_ply
 
 
 def test_bunny_loads_with_grid_and_truth(bunny):
@@ -141,7 +140,7 @@ def test_text_garbage(tmp_path):
 
 
 def test_flat_scan_is_refused_for_registration(tmp_path):
-    from core import prepare
+    from rangereg.core import prepare
 
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(0, 1, (300, 2)), np.zeros(300)]
@@ -152,7 +151,7 @@ def test_flat_scan_is_refused_for_registration(tmp_path):
 
 
 def test_edge_on_viewpoint_cannot_triangulate(tmp_path):
-    from core.surface import triangulate
+    from rangereg.core.surface import triangulate
 
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(0, 1, (300, 2)), np.zeros(300)]
@@ -250,8 +249,8 @@ def test_quads_are_split_into_fans(tmp_path):
 
 
 def test_viewpoint_at_the_centre_of_the_points_is_refused(tmp_path):
-    from core.frustum import frustum_of
-    from core.surface import triangulate
+    from rangereg.core.frustum import frustum_of
+    from rangereg.core.surface import triangulate
 
     pts = np.r_[_cube_points(200), -_cube_points(200, seed=1)]  # two sheets around the origin
     write_ply(tmp_path / "s.ply", pts)

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.candidates import CandidateConfig
-from core.transforms import invert, pose_error
+from rangereg.core.candidates import CandidateConfig
+from rangereg.core.transforms import invert, pose_error
 
 
 def test_kiss_matcher_started_ahead_gives_the_hypotheses_it_gives_in_line(bunny):
-    from core.candidates import pair_spacing
-    from core.global_search import kiss_ahead
-    from core.kiss_matcher_candidates import kiss_available, kiss_candidates
+    from rangereg.core.candidates import pair_spacing
+    from rangereg.core.global_search import kiss_ahead
+    from rangereg.core.kiss_matcher_candidates import kiss_available, kiss_candidates
 
     if not kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
@@ -36,8 +35,8 @@ def test_kiss_matcher_gives_the_same_bits_every_run_in_its_own_process_or_in_thi
     import os
     from pathlib import Path
 
-    from core import kiss_matcher_candidates as kmc
-    from core.candidates import pair_spacing
+    from rangereg.core import kiss_matcher_candidates as kmc
+    from rangereg.core.candidates import pair_spacing
 
     if not kmc.kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
@@ -64,10 +63,10 @@ def test_kiss_matcher_gives_the_same_bits_every_run_in_its_own_process_or_in_thi
     kmc._CHILD.close()
 
 def test_the_setup_starts_kiss_matcher_ahead_only_when_its_stage_comes_next_to_the_guess(scene):
-    from core.global_search.setup import prepare_setup
-    from core.kiss_matcher_candidates import kiss_available
-    from core.problem import ProblemConfig
-    from core.register import Config
+    from rangereg.core.global_search.setup import prepare_setup
+    from rangereg.core.kiss_matcher_candidates import kiss_available
+    from rangereg.core.problem import ProblemConfig
+    from rangereg.core.register import Config
 
     if not kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")
@@ -87,7 +86,7 @@ def test_a_cloud_too_small_for_kiss_matcher_gives_no_hypothesis_and_a_crash_of_i
     # anyway, its process dies by a signal and the run goes on without its hypothesis (never retried here)
     from dataclasses import replace
 
-    from core import kiss_matcher_candidates as kmc
+    from rangereg.core import kiss_matcher_candidates as kmc
 
     if not kmc.kiss_available():
         pytest.skip("kiss-matcher is not installed (an optional extra)")

@@ -8,12 +8,12 @@ import json
 
 import numpy as np
 import pytest
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_scan
+from rangereg.core.las import ORIGIN_PREFIXES
+from rangereg.core.sidefiles import load_conf
+from rangereg.core.transforms import from_params, invert, pose_error
 
-from core.errors import InputError
-from core.io import load_scan
-from core.las import ORIGIN_PREFIXES
-from core.sidefiles import load_conf
-from core.transforms import from_params, invert, pose_error
 from tests.conftest import BUNNY
 
 laspy = pytest.importorskip("laspy")

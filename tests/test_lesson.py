@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from app.figures import fmt, tidy
-from app.tab.lesson import Facts, Leg, Story, legs, sentence
-from core.events import Event
+from rangereg.app.figures import fmt, tidy
+from rangereg.app.tab.lesson import Facts, Leg, Story, legs, sentence
+from rangereg.core.events import Event
 
 
 def leg(phase: str, E_best: float, minimum: bool = False, number: int = 1, events: int = 10, T=(np.nan, np.nan)):
@@ -88,9 +87,10 @@ def test_the_page_runs_the_lesson_with_the_settings_the_bench_uses():
     # shows bench --lesson's run k
     from types import SimpleNamespace
 
-    from app.tab.run import RunPanel
-    from app.tab.settings import page_config, read_settings
-    from core.register import Config
+    from rangereg.app.tab.run import RunPanel
+    from rangereg.app.tab.settings import page_config, read_settings
+    from rangereg.core.register import Config
+
     from tests.test_tab import settings_handles
 
     for k in (0, 7):
@@ -100,9 +100,9 @@ def test_the_page_runs_the_lesson_with_the_settings_the_bench_uses():
 
 
 def test_the_lesson_starts_lie_where_written_in_the_target_frame():
-    from core.scenes import LESSON
-    from core.simulate import make_scene, true_transform
-    from core.transforms import pose_error
+    from rangereg.core.scenes import LESSON
+    from rangereg.core.simulate import make_scene, true_transform
+    from rangereg.core.transforms import pose_error
 
     target, source = make_scene(LESSON.scene, 3)  # seeds are the scenes' indices: 'ribbed' is the fourth
     T_true = true_transform(source, target)
@@ -110,7 +110,7 @@ def test_the_lesson_starts_lie_where_written_in_the_target_frame():
         T = LESSON.start(source, target, k)
         rot, shift = pose_error(T, T_true, source.centroid)
         assert rot == pytest.approx(abs(ry), abs=1e-9) and shift == pytest.approx(abs(tx), abs=1e-6)
-    from core.errors import InputError
+    from rangereg.core.errors import InputError
 
     with pytest.raises(InputError):
         LESSON.start(source, target, len(LESSON.starts))
@@ -118,10 +118,10 @@ def test_the_lesson_starts_lie_where_written_in_the_target_frame():
 
 def test_the_lesson_slice_shows_small_minima_in_a_larger_pit_and_the_plain_corner_one():
     # the README's claim, on the lesson's slice through the truth (a coarser grid than the page's: the budget)
-    from core.landscape import compute_slice
-    from core.problem import prepare
-    from core.scenes import LESSON
-    from core.simulate import make_scene, true_transform
+    from rangereg.core.landscape import compute_slice
+    from rangereg.core.problem import prepare
+    from rangereg.core.scenes import LESSON
+    from rangereg.core.simulate import make_scene, true_transform
 
     counts = {}
     for name, seed in (("ribbed", 3), ("corner", 0)):
@@ -136,7 +136,7 @@ def test_the_lesson_slice_shows_small_minima_in_a_larger_pit_and_the_plain_corne
 
 
 def test_the_lesson_bench_says_each_target_with_its_value_and_refuses_more_starts_than_it_has(rangereg):
-    from app.bench import lesson_verdict
+    from rangereg.app.bench import lesson_verdict
 
     rows = [{"method": "icp", "success_rate": 0.0, "mean_iterations": 41.0, "median_seconds": 0.8},
             {"method": "sa", "success_rate": 0.9, "mean_iterations": 13729.0, "median_seconds": 66.0},
@@ -149,8 +149,8 @@ def test_the_lesson_bench_says_each_target_with_its_value_and_refuses_more_start
 
 
 def test_a_bad_lock_is_said_in_the_pages_words_not_the_clis_flag():
-    from app.tab.settings import checked_lock
-    from core.errors import InputError
+    from rangereg.app.tab.settings import checked_lock
+    from rangereg.core.errors import InputError
 
     with pytest.raises(InputError) as bad:
         checked_lock("rx,foo")

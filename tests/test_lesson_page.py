@@ -53,8 +53,8 @@ def test_the_lesson_plays_from_the_start_to_below_the_threshold(bench, browser):
 
 
 def test_the_legend_names_every_colour_and_fit_view_frames_the_scans_then_the_terrain(bench, browser):
-    from app.figures import LEGEND, hex_colour
-    from app.tab.scene3d import shown_extent
+    from rangereg.app.figures import LEGEND, hex_colour
+    from rangereg.app.tab.scene3d import shown_extent
 
     page, tab = open_tab(bench, browser)
     warnings = []

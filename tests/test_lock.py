@@ -7,13 +7,12 @@ from functools import cache
 
 import numpy as np
 import pytest
-
-from core import Config, register
-from core.anneal import AnnealConfig
-from core.errors import InputError
-from core.lock import Lock
-from core.problem import ProblemConfig
-from core.transforms import PARAM_NAMES, apply, from_params, invert, perturb, pose_error
+from rangereg.core import Config, register
+from rangereg.core.anneal import AnnealConfig
+from rangereg.core.errors import InputError
+from rangereg.core.lock import Lock
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.transforms import PARAM_NAMES, apply, from_params, invert, perturb, pose_error
 
 SHORT_SA = AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25, settle_below=1e-2,
                         max_evaluations=150)
@@ -21,7 +20,7 @@ SHORT_SA = AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25
 
 @cache
 def _bowl():
-    from core.simulate import SCENES, make_scene, true_transform
+    from rangereg.core.simulate import SCENES, make_scene, true_transform
 
     target, source = make_scene("bowl", SCENES.index("bowl"))
     return source, target, true_transform(source, target)
@@ -157,7 +156,7 @@ def test_a_translation_only_lock_recovers_a_pure_shift_and_never_turns():
     ("global", dict(problem=ProblemConfig(rotation_uncertainty_deg=60.0))),  # candidates moved onto the allowed set
 ])
 def test_every_method_keeps_the_locked_parameters_in_every_event(method, options):
-    from core.problem import prepare
+    from rangereg.core.problem import prepare
 
     source, target, Tt = _bowl()
     c = apply(Tt, source.points.mean(0)[None])[0]
@@ -197,7 +196,7 @@ def test_the_global_pipeline_registers_a_turntable_pair_from_far_round_the_table
 def test_a_locked_trace_reads_back_with_its_coordinates():
     import json
 
-    from core.events import Event
+    from rangereg.core.events import Event
 
     source, target, Tt, T0, point = _turntable_case(6.0)
     events = []
@@ -211,8 +210,8 @@ def test_a_locked_trace_reads_back_with_its_coordinates():
 
 
 def test_the_search_state_projects_a_stage_s_own_poses_onto_the_allowed_set():
-    from core.problem import prepare
-    from core.search import SearchState
+    from rangereg.core.problem import prepare
+    from rangereg.core.search import SearchState
 
     source, target, Tt = _bowl()
     problem = prepare(source, target, Tt)

@@ -14,9 +14,8 @@ from functools import cache
 
 import numpy as np
 import pytest
-
-from core.io import load_scan
-from core.ply import write_ply
+from rangereg.core.io import load_scan
+from rangereg.core.ply import write_ply
 
 RATIO = 5.5  # for 4 x the points
 
@@ -51,7 +50,7 @@ _FACES: dict = {}
 
 def _faces(s):
     """The scan's triangulation, computed once per size (the surface stage measures it)."""
-    from core.surface import triangulate
+    from rangereg.core.surface import triangulate
 
     if len(s.points) not in _FACES:
         _FACES[len(s.points)] = triangulate(s)
@@ -59,10 +58,10 @@ def _faces(s):
 
 
 def _stages():
-    from core.frustum import frustum_of, segment_overlap, visible_from
-    from core.noise import noise_floor
-    from core.surface import Surface, triangulate
-    from core.transforms import from_params
+    from rangereg.core.frustum import frustum_of, segment_overlap, visible_from
+    from rangereg.core.noise import noise_floor
+    from rangereg.core.surface import Surface, triangulate
+    from rangereg.core.transforms import from_params
 
     T = from_params(np.r_[40.0, -25.0, 3.0, 0.02, -0.01, 0.05])
     return {

@@ -7,18 +7,18 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from rangereg.core.fuse import double_layer_fraction, fuse
+from rangereg.core.merge import merge
+from rangereg.core.surface import Surface
+from rangereg.core.transforms import apply, invert, pose_error
 
-from core.fuse import double_layer_fraction, fuse
-from core.merge import merge
-from core.surface import Surface
-from core.transforms import apply, invert, pose_error
 from tests.conftest import ASSETS, BUNNY
 from tests.conftest import run_cli as rangereg
 
 
 @pytest.mark.parametrize("name", ["corner", "bowl"])
 def test_fused_two_scans_have_no_double_layer(scene, name):
-    from core.simulate import true_transform
+    from rangereg.core.simulate import true_transform
 
     target, source = scene(name)
     T = true_transform(source, target)
@@ -51,7 +51,7 @@ def test_merge_cli_on_a_bundled_scene(tmp_path):
     assert np.allclose(rep["poses"][0], np.eye(4))
     assert max(rep["rotation_error_deg"]) < 1.0 and max(rep["translation_error"]) < 0.01 * 1219
     assert rep["model"]["double_layer_fraction"] < 0.01
-    from core.io import load_scan
+    from rangereg.core.io import load_scan
 
     mesh = load_scan(out)
     assert mesh.faces is not None and len(mesh.faces) == rep["model"]["triangles"]
@@ -74,8 +74,8 @@ def test_merge_bad_conf_gets_one_line(tmp_path):
 
 def test_merge_refuses_a_scan_no_pair_could_use_before_any_registration(tmp_path):
     # a flat or a tiny scan is bad input (status 2, one line), not a scan left "not placed" (status 3)
-    from core.io import load_scan
-    from core.ply import write_ply
+    from rangereg.core.io import load_scan
+    from rangereg.core.ply import write_ply
 
     a = load_scan(ASSETS / "corner" / "scan1.ply")
     flat = a.points.copy()
@@ -91,7 +91,7 @@ def test_merge_refuses_a_scan_no_pair_could_use_before_any_registration(tmp_path
 
 def test_strict_json_writes_null_for_every_non_finite_number():
     # a scan not placed: its pose null, any non-finite number null (never NaN or Infinity)
-    from app.outputs import strict_json
+    from rangereg.app.outputs import strict_json
 
     text = strict_json({"error": float("inf"), "pairs": [{"misfit": float("nan")}], "poses": [None, np.float64(1.5)]})
     assert json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in strict JSON")) == {
@@ -123,7 +123,7 @@ def test_the_four_bunny_scans_with_no_poses_all_land(bunny):
 
 @pytest.mark.slow
 def test_bunny_set_from_rough_poses_comes_back_to_the_conf_poses(bunny):
-    from core.turntable import rough_poses
+    from rangereg.core.turntable import rough_poses
 
     scans = [bunny(n) for n in ("bun000", "bun045", "bun090", "bun315")]
     # each .conf pose turned by 15 degrees about its scan frame's origin and shifted by 25 mm
@@ -134,7 +134,7 @@ def test_bunny_set_from_rough_poses_comes_back_to_the_conf_poses(bunny):
 
 
 def test_a_scan_no_trusted_pair_reaches_is_reported_not_placed(tmp_path):
-    from core.io import load_scan, save_scan
+    from rangereg.core.io import load_scan, save_scan
 
     # a bowl and a corner of walls (two windows of one scan would not do: a patch of wall fits any wall):
     # no pose makes them overlap; no poses stored: no guess
@@ -161,7 +161,7 @@ class _Scripted:
         self.answer, self.asked = answer, []
 
     def __call__(self, fn, items, shared, label=None):
-        from core.merge_tasks import PairOutcome, pair_task
+        from rangereg.core.merge_tasks import PairOutcome, pair_task
 
         if fn is not pair_task:
             return [0.5 for _ in items]
@@ -175,7 +175,8 @@ class _Scripted:
 
 
 def _four_views():
-    from core.turntable import make_campaign
+    from rangereg.core.turntable import make_campaign
+
     from tests.test_campaign import SMALL
 
     camp = make_campaign(3, SMALL)
@@ -197,7 +198,7 @@ def test_when_the_first_scan_is_in_no_group_the_largest_group_is_placed_in_its_f
 
 
 def test_a_trusted_pair_that_does_not_close_is_registered_again_from_the_graphs_pose():
-    from core.transforms import from_params
+    from rangereg.core.transforms import from_params
 
     scans = _four_views()
     truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
@@ -223,8 +224,8 @@ def test_a_trusted_pair_that_does_not_close_is_registered_again_from_the_graphs_
 def test_a_trusted_pair_whose_misfit_is_far_above_the_others_is_not_used():
     # scan 3's only trusted pair is a wrong pose trusted at 6 x the campaign's typical misfit (turntable crops:
     # wrong poses trusted at 2.5-3.4 where right ones sit at 0.3-0.7): scan 3 is not placed, not placed wrong
-    from core.merge_tasks import PairOutcome, pair_task
-    from core.transforms import from_params
+    from rangereg.core.merge_tasks import PairOutcome, pair_task
+    from rangereg.core.transforms import from_params
 
     scans = _four_views()
     truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
@@ -249,7 +250,7 @@ def test_a_trusted_pair_whose_misfit_is_far_above_the_others_is_not_used():
 
 
 def test_when_no_pair_overlaps_under_the_rough_poses_the_scans_are_reached_with_no_guess_at_once():
-    from core.merge_tasks import PairOutcome, feature_task, pair_task
+    from rangereg.core.merge_tasks import PairOutcome, feature_task, pair_task
 
     scans = _four_views()
     truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
@@ -273,7 +274,7 @@ def test_when_no_pair_overlaps_under_the_rough_poses_the_scans_are_reached_with_
 
 
 def test_candidate_pairs_per_mode():
-    from core.merge import MergeConfig, choose
+    from rangereg.core.merge import MergeConfig, choose
 
     n = 12  # a ring: overlap falls with the distance round the ring
     ring = lambda i, j: min((j - i) % n, (i - j) % n)  # noqa: E731
@@ -305,8 +306,8 @@ def test_a_scan_whose_rough_pose_is_far_beyond_the_stated_uncertainty_is_found_w
 
 def test_the_clis_pair_modes_are_the_merges():
     # the parser names them without importing the engine (a fast --help); they must stay the same
-    from app.cli import build_parser
-    from core.merge import MergeConfig
+    from rangereg.app.cli import build_parser
+    from rangereg.core.merge import MergeConfig
 
     merge_parser = build_parser()._subparsers._group_actions[0].choices["merge"]
     (pairs,) = [a for a in merge_parser._actions if a.dest == "pairs"]

@@ -7,9 +7,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from rangereg.core.noise import noise_floor, noise_floors
+from rangereg.core.simulate import Scanner
 
-from core.noise import noise_floor, noise_floors
-from core.simulate import Scanner
 from tests.conftest import BUNNY, _bunny
 
 
@@ -26,7 +26,7 @@ def test_floors_side_by_side_are_the_floors_one_after_the_other(scene):
 
 
 def test_floors_measured_ahead_are_the_floors_and_leave_the_generator_as_they_do(scene):
-    from core.noise import noise_floors_ahead
+    from rangereg.core.noise import noise_floors_ahead
 
     a, b = scene("bowl")
     for threads in (1, 2):
@@ -38,7 +38,7 @@ def test_floors_measured_ahead_are_the_floors_and_leave_the_generator_as_they_do
 
 def _corner_scans(noises: tuple[float, ...]) -> list:
     """One view of the corner per range noise (mm), the same rays and seed."""
-    from core.simulate import corner_mesh, look_at, scan_mesh
+    from rangereg.core.simulate import corner_mesh, look_at, scan_mesh
 
     vertices, faces = corner_mesh()
     eye = vertices.mean(0) + np.array([900.0, 700.0, 600.0])
@@ -57,8 +57,7 @@ def test_the_floor_grows_with_the_scanners_noise():
 
 def test_a_stream_held_to_one_thread_measures_the_floors_one_after_the_other(scene, monkeypatch):
     import open3d as o3d
-
-    import core.noise
+    import rangereg.core.noise
 
     a, b = scene("corner")
     expect = noise_floors([a, b], np.random.default_rng(2), 300)
@@ -67,7 +66,7 @@ def test_a_stream_held_to_one_thread_measures_the_floors_one_after_the_other(sce
         raise AssertionError("a thread pool in a stream held to one thread")
 
     before = o3d.utility.get_max_threads()
-    monkeypatch.setattr(core.noise, "ThreadPoolExecutor", no_threads)
+    monkeypatch.setattr(rangereg.core.noise, "ThreadPoolExecutor", no_threads)
     o3d.utility.set_max_threads(1)  # what app.distributed sets for --threads 1
     try:
         assert noise_floors([a, b], np.random.default_rng(2), 300) == expect
@@ -76,8 +75,8 @@ def test_a_stream_held_to_one_thread_measures_the_floors_one_after_the_other(sce
 
 
 def test_the_normals_floor_is_zero_on_a_clean_plane_and_follows_the_scanners_noise():
-    from core.noise import normal_floor
-    from core.scan import Scan
+    from rangereg.core.noise import normal_floor
+    from rangereg.core.scan import Scan
 
     g = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0)), -1).reshape(-1, 2)
     tilt = np.c_[g, 0.3 * g[:, 0] - 0.2 * g[:, 1]]  # a tilted plane, 1 unit apart

@@ -1,4 +1,4 @@
-"""app.options: the one path from plain settings (CLI text, page fields) to a core Config."""
+"""rangereg.app.options: the one path from plain settings (CLI text, page fields) to a core Config."""
 
 from __future__ import annotations
 
@@ -6,10 +6,9 @@ import json
 
 import numpy as np
 import pytest
-
-from app.options import KNOBS, Settings, parse_init, parse_numbers, parse_value, to_config
-from core.errors import InputError
-from core.register import Config
+from rangereg.app.options import KNOBS, Settings, parse_init, parse_numbers, parse_value, to_config
+from rangereg.core.errors import InputError
+from rangereg.core.register import Config
 
 
 @pytest.mark.parametrize("name, text, value", [
@@ -112,7 +111,7 @@ def test_parse_numbers():
 
 
 def test_a_lock_reaches_the_config_and_a_bad_one_is_one_message():
-    from core.lock import Lock
+    from rangereg.core.lock import Lock
 
     assert to_config(Settings(lock="rx, ry,tz")).lock == Lock(locked=("tz", "rx", "ry"))
     assert to_config(Settings(lock="turntable:0,0,0,0,1,0")).lock.free == ("angle",)
@@ -125,9 +124,8 @@ def test_a_lock_reaches_the_config_and_a_bad_one_is_one_message():
 
 def test_an_init_of_sixteen_long_numbers_is_read_as_numbers_not_a_file_name():
     import numpy as np
-
-    from app.options import parse_init
-    from core.transforms import rotation_matrix
+    from rangereg.app.options import parse_init
+    from rangereg.core.transforms import rotation_matrix
 
     T = np.eye(4)
     T[:3, :3] = rotation_matrix(np.array([0.3, -0.2, 0.5]))

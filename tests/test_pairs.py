@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from app.tab.pairs import PointPairs, nearest_to_ray
-from core.errors import InputError
-from core.transforms import apply, from_params
+from rangereg.app.tab.pairs import PointPairs, nearest_to_ray
+from rangereg.core.errors import InputError
+from rangereg.core.transforms import apply, from_params
 
 
 def test_a_ray_picks_the_visible_point_not_the_one_behind_it():

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.posegraph import (
+from rangereg.core.posegraph import (
     Edge,
     Tolerance,
     consensus,
@@ -16,7 +15,7 @@ from core.posegraph import (
     solve,
     spanning_tree,
 )
-from core.transforms import apply, from_params, invert, pose_error
+from rangereg.core.transforms import apply, from_params, invert, pose_error
 
 TOL = Tolerance(2.0, 2.0)  # degrees, units (the scans below are ~100 units across, 1000 units away)
 
@@ -150,7 +149,7 @@ def test_residual_is_zero_for_consistent_poses_and_symmetric_in_its_terms():
 
 
 def test_information_matrix_is_the_same_bits_every_run(scene):
-    from core.simulate import true_transform
+    from rangereg.core.simulate import true_transform
 
     target, source = scene("corner")
     T = true_transform(source, target)

@@ -16,13 +16,13 @@ pytestmark = pytest.mark.browser
 
 
 def corner_run():
-    from app.recording import RunToRecord
-    from app.views import Display
-    from core.frustum import frustum_of
-    from core.io import load_scan
-    from core.problem import relative_guess
-    from core.register import Config, register
-    from core.scenes import scene_paths
+    from rangereg.app.recording import RunToRecord
+    from rangereg.app.views import Display
+    from rangereg.core.frustum import frustum_of
+    from rangereg.core.io import load_scan
+    from rangereg.core.problem import relative_guess
+    from rangereg.core.register import Config, register
+    from rangereg.core.scenes import scene_paths
 
     source, target = (load_scan(p) for p in scene_paths(ASSETS, "corner"))
     T0, events = relative_guess(source, target), []
@@ -46,8 +46,7 @@ def test_the_recording_plays_from_disk_and_the_scan_moves(tmp_path):
     if not CHROMIUM.exists():
         pytest.skip("Debian's chromium is not installed")
     from playwright.sync_api import sync_playwright
-
-    from app.recording import recording_html
+    from rangereg.app.recording import recording_html
 
     path = tmp_path / "run.html"
     path.write_bytes(recording_html(corner_run(), frames=60, seconds=4.0, hold=4.0))

@@ -7,11 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from rangereg.core import Config, prepare, register
+from rangereg.core.anneal import AnnealConfig
+from rangereg.core.errors import InputError
+from rangereg.core.transforms import apply, from_params, perturb, pose_error
 
-from core import Config, prepare, register
-from core.anneal import AnnealConfig
-from core.errors import InputError
-from core.transforms import apply, from_params, perturb, pose_error
 from tests.conftest import ESCAPE
 
 
@@ -22,7 +22,7 @@ def _same(r1, r2):
 
 def test_every_event_of_every_method_writes_as_json(scene_start):
     # the --trace file and the workbench's trace export: annealing's moves included
-    from core.events import Event
+    from rangereg.core.events import Event
 
     a, b, _, T0 = scene_start(*ESCAPE)
     short = AnnealConfig(max_evaluations=60)
@@ -51,7 +51,7 @@ def test_no_overlap_is_a_clear_error(scene):
 
 
 def test_nonsense_settings_are_refused(scene):
-    from core.problem import ProblemConfig
+    from rangereg.core.problem import ProblemConfig
 
     a, b = scene("corner")
     for cfg in (Config(method="magic"), Config(threshold=-1), Config(anneal=AnnealConfig(cooling=1.5)),
@@ -64,7 +64,7 @@ def test_nonsense_settings_are_refused(scene):
 
 @pytest.mark.slow
 def test_bunny_hybrid_from_15_degrees(bunny):
-    from core.transforms import invert, random_perturbation
+    from rangereg.core.transforms import invert, random_perturbation
 
     src, tgt = bunny("bun045"), bunny("bun000")
     Tt = invert(tgt.pose) @ src.pose
@@ -101,8 +101,8 @@ def test_the_one_seed_draws_the_overlap_sample(scene_start):
 
 
 def test_a_cancelled_run_returns_its_best_pose_with_the_reason(scene_start):
-    from core.events import Cancelled
-    from core.result import StopReason
+    from rangereg.core.events import Cancelled
+    from rangereg.core.result import StopReason
 
     a, b, _, T0 = scene_start(*ESCAPE)
     seen = []
@@ -122,7 +122,7 @@ def test_a_cancelled_run_returns_its_best_pose_with_the_reason(scene_start):
 def test_the_front_keeps_its_names():
     import importlib
 
-    front = importlib.import_module("core.register")  # the package's `register` is the function
+    front = importlib.import_module("rangereg.core.register")  # the package's `register` is the function
 
     for name in ("register", "Config", "METHODS", "Result", "estimate_threshold", "recut"):
         assert hasattr(front, name), name

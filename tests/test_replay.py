@@ -6,14 +6,14 @@ import json
 
 import numpy as np
 import pytest
+from rangereg.app.tab.replay import check_trace_fits, parse_trace
+from rangereg.core.errors import InputError
+from rangereg.core.events import Event
+from rangereg.core.io import load_scan
+from rangereg.core.problem import prepare, relative_guess
+from rangereg.core.scenes import scene_paths
+from rangereg.core.transforms import from_params
 
-from app.tab.replay import check_trace_fits, parse_trace
-from core.errors import InputError
-from core.events import Event
-from core.io import load_scan
-from core.problem import prepare, relative_guess
-from core.scenes import scene_paths
-from core.transforms import from_params
 from tests.conftest import ASSETS
 
 
@@ -24,7 +24,7 @@ def corner_problem(name: str = "corner"):
 
 def test_a_trace_of_these_scans_is_taken_and_one_of_other_scans_refused():
     problem, source, target = corner_problem()
-    from core.transforms import invert
+    from rangereg.core.transforms import invert
 
     truth = invert(target.pose) @ source.pose
     events = [Event("icp", 1, 1, 1, truth, float(problem.error(truth)))]
@@ -47,7 +47,7 @@ def test_a_bad_trace_is_one_message_naming_its_line(text, said):
 
 
 def test_serve_refuses_a_trace_of_other_scans_before_it_listens(tmp_path):
-    from app.workbench import ServeOptions, Workbench
+    from rangereg.app.workbench import ServeOptions, Workbench
 
     problem, source, target = corner_problem()
     far = from_params(np.array([0.0, 0.0, 0.0, 0.0, 0.6, 0.0])) @ relative_guess(source, target)
@@ -59,11 +59,11 @@ def test_serve_refuses_a_trace_of_other_scans_before_it_listens(tmp_path):
 
 def test_a_loaded_traces_path_on_the_slice_starts_at_its_own_guess_not_the_pages():
     # the trace was run from another guess than the page's: its path (contour, terrain, recording) starts there
-    from app.tab.landscape import picture
-    from app.tab.state import SliceView, TabState
-    from core.config import Config
-    from core.landscape import Slice, project
-    from core.trace import TraceHeader
+    from rangereg.app.tab.landscape import picture
+    from rangereg.app.tab.state import SliceView, TabState
+    from rangereg.core.config import Config
+    from rangereg.core.landscape import Slice, project
+    from rangereg.core.trace import TraceHeader
 
     problem, source, target = corner_problem()
     T_page = relative_guess(source, target)

@@ -5,10 +5,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
-from core.region import Region
-from core.result import GlobalDetails, Iterations, Result, Stop, StopReason
-from core.threshold import pair_threshold
+from rangereg.core.region import Region
+from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+from rangereg.core.threshold import pair_threshold
 
 
 def _result(error=0.5, threshold=1.0, stop=Stop(StopReason.BELOW_THRESHOLD)):
@@ -40,7 +39,7 @@ def test_json_keeps_its_keys_with_readable_text_and_adds_below_threshold():
 def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided(scene):
     assert _result(error=0.5, threshold=1.0).trust_text == "E is below the threshold (1)"
     source, target = scene("corner")
-    from core.problem import ProblemConfig
+    from rangereg.core.problem import ProblemConfig
 
     region = Region.stated(np.eye(4), ProblemConfig(), source, target)
 

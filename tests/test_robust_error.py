@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.robust_error import RobustError, robust_weights
-from core.surface import Surface
+from rangereg.core.robust_error import RobustError, robust_weights
+from rangereg.core.surface import Surface
 
 
 def _plane_and_points():

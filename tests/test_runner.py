@@ -7,10 +7,9 @@ import time
 
 import numpy as np
 import pytest
-
-import app.runner as runner
-from app.runner import Run
-from core.events import Cancelled, Event
+import rangereg.app.runner as runner
+from rangereg.app.runner import Run
+from rangereg.core.events import Cancelled, Event
 
 # icp leg 1 (3 iterations, ending in a local minimum), sa leg 1 (4 moves), icp leg 2 (2 iterations)
 SCRIPT = ([("icp", 1, False)] * 2 + [("icp", 1, True)] + [("sa", 1, False)] * 4 + [("icp", 2, False)] * 2)

@@ -3,12 +3,13 @@ search state's legs and the event stream's numbering."""
 
 from __future__ import annotations
 
-from core import Config, prepare, register
-from core.anneal import AnnealConfig
-from core.icp import icp
-from core.register import recut
-from core.search import METHODS as SEARCHES
-from core.transforms import pose_error
+from rangereg.core import Config, prepare, register
+from rangereg.core.anneal import AnnealConfig
+from rangereg.core.icp import icp
+from rangereg.core.register import recut
+from rangereg.core.search import METHODS as SEARCHES
+from rangereg.core.transforms import pose_error
+
 from tests.conftest import ESCAPE
 
 
@@ -94,7 +95,7 @@ def test_phase_iteration_counts_within_each_leg(scene_start):
 
 
 def test_every_method_name_has_a_search():
-    from core.config import METHODS
+    from rangereg.core.config import METHODS
 
     # "global" is a pipeline before the searches (candidates, then the hybrid): core.global_search
     assert tuple(SEARCHES) + ("global",) == METHODS

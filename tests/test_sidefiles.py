@@ -7,11 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_conf, load_scan, parse_transform, read_transform
+from rangereg.core.ply import write_ply
+from rangereg.core.transforms import apply, invert
 
-from core.errors import InputError
-from core.io import load_conf, load_scan, parse_transform, read_transform
-from core.ply import write_ply
-from core.transforms import apply, invert
 from tests.test_io import _cube_points, _refused
 
 
@@ -53,17 +53,17 @@ def test_malformed_conf(tmp_path):
 @pytest.fixture
 def unreadable(monkeypatch):
     """Make a file that cannot be read (as root, chmod 0 does not stop reading: refuse it where core.files opens)."""
-    import core.files
+    import rangereg.core.files
 
     refused = set()
-    real = core.files._open_fd
+    real = rangereg.core.files._open_fd
 
     def open_fd(path):
         if path in refused:
             raise PermissionError(13, "Permission denied", str(path))
         return real(path)
 
-    monkeypatch.setattr(core.files, "_open_fd", open_fd)
+    monkeypatch.setattr(rangereg.core.files, "_open_fd", open_fd)
 
     def make(path):
         path.write_text("{}")

@@ -4,9 +4,8 @@ method told only what a user would know, crops as families of their own, every f
 from __future__ import annotations
 
 import numpy as np
-
-from app.sweep import FAMILIES, MODES, PEERS, SweepTask, View, start_pose, sweep_table, sweep_tasks, told
-from core.transforms import invert, pose_error, rotation_angle
+from rangereg.app.sweep import FAMILIES, MODES, PEERS, SweepTask, View, start_pose, sweep_table, sweep_tasks, told
+from rangereg.core.transforms import invert, pose_error, rotation_angle
 
 
 def _task(mode, rot=60.0, trans=0.05):

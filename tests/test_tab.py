@@ -8,11 +8,10 @@ import time
 from types import SimpleNamespace
 
 import pytest
-
-from app.tab import refresher as refresher_module
-from app.tab.refresher import Refresher
-from app.tab.state import TabState
-from core.errors import InputError
+from rangereg.app.tab import refresher as refresher_module
+from rangereg.app.tab.refresher import Refresher
+from rangereg.app.tab.state import TabState
+from rangereg.core.errors import InputError
 
 
 def test_worker_results_are_applied_by_the_owner_under_the_lock_in_order():
@@ -48,7 +47,8 @@ def test_a_tab_without_scans_refuses_work_with_a_reason():
 
 
 def test_closing_a_tab_ends_its_run_and_its_slice():
-    from app.runner import Run
+    from rangereg.app.runner import Run
+
     from tests.test_runner import scripted, settle
 
     st = TabState()
@@ -86,7 +86,7 @@ def test_the_refresher_logs_a_failing_tick_and_keeps_going(monkeypatch, caplog):
 
 def settings_handles(**typed):
     """The page's settings widgets as first drawn, with ``typed`` (by app.options.Settings field) typed over them."""
-    from app.tab.settings import FRUSTUM, NUMBERS, SettingsHandles
+    from rangereg.app.tab.settings import FRUSTUM, NUMBERS, SettingsHandles
 
     numbers = {name: f.initial for name, f in NUMBERS.items()} | {k: v for k, v in typed.items() if k in NUMBERS}
     rest = dict(frustum=FRUSTUM, coarse_to_fine=False, polish=False, lock="", no_guess=False) | {k: v for k, v in typed.items()
@@ -96,7 +96,7 @@ def settings_handles(**typed):
 
 
 def test_the_annealing_settings_reach_annealing_alone():
-    from app.tab.settings import page_config, read_settings
+    from rangereg.app.tab.settings import page_config, read_settings
 
     for method in ("sa", "hybrid"):
         cfg = page_config(read_settings(settings_handles(t_min_ratio="0.05", cooling="0.8")), method)
@@ -105,7 +105,7 @@ def test_the_annealing_settings_reach_annealing_alone():
 
 
 def test_the_pages_uncertainty_fields_and_no_guess_reach_the_run(scene):
-    from app.tab.settings import guess_text, page_config, read_settings
+    from rangereg.app.tab.settings import guess_text, page_config, read_settings
 
     typed = read_settings(settings_handles(rotation_uncertainty="60", translation_uncertainty="25"))
     for method in ("global", "hybrid"):
@@ -128,9 +128,9 @@ def test_the_pages_uncertainty_fields_and_no_guess_reach_the_run(scene):
 def test_a_run_button_on_the_pages_first_settings_runs_what_register_runs(method):
     # as first drawn, the page's settings and register's defaults make one config: the same method from the same
     # settings (annealing alone keeps its own cooling and stop, not the hybrid's)
-    from app.cli import build_parser
-    from app.commands.pair import config
-    from app.tab.settings import page_config, read_settings
+    from rangereg.app.cli import build_parser
+    from rangereg.app.commands.pair import config
+    from rangereg.app.tab.settings import page_config, read_settings
 
     page = page_config(read_settings(settings_handles()), method)
     cli = config(build_parser().parse_args(["register", "a.ply", "b.ply", "--method", method]))
@@ -152,14 +152,14 @@ def test_a_run_button_on_the_pages_first_settings_runs_what_register_runs(method
 ])
 def test_a_bad_setting_is_refused_with_the_pages_name_for_it_not_clamped(field, typed, says):
     # the bounds are app.options.KNOBS', the CLI's: a value the page takes, to_config takes too
-    from app.tab.settings import read_settings
+    from rangereg.app.tab.settings import read_settings
 
     with pytest.raises(InputError, match=says):
         read_settings(settings_handles(**{field: typed}))
 
 
 def test_settings_are_read_as_typed():
-    from app.tab.settings import read_settings
+    from rangereg.app.tab.settings import read_settings
 
     s = read_settings(settings_handles(t_start="2.5e-3", t_min_ratio="1e-3", seed="12"))
     assert (s.t_start, s.t_min_ratio, s.seed) == (2.5e-3, 1e-3, 12)
@@ -169,7 +169,7 @@ def test_settings_are_read_as_typed():
 def test_an_upload_name_never_puts_a_server_path_in_the_message(name):
     import tempfile
 
-    from app.tab.scans import load_upload
+    from rangereg.app.tab.scans import load_upload
 
     with pytest.raises(InputError) as refused:
         load_upload(name, b"not a scan")
@@ -177,7 +177,8 @@ def test_an_upload_name_never_puts_a_server_path_in_the_message(name):
 
 
 def test_an_upload_with_a_path_in_its_name_still_loads(tmp_path):
-    from app.tab.scans import load_upload
+    from rangereg.app.tab.scans import load_upload
+
     from tests.conftest import ASSETS
 
     scan = load_upload("some/dir/scan1.ply", (ASSETS / "corner" / "scan1.ply").read_bytes())
@@ -185,9 +186,10 @@ def test_an_upload_with_a_path_in_its_name_still_loads(tmp_path):
 
 
 def test_a_cancelled_slice_stops_within_a_row():
-    from app.tab.landscape import compute
-    from core.io import load_scan
-    from core.problem import prepare, relative_guess
+    from rangereg.app.tab.landscape import compute
+    from rangereg.core.io import load_scan
+    from rangereg.core.problem import prepare, relative_guess
+
     from tests.conftest import ASSETS
 
     src, tgt = load_scan(ASSETS / "corner" / "scan1.ply"), load_scan(ASSETS / "corner" / "scan2.ply")
@@ -206,8 +208,9 @@ def test_a_cancelled_slice_stops_within_a_row():
 
 def test_a_reset_drops_the_outcome_of_the_run_it_cancelled():
     """Reset cancels the run and forgets it: the cancelled run's result, handed over later, must not bring it back."""
-    from app.runner import Run
-    from app.tab.run import RunPanel
+    from rangereg.app.runner import Run
+    from rangereg.app.tab.run import RunPanel
+
     from tests.test_runner import scripted, settle
 
     st = TabState()
@@ -228,13 +231,13 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
     (capped): software WebGL pays per point drawn, not per pixel of a point."""
     import numpy as np
     import viser
+    from rangereg.app.access import free_port
+    from rangereg.app.tab import scene3d
+    from rangereg.app.views import Display
+    from rangereg.core.frustum import frustum_of
+    from rangereg.core.io import load_scan
+    from rangereg.core.surface import Surface
 
-    from app.access import free_port
-    from app.tab import scene3d
-    from app.views import Display
-    from core.frustum import frustum_of
-    from core.io import load_scan
-    from core.surface import Surface
     from tests.conftest import ASSETS
 
     source, target = (load_scan(ASSETS / "corner" / f"scan{k}.ply") for k in (2, 1))
@@ -258,12 +261,11 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
 
 def test_the_finished_line_advises_in_the_pages_words(scene):
     import numpy as np
-
-    from app.tab.run import page_advice
-    from core.problem import ProblemConfig
-    from core.region import Region
-    from core.result import GlobalDetails, Iterations, Result, Stop, StopReason
-    from core.threshold import pair_threshold
+    from rangereg.app.tab.run import page_advice
+    from rangereg.core.problem import ProblemConfig
+    from rangereg.core.region import Region
+    from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+    from rangereg.core.threshold import pair_threshold
 
     source, target = scene("corner")
     region = Region.stated(np.eye(4), ProblemConfig(), source, target)
@@ -280,7 +282,7 @@ def test_the_finished_line_advises_in_the_pages_words(scene):
 
 
 def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():
-    from app.tab.model import ModelPanel
+    from rangereg.app.tab.model import ModelPanel
 
     st = TabState()
     button = lambda: SimpleNamespace(disabled=False)  # noqa: E731
@@ -296,7 +298,7 @@ def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():
         panel.start_campaign()
     panel.lock(False)  # a run ends: the campaign's buttons stay held
     assert campaign.merge.disabled and panel.h.merge.disabled
-    from app.tab.model import _campaign_over
+    from rangereg.app.tab.model import _campaign_over
 
     st.hand(_campaign_over, panel._unlock)  # the campaign's worker hands its end to the owner
     for then in st.apply_handed():

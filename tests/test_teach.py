@@ -33,7 +33,7 @@ def angle_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
 
 def spread_overlap_points(tab, k: int = 3) -> list[int]:
     """k source points far apart whose true partner is on the target (farthest-point choice)."""
-    from core.transforms import apply
+    from rangereg.core.transforms import apply
 
     st = tab.state
     moved = apply(st.T_truth, st.source.points)
@@ -49,7 +49,7 @@ def spread_overlap_points(tab, k: int = 3) -> list[int]:
 
 def ray_to(tab, which: str, index: int):
     """A ray from the scan's own sensor to one of its points: the point is the first it meets."""
-    from core.transforms import apply
+    from rangereg.core.transforms import apply
 
     st = tab.state
     scan, T = (st.source, st.T) if which == "source" else (st.target, np.eye(4))
@@ -58,7 +58,7 @@ def ray_to(tab, which: str, index: int):
 
 
 def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
-    from core.transforms import apply
+    from rangereg.core.transforms import apply
 
     page, tab = open_tab(bench, browser)
     st = tab.state
@@ -101,7 +101,8 @@ def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
 
 
 def test_after_a_run_the_source_is_coloured_by_residual_with_its_histogram(bench, browser):
-    from app.figures import SOURCE_RGB
+    from rangereg.app.figures import SOURCE_RGB
+
     from tests.test_workbench import wait_finished
 
     page, tab = open_tab(bench, browser)
@@ -160,7 +161,8 @@ def test_scrubbing_the_timeline_moves_the_scan_and_its_marker_on_the_terrain(ben
 
 
 def test_locked_parameters_stay_in_every_event_of_a_run(bench, browser):
-    from core.transforms import PARAM_NAMES
+    from rangereg.core.transforms import PARAM_NAMES
+
     from tests.test_workbench import text_input, wait_finished
 
     page, tab = open_tab(bench, browser)

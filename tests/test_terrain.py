@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
-from app.tab.terrain import HEIGHT, LIFT, TERRAIN_SIZE, heights, on_surface, surface
-from core.landscape import Slice
+from rangereg.app.tab.terrain import HEIGHT, LIFT, TERRAIN_SIZE, heights, on_surface, surface
+from rangereg.core.landscape import Slice
 
 
 def bowl(steps: int = 9) -> Slice:
@@ -35,12 +34,11 @@ def test_a_path_lies_on_the_surface_and_is_clipped_to_its_box():
 def test_a_run_is_projected_onto_the_slice_in_one_batch_as_the_problem_measures_each_pose():
     from pathlib import Path
 
+    from rangereg.core.io import load_scan
+    from rangereg.core.landscape import project
+    from rangereg.core.problem import prepare, relative_guess
+    from rangereg.core.transforms import PARAM_NAMES
     from scipy.spatial.transform import Rotation
-
-    from core.io import load_scan
-    from core.landscape import project
-    from core.problem import prepare, relative_guess
-    from core.transforms import PARAM_NAMES
 
     corner = Path(__file__).resolve().parent.parent / "assets" / "corner"
     source, target = load_scan(corner / "scan2.ply"), load_scan(corner / "scan1.ply")

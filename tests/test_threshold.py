@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core import prepare
-from core.candidates import make_basis
-from core.config import Config, ThresholdConfig
-from core.surface import Surface
-from core.threshold import estimate_threshold, threshold_for
-from core.transforms import apply, invert, perturb, pose_error
+from rangereg.core import prepare
+from rangereg.core.candidates import make_basis
+from rangereg.core.config import Config, ThresholdConfig
+from rangereg.core.surface import Surface
+from rangereg.core.threshold import estimate_threshold, threshold_for
+from rangereg.core.transforms import apply, invert, perturb, pose_error
 
 
 def test_the_threshold_factor_scales_the_estimate(scene):
@@ -24,9 +23,10 @@ def test_the_threshold_factor_scales_the_estimate(scene):
 
 
 def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it_on_every_shared_pair(bunny):
-    from app.sweep import shared_pairs
-    from core.noise import noise_floor
-    from core.threshold import pair_threshold
+    from rangereg.app.sweep import shared_pairs
+    from rangereg.core.noise import noise_floor
+    from rangereg.core.threshold import pair_threshold
+
     from tests.conftest import BUNNY
 
     pairs = shared_pairs(BUNNY)
@@ -47,12 +47,12 @@ def test_the_pair_threshold_does_not_trust_a_twin_of_the_bowl_that_fits_in_dista
     """The bowl turned 35 deg about a principal axis and refined ends in a valley 3.8 deg and 19 mm off,
     where 71 % of the sample matches at 6.4 x the noise floor in d^2: a test of distance alone at 7 x would
     trust it. The normals there disagree: the misfit rejects it, and trusts the truth."""
-    from core.candidates import CandidateConfig
-    from core.global_search import refine
-    from core.noise import noise_floor
-    from core.problem import ProblemConfig
-    from core.simulate import true_transform
-    from core.threshold import pair_threshold
+    from rangereg.core.candidates import CandidateConfig
+    from rangereg.core.global_search import refine
+    from rangereg.core.noise import noise_floor
+    from rangereg.core.problem import ProblemConfig
+    from rangereg.core.simulate import true_transform
+    from rangereg.core.threshold import pair_threshold
 
     target, source = scene("bowl", 2)
     T_true = true_transform(source, target)

@@ -10,14 +10,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from rangereg.app.cli import main
+from rangereg.core.config import Config
+from rangereg.core.errors import InputError
+from rangereg.core.events import Event
+from rangereg.core.io import load_scan
+from rangereg.core.problem import prepare, relative_guess
+from rangereg.core.trace import NO_HEADER, TRACE_VERSION, ScanPrint, TraceHeader, read_trace
 
-from app.cli import main
-from core.config import Config
-from core.errors import InputError
-from core.events import Event
-from core.io import load_scan
-from core.problem import prepare, relative_guess
-from core.trace import NO_HEADER, TRACE_VERSION, ScanPrint, TraceHeader, read_trace
 from tests.conftest import ASSETS, run_cli
 
 CORNER = ASSETS / "corner" / "scan2.ply", ASSETS / "corner" / "scan1.ply"
@@ -60,7 +60,7 @@ def test_the_header_is_the_first_line_and_says_what_the_run_was(corner_trace):
 
 def test_a_header_reads_back_as_written():
     source, target = (load_scan(p) for p in CORNER)
-    from app.options import Settings, to_config
+    from rangereg.app.options import Settings, to_config
 
     cfg = to_config(Settings(method="global", seed=5, lock="rx"))
     h = TraceHeader.of(source, target, np.eye(4), cfg, "a.ply", "b.ply")
@@ -161,10 +161,9 @@ def test_an_old_trace_without_a_header_is_still_drawn_and_says_it_could_not_be_c
 def panel():
     """A Replay panel on a real viser GUI (no browser) over a tab state holding the corner pair."""
     import viser
-
-    from app.access import free_port
-    from app.tab.replay import ReplayPanel
-    from app.tab.state import TabState
+    from rangereg.app.access import free_port
+    from rangereg.app.tab.replay import ReplayPanel
+    from rangereg.app.tab.state import TabState
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     st = TabState()
@@ -228,14 +227,14 @@ def test_the_page_replays_an_old_trace_checked_by_its_error(panel, corner_trace)
 
 
 def test_serve_refuses_a_trace_of_other_scans_before_it_listens(corner_trace):
-    from app.workbench import ServeOptions, Workbench
+    from rangereg.app.workbench import ServeOptions, Workbench
 
     with pytest.raises(InputError, match="recorded on other scans"):
         Workbench(ServeOptions(source=str(WING[0]), target=str(WING[1]), trace=str(corner_trace), port=1))
 
 
 def test_the_page_exports_a_trace_with_its_header_that_replays_on_these_scans(panel, corner_trace):
-    from app.tab.export import ExportPanel
+    from rangereg.app.tab.export import ExportPanel
 
     st, tab = panel.state, panel.tab
     got = {}

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from core.errors import InputError
-from core.io import load_scan
-from core.scan import RangeGrid
-from core.viewpoint import STANDOFF, check_viewpoint, estimate_viewpoint
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_scan
+from rangereg.core.scan import RangeGrid
+from rangereg.core.viewpoint import STANDOFF, check_viewpoint, estimate_viewpoint
 
 
 def cap(n: int = 21, bulge: float = 0.3) -> tuple[np.ndarray, RangeGrid]:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from rangereg.app.views import MAX_PATH_POINTS, PHASE_RGB, Display, Trail, slice_figure, thin
+from rangereg.core.events import Event
+from rangereg.core.io import load_scan
+from rangereg.core.landscape import Slice
+from rangereg.core.transforms import from_params
 
-from app.views import MAX_PATH_POINTS, PHASE_RGB, Display, Trail, slice_figure, thin
-from core.events import Event
-from core.io import load_scan
-from core.landscape import Slice
-from core.transforms import from_params
 from tests.conftest import ASSETS
 
 
@@ -100,7 +100,7 @@ def test_the_chart_starts_both_series_at_the_initial_error(display):
 def test_the_chart_draws_log10_E_on_a_linear_axis_so_its_ticks_are_spaced(display):
     # uPlot's log axis (distr 3) stacked a tick on every 1-9 of each decade and printed E < 0.01 as '0': a column
     # of overlapping labels. The chart draws log10 E on a linear axis, whose ticks uPlot spaces by `space` pixels
-    from app.tab.run import CHART_AXES, CHART_SCALES, CHART_TITLE
+    from rangereg.app.tab.run import CHART_AXES, CHART_SCALES, CHART_TITLE
 
     assert CHART_SCALES["y"].get("distr", 1) == 1 and CHART_AXES[1]["space"] >= 20 and "log10 E" in CHART_TITLE
     errors = [3e-3, 2e-5, 4e-9, 0.0]  # spans six decades, and a zero (no log: drawn at the smallest positive E)
@@ -139,8 +139,7 @@ def test_slice_figure_without_a_run_shows_the_surface_its_minima_and_the_pose_on
 def test_the_png_draws_each_leg_in_the_page_colour():
     import matplotlib.colors as mcolors
     import matplotlib.pyplot as plt
-
-    from app.plots import slice_axes
+    from rangereg.app.plots import slice_axes
 
     path = np.array([[0.9, 8.0], [0.5, 5.0], [0.4, 4.0], [0.1, 1.0]])
     fig = slice_axes(a_slice(), path, ["icp", "icp", "sa", "sa"], np.array([0.0, 0.5]), "t", units="m")
@@ -156,11 +155,11 @@ def test_the_png_draws_each_leg_in_the_page_colour():
 
 def test_every_phase_core_emits_has_its_own_colour_in_every_path_the_page_draws(display):
     # one palette (app.figures.PHASE_RGB) for the 3-D path, the terrain's path, the recording and the chart
-    from app.figures import PHASE_LABEL
-    from app.recording import _part
-    from app.tab.terrain import PathOnSlice
-    from core.events import PHASES
-    from core.problem import prepare, relative_guess
+    from rangereg.app.figures import PHASE_LABEL
+    from rangereg.app.recording import _part
+    from rangereg.app.tab.terrain import PathOnSlice
+    from rangereg.core.events import PHASES
+    from rangereg.core.problem import prepare, relative_guess
 
     assert set(PHASES) <= set(PHASE_RGB) and set(PHASES) <= set(PHASE_LABEL)
     assert len({PHASE_RGB[p] for p in PHASES}) == len(PHASES)  # no two phases look alike
@@ -206,8 +205,8 @@ def test_every_chart_series_starts_with_a_number_so_uplot_can_range_it(display):
 
 
 def test_the_recording_says_the_event_iteration_phase_E_and_temperature_and_shows_the_legend(display):
-    from app.figures import LEGEND
-    from app.recording import RECORDED_LEGEND, RunToRecord, _legend, event_line
+    from rangereg.app.figures import LEGEND
+    from rangereg.app.recording import RECORDED_LEGEND, RunToRecord, _legend, event_line
 
     evs = events(["icp"] * 2 + ["sa"] * 2)
     run = RunToRecord(None, None, display, (), np.eye(4), evs, units="mm")

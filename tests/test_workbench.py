@@ -283,7 +283,7 @@ def test_numbers_are_taken_as_typed_and_a_bad_one_is_said_not_mangled(server, br
 
 
 def test_taken_port_is_refused(server):
-    r = subprocess.run([sys.executable, "-m", "app.cli", "serve", "--port", str(server[1])], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "rangereg.app.cli", "serve", "--port", str(server[1])], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "taken" in r.stderr and "Traceback" not in r.stderr
 
@@ -338,7 +338,7 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
 
     T = np.array(json.loads(download("Transform (JSON)"))["transform"])
     assert T.shape == (4, 4) and np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
-    from core.trace import read_trace
+    from rangereg.core.trace import read_trace
 
     trace = read_trace(download("Trace (JSON lines)").decode(), "trace.jsonl")  # header, events, result
     assert trace.header.source.name == "right" and trace.result is not None

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from argparse import Namespace
 
-from app.distributed import reach_scheduler
-from app.outputs import check_output
-from core.errors import InputError
+from rangereg.app.distributed import reach_scheduler
+from rangereg.app.outputs import check_output
+from rangereg.core.errors import InputError
 
 
 def run(a: Namespace) -> int:
@@ -22,9 +22,9 @@ def run(a: Namespace) -> int:
     if a.json is not None:
         check_output(a.json, "--json", (".json",))
     if a.sweep:
-        from app.sweep import sweep
+        from rangereg.app.sweep import sweep
 
         return sweep(a)
-    from app.bench import main
+    from rangereg.app.bench import main
 
     return main(a)

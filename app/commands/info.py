@@ -14,9 +14,9 @@ COUNT_TRIANGLES_UP_TO = 200_000
 
 
 def run(a: Namespace) -> int:
-    from core.e57 import SUFFIX, split_selection
-    from core.io import load_scan
-    from core.surface import Surface
+    from rangereg.core.e57 import SUFFIX, split_selection
+    from rangereg.core.io import load_scan
+    from rangereg.core.surface import Surface
 
     file, selector = split_selection(a.scan)
     if file.suffix.lower() == SUFFIX and selector is None:
@@ -50,15 +50,15 @@ def run(a: Namespace) -> int:
 
 
 def _pose_text(T: np.ndarray) -> str:
-    from core.transforms import rotation_angle
+    from rangereg.core.transforms import rotation_angle
 
     return f"t={np.round(T[:3, 3], 4).tolist()} rotation {np.degrees(rotation_angle(T[:3, :3])):.2f} deg"
 
 
 def list_e57(a: Namespace, path) -> int:
     """The scans of an E57 file from its headers: index, name, points, coordinates, grid, pose."""
-    from core.e57 import list_scans
-    from core.errors import InputError
+    from rangereg.core.e57 import list_scans
+    from rangereg.core.errors import InputError
 
     if a.viewpoint is not None:
         raise InputError(f"{path}: --viewpoint is for one scan; pick it with {path}#K")

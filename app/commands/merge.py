@@ -20,10 +20,9 @@ import sys
 import time
 
 import numpy as np
-
-from app.options import Settings, read_text_file, to_config
-from app.outputs import check_output, library_prints_to_stderr, strict_json, write_output
-from core.errors import InputError
+from rangereg.app.options import Settings, read_text_file, to_config
+from rangereg.app.outputs import check_output, library_prints_to_stderr, strict_json, write_output
+from rangereg.core.errors import InputError
 
 PROGRESS_DELAY = 1.0  # s: a run that fails sooner shows no progress lines
 NOT_PLACED = 3  # exit status: the merge ran, but some scan is not placed
@@ -68,10 +67,10 @@ def stated_config(a, have_poses: bool, lacking: list[str] = ()):
 
 
 def run(a) -> int:
-    from app.distributed import TaskRunner
-    from core.e57 import count_scans, split_selection
-    from core.io import load_conf, load_scans
-    from core.merge import MergeConfig, merge
+    from rangereg.app.distributed import TaskRunner
+    from rangereg.core.e57 import count_scans, split_selection
+    from rangereg.core.io import load_conf, load_scans
+    from rangereg.core.merge import MergeConfig, merge
 
     workers, scheduler, pairs = a.workers, a.scheduler, a.pairs
     threads = getattr(a, "threads", None)  # threads per task stream (app.distributed); None: its default
@@ -123,7 +122,7 @@ def run(a) -> int:
         if as_e57:
             write_output(out, "--out", lambda p: _write_placed_e57(p, scans, res, initial), ".e57")
         else:
-            from core.ply import write_ply
+            from rangereg.core.ply import write_ply
 
             write_output(out, "--out", lambda p: write_ply(p, res.model.vertices, res.model.faces,
                                                            comments=("rangereg fused model",)), ".ply")
@@ -133,7 +132,7 @@ def run(a) -> int:
 def _write_placed_e57(path, scans, res, initial) -> None:
     """The placed scans with their registered poses, the reference scan kept where its initial pose (given or
     stored) has it; a scan not placed is left out, never written at a pose nobody found."""
-    from core.e57_write import world_poses, write_e57
+    from rangereg.core.e57_write import world_poses, write_e57
 
     ref = res.reference
     T_world_ref = initial[ref] if initial is not None else scans[ref].guess
@@ -144,8 +143,8 @@ def _write_placed_e57(path, scans, res, initial) -> None:
 
 def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, as_e57: bool = False) -> dict:
     """Everything the merge found, as one JSON-ready dict (``--json`` prints it)."""
-    from core.fuse import double_layer_fraction
-    from core.transforms import invert, pose_error
+    from rangereg.core.fuse import double_layer_fraction
+    from rangereg.core.transforms import invert, pose_error
 
     names = [s.name for s in scans]
     gap = float(np.median([s.spacing for s in scans]))

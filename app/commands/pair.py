@@ -7,16 +7,15 @@ import sys
 from argparse import Namespace
 
 import numpy as np
-
-from app.options import Settings, parse_init, to_config
-from core.sidefiles import names_a_file
+from rangereg.app.options import Settings, parse_init, to_config
+from rangereg.core.sidefiles import names_a_file
 
 
 def inputs(a: Namespace) -> list[str]:
     """Every file the command reads (never to be overwritten by an output), checked as far as it can be
     without reading a scan: the scans' kinds, formats and sizes, and ``--init`` read (once: it may be a
     pipe) into ``a.init_transform``."""
-    from core.io import check_scan_file
+    from rangereg.core.io import check_scan_file
 
     for scan in (a.source, a.target):
         check_scan_file(scan)
@@ -42,9 +41,9 @@ def has_guess(a: Namespace, source, target) -> bool:
 
 def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     """(source, target, T_init (4, 4) T_target_source): ``--init`` if given, else the scans' stored guesses."""
-    from core.io import load_scan
-    from core.problem import relative_guess
-    from core.scan import scale_mismatch
+    from rangereg.core.io import load_scan
+    from rangereg.core.problem import relative_guess
+    from rangereg.core.scan import scale_mismatch
 
     T_init = getattr(a, "init_transform", None)
     if T_init is None and a.init is not None:

@@ -16,9 +16,9 @@ import sys
 import time
 from argparse import Namespace
 
-from app.commands import pair
-from app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, strict_json, write_outputs
-from core.errors import InputError
+from rangereg.app.commands import pair
+from rangereg.app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, strict_json, write_outputs
+from rangereg.core.errors import InputError
 
 TRACE_SUFFIXES = (".jsonl", ".ndjson", ".json")
 
@@ -61,7 +61,7 @@ def run(a: Namespace) -> int:
 
 def _register(a: Namespace):
     """Check, read, register: (result, source, target, config, seconds, trace file or None, --out path or None)."""
-    from core.register import register
+    from rangereg.core.register import register
 
     cfg = pair.config(a)
     files = pair.inputs(a)
@@ -71,12 +71,11 @@ def _register(a: Namespace):
     check_distinct({"--out": out, "--trace": trace_path})
     t_imports = time.perf_counter()
     if cfg.method == "global" and cfg.candidates.enabled and cfg.candidates.kiss_matcher:
-        from core import kiss_matcher_candidates
+        from rangereg.core import kiss_matcher_candidates
 
         kiss_matcher_candidates.start()  # its process starts while Open3D is imported and the files are read
     import open3d  # noqa: F401  (imported here so that its 1-2 s are counted apart from the registration)
-
-    import core.global_search  # noqa: F401
+    import rangereg.core.global_search  # noqa: F401
     t0 = time.perf_counter()
     source, target, T_init = pair.load(a)
     if not pair.has_guess(a, source, target) and a.rotation_uncertainty is None and a.translation_uncertainty is None:
@@ -85,7 +84,7 @@ def _register(a: Namespace):
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
     if trace is not None:  # the header first: which scans (by content), the guess, every knob, the seed
-        from core.trace import TraceHeader
+        from rangereg.core.trace import TraceHeader
 
         trace.write(json.dumps(TraceHeader.of(source, target, T_init, cfg, a.source, a.target).to_json()))
 
@@ -107,7 +106,7 @@ def _register(a: Namespace):
 
 
 def _write_transform(path, res) -> None:
-    from core.io import write_transform
+    from rangereg.core.io import write_transform
 
     write_transform(path, res.transform, error=res.error, method=res.method)
 
@@ -144,7 +143,7 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
     for row in res.transform:
         print("  " + " ".join(f"{v: .8f}" for v in row))
     if source.pose is not None and target.pose is not None:
-        from core.transforms import invert, pose_error
+        from rangereg.core.transforms import invert, pose_error
 
         rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
         print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from argparse import Namespace
 
-from app.outputs import check_output_folder
+from rangereg.app.outputs import check_output_folder
 
 
 def run(a: Namespace) -> int:
-    from core.scenes import write_scenes
+    from rangereg.core.scenes import write_scenes
 
     out = check_output_folder(a.out, "--out")
     for path in write_scenes(out, a.seed):

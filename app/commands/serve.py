@@ -6,14 +6,14 @@ from __future__ import annotations
 
 from argparse import Namespace
 
-from app.options import read_text_file
-from core.errors import InputError
-from core.files import check_folder, stat_regular
-from core.trace import read_trace
+from rangereg.app.options import read_text_file
+from rangereg.core.errors import InputError
+from rangereg.core.files import check_folder, stat_regular
+from rangereg.core.trace import read_trace
 
 
 def run(a: Namespace) -> int:
-    from app.workbench import ServeOptions, serve
+    from rangereg.app.workbench import ServeOptions, serve
 
     if (a.source is None) != (a.target is None):
         raise InputError("serve takes two scans (SOURCE TARGET) or none")

@@ -9,16 +9,15 @@ from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
-
-from app.commands import pair
-from app.options import parse_numbers, read_text_file
-from app.outputs import check_distinct, check_output, write_outputs
-from core.errors import InputError
+from rangereg.app.commands import pair
+from rangereg.app.options import parse_numbers, read_text_file
+from rangereg.app.outputs import check_distinct, check_output, write_outputs
+from rangereg.core.errors import InputError
 
 
 def read_trace(path: str):
     """A ``register --trace`` file as a core.trace.Trace; anything else is one InputError naming the line."""
-    from core.trace import read_trace as read
+    from rangereg.core.trace import read_trace as read
 
     return read(read_text_file(path, "--trace"), f"--trace {path}")
 
@@ -29,7 +28,7 @@ SLICE_KNOBS = ("problem.", "seed", "lock.")  # what the slice itself depends on:
 def trace_notes(trace, T_init, cfg, units: str = "units") -> list[str]:
     """What to say about a trace of these scans (checked before): how its run differs from this slice's
     settings (drawn all the same), or that an old trace without a header could not be checked."""
-    from core.trace import NO_HEADER
+    from rangereg.core.trace import NO_HEADER
 
     if trace.header is None:
         return [f"note: {trace.name}: {NO_HEADER}"]
@@ -42,8 +41,8 @@ def trace_notes(trace, T_init, cfg, units: str = "units") -> list[str]:
 
 
 def run(a: Namespace) -> int:
-    from core.landscape import check_spans, compute_slice, default_span, parse_params, project
-    from core.problem import prepare
+    from rangereg.core.landscape import check_spans, compute_slice, default_span, parse_params, project
+    from rangereg.core.problem import prepare
 
     params = parse_params(a.params)
     spans = parse_numbers(a.span, "--span", 2) if a.span is not None else None
@@ -76,7 +75,7 @@ def run(a: Namespace) -> int:
     phases = ["icp"] + [e.phase for e in events] if events else None
 
     def write_png(p: Path) -> None:
-        from app.plots import slice_png
+        from rangereg.app.plots import slice_png
 
         title = f"{Path(a.source).stem} -> {Path(a.target).stem}: E({params[0]}, {params[1]})"
         slice_png(sl, p, path_xy, phases, title=title, units=target.units)

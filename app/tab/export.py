@@ -7,12 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import viser
-
-from app.figures import SOURCE_RGB, TARGET_RGB
-from app.tab.landscape import picture
-from app.views import ply_bytes, png_bytes
-from core.errors import InputError
-from core.transforms import apply
+from rangereg.app.figures import SOURCE_RGB, TARGET_RGB
+from rangereg.app.tab.landscape import picture
+from rangereg.app.views import ply_bytes, png_bytes
+from rangereg.core.errors import InputError
+from rangereg.core.transforms import apply
 
 
 @dataclass(eq=False)
@@ -96,7 +95,7 @@ class ExportPanel:
         """The last run as a self-contained HTML recording (app/recording.py); made on a worker thread."""
         import threading
 
-        from app.recording import RunToRecord, recording_html
+        from rangereg.app.recording import RunToRecord, recording_html
 
         st = self.state
         st.require_scans()

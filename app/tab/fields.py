@@ -12,7 +12,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from core.errors import InputError
+from rangereg.core.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ def parse_number(text, what: str, allowed: Range = Range()) -> float | int:
 def parse_setting(text, name: str, label: str, auto: bool = False) -> float | int | None:
     """A setting typed on the page -> its value, checked against ``app.options.KNOBS[name]`` (the table the
     CLI checks too); a refusal names the page's ``label``. ``auto``: 'auto' or empty -> None (the core's default)."""
-    from app.options import parse_value
+    from rangereg.app.options import parse_value
 
     t = str(text).strip()
     if auto and t.lower() in ("", "auto"):

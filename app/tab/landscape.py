@@ -13,17 +13,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import viser
-
-from app.options import KNOBS
-from app.tab.fields import Range, parse_number, parse_setting
-from app.tab.state import SliceView, TabState
-from app.tab.terrain import PathOnSlice, Terrain
-from app.views import slice_figure
-from core.errors import InputError
-from core.events import Cancelled
-from core.landscape import Slice, compute_slice, default_span, project
-from core.problem import Problem
-from core.transforms import PARAM_NAMES
+from rangereg.app.options import KNOBS
+from rangereg.app.tab.fields import Range, parse_number, parse_setting
+from rangereg.app.tab.state import SliceView, TabState
+from rangereg.app.tab.terrain import PathOnSlice, Terrain
+from rangereg.app.views import slice_figure
+from rangereg.core.errors import InputError
+from rangereg.core.events import Cancelled
+from rangereg.core.landscape import Slice, compute_slice, default_span, project
+from rangereg.core.problem import Problem
+from rangereg.core.transforms import PARAM_NAMES
 
 COVER = 1.15  # automatic spans reach this far past the run's start, so the contour shows where it began
 MAX_FIGURE_PATH = 600  # the contour's path is thinned to this many points: its figure is sent as JSON (2000 points

@@ -21,12 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import viser
-
-from app.figures import fmt, squared_unit
-from app.tab.settings import problem_config
-from app.views import temperature_of
-from core.events import Event
-from core.problem import prepare
+from rangereg.app.figures import fmt, squared_unit
+from rangereg.app.tab.settings import problem_config
+from rangereg.app.views import temperature_of
+from rangereg.core.events import Event
+from rangereg.core.problem import prepare
 
 STEPS = ("start", "icp", "stuck", "anneal", "lower", "icp-again", "below", "gave-up")
 TITLES = {"start": "The start", "icp": "ICP runs", "stuck": "Stuck above the threshold",
@@ -192,7 +191,7 @@ class LessonPanel:
     """The Lesson tab's controls; the run, the chart, the slice and the terrain are the page's own."""
 
     def __init__(self, tab):
-        from core.scenes import LESSON
+        from rangereg.core.scenes import LESSON
 
         self.tab, self.state, self.lesson = tab, tab.state, LESSON
         gui = tab.gui
@@ -283,7 +282,7 @@ class LessonPanel:
         off = iterations = error = None
         finished = self.run_state() == "finished" and result is not None
         if finished:
-            from core.transforms import pose_error
+            from rangereg.core.transforms import pose_error
 
             error, iterations = result.error, (result.iterations.icp, result.iterations.sa)
             if T_truth is not None:

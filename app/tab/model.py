@@ -8,11 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import viser
-
-from app.tab import scene3d
-from app.tab.residuals import ResidualsPanel
-from app.tab.state import TabState
-from core.errors import InputError
+from rangereg.app.tab import scene3d
+from rangereg.app.tab.residuals import ResidualsPanel
+from rangereg.app.tab.state import TabState
+from rangereg.core.errors import InputError
 
 
 @dataclass(eq=False)
@@ -55,7 +54,7 @@ class ModelPanel:
                 gui.add_markdown(""))
 
     def start(self) -> None:
-        from core.fuse import fuse
+        from rangereg.core.fuse import fuse
 
         st = self.state
         st.require_scans()
@@ -86,7 +85,7 @@ class ModelPanel:
         """Merge the chosen data files on a worker thread; its progress lines and report go to the panel."""
         from fnmatch import fnmatch
 
-        from app.options import Settings, to_config
+        from rangereg.app.options import Settings, to_config
 
         c = self.h.campaign
         st = self.state
@@ -112,8 +111,8 @@ class ModelPanel:
             self.state.hand(lambda st: None, lambda: setattr(c.progress, "content", text))
 
         def work() -> None:
-            from app.distributed import TaskRunner
-            from core.merge import merge
+            from rangereg.app.distributed import TaskRunner
+            from rangereg.core.merge import merge
 
             try:
                 scans = [self.tab.wb.load_data_file(f) for f in files]

@@ -13,29 +13,28 @@ import logging
 
 import numpy as np
 import viser
-
-from app.figures import fmt, legend_html, squared_unit
-from app.tab import scene3d
-from app.tab.export import ExportPanel
-from app.tab.landscape import LandscapePanel
-from app.tab.lesson import LessonPanel
-from app.tab.model import ModelPanel
-from app.tab.pairs import PairsPanel
-from app.tab.pose import PosePanel
-from app.tab.refresher import Refresher
-from app.tab.replay import ReplayPanel
-from app.tab.run import RunPanel, build_chart, chart_axes
-from app.tab.scans import ScansPanel
-from app.tab.settings import problem_config
-from app.tab.state import TabState
-from app.views import Display, Trail, temperature_of
-from core.errors import InputError
-from core.frustum import KINDS, frustum_of
-from core.problem import prepare, relative_guess
-from core.register import estimate_threshold
-from core.scan import Scan
-from core.surface import Surface
-from core.transforms import check_rigid, invert
+from rangereg.app.figures import fmt, legend_html, squared_unit
+from rangereg.app.tab import scene3d
+from rangereg.app.tab.export import ExportPanel
+from rangereg.app.tab.landscape import LandscapePanel
+from rangereg.app.tab.lesson import LessonPanel
+from rangereg.app.tab.model import ModelPanel
+from rangereg.app.tab.pairs import PairsPanel
+from rangereg.app.tab.pose import PosePanel
+from rangereg.app.tab.refresher import Refresher
+from rangereg.app.tab.replay import ReplayPanel
+from rangereg.app.tab.run import RunPanel, build_chart, chart_axes
+from rangereg.app.tab.scans import ScansPanel
+from rangereg.app.tab.settings import problem_config
+from rangereg.app.tab.state import TabState
+from rangereg.app.views import Display, Trail, temperature_of
+from rangereg.core.errors import InputError
+from rangereg.core.frustum import KINDS, frustum_of
+from rangereg.core.problem import prepare, relative_guess
+from rangereg.core.register import estimate_threshold
+from rangereg.core.scan import Scan
+from rangereg.core.surface import Surface
+from rangereg.core.transforms import check_rigid, invert
 
 log = logging.getLogger("rangereg.workbench")
 

@@ -11,11 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import viser
-
-from app.figures import SOURCE_PICK_RGB, TARGET_PICK_RGB, fmt
-from core.errors import InputError
-from core.horn import weighted_horn
-from core.transforms import apply
+from rangereg.app.figures import SOURCE_PICK_RGB, TARGET_PICK_RGB, fmt
+from rangereg.core.errors import InputError
+from rangereg.core.horn import weighted_horn
+from rangereg.core.transforms import apply
 
 MIN_PAIRS = 3
 
@@ -147,7 +146,7 @@ class PairsPanel:
         return index
 
     def _remove(self) -> None:
-        from app.tab.fields import Range, parse_number
+        from rangereg.app.tab.fields import Range, parse_number
 
         k = parse_number(self.h.remove_which.value, "pair number", Range(1, 10**6, integer=True))
         self.pairs.remove(int(k) - 1)

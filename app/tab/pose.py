@@ -6,12 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import viser
-
-from app.figures import axis_label
-from app.tab import scene3d
-from app.tab.fields import parse_number, show_number
-from core.errors import InputError
-from core.transforms import PARAM_NAMES, from_params, to_params
+from rangereg.app.figures import axis_label
+from rangereg.app.tab import scene3d
+from rangereg.app.tab.fields import parse_number, show_number
+from rangereg.core.errors import InputError
+from rangereg.core.transforms import PARAM_NAMES, from_params, to_params
 
 
 @dataclass(eq=False)

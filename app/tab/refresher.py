@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 
-from app.tab import scene3d
+from rangereg.app.tab import scene3d
 
 log = logging.getLogger("rangereg.workbench")
 

@@ -17,13 +17,12 @@ import threading
 import time
 
 import numpy as np
-
-from app.figures import fmt, squared_unit
-from app.tab import scene3d
-from app.views import temperature_of
-from core.errors import InputError
-from core.events import Event
-from core.trace import NO_HEADER, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
+from rangereg.app.figures import fmt, squared_unit
+from rangereg.app.tab import scene3d
+from rangereg.app.views import temperature_of
+from rangereg.core.errors import InputError
+from rangereg.core.events import Event
+from rangereg.core.trace import NO_HEADER, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
 
 SPEEDS = ("10", "30", "100", "300", "1000")  # events per second
 TICK = 0.1  # seconds between steps of Play

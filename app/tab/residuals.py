@@ -11,9 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import viser
-
-from app.figures import fmt, unit_label
-from core.transforms import apply
+from rangereg.app.figures import fmt, unit_label
+from rangereg.core.transforms import apply
 
 BINS = 40
 COLOUR_SPAN = 2.0  # the colour scale ends at this many caps (sqrt t): every outlier is the last colour

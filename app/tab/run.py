@@ -7,11 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 import viser.uplot as uplot
-
-from app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, fmt, hex_colour, squared_unit, tidy
-from app.options import Settings
-from app.runner import Run
-from app.tab.settings import (
+from rangereg.app.figures import PHASE_LABEL, PHASE_NAMES, PHASE_RGB, fmt, hex_colour, squared_unit, tidy
+from rangereg.app.options import Settings
+from rangereg.app.runner import Run
+from rangereg.app.tab.settings import (
     FRUSTUM,
     LOCK_LABEL,
     NO_GUESS_LABEL,
@@ -22,11 +21,11 @@ from app.tab.settings import (
     read_number,
     read_settings,
 )
-from app.tab.state import TabState
-from core.errors import InputError
-from core.frustum import KINDS
-from core.register import register
-from core.trace import TraceHeader
+from rangereg.app.tab.state import TabState
+from rangereg.core.errors import InputError
+from rangereg.core.frustum import KINDS
+from rangereg.core.register import register
+from rangereg.core.trace import TraceHeader
 
 RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
                "Basin hopping": "basin-hopping", "Run global": "global"}

@@ -13,15 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import viser
-
-from app.tab.fields import parse_vector, show_vector
-from app.tab.scene3d import Visibility
-from core.e57 import SUFFIX as E57_SUFFIX
-from core.e57 import list_scans, read_e57_all, selector_for
-from core.errors import InputError
-from core.io import load_scan
-from core.scan import Scan
-from core.viewpoint import check_viewpoint
+from rangereg.app.tab.fields import parse_vector, show_vector
+from rangereg.app.tab.scene3d import Visibility
+from rangereg.core.e57 import SUFFIX as E57_SUFFIX
+from rangereg.core.e57 import list_scans, read_e57_all, selector_for
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_scan
+from rangereg.core.scan import Scan
+from rangereg.core.viewpoint import check_viewpoint
 
 
 @dataclass(eq=False)

@@ -16,8 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import viser
-
-from app.figures import (
+from rangereg.app.figures import (
     MINIMUM_RGB,
     MODEL_RGB,
     SOURCE_OVERLAP_RGB,
@@ -25,7 +24,7 @@ from app.figures import (
     TARGET_OVERLAP_RGB,
     TARGET_RGB,
 )
-from app.tab.state import TabState
+from rangereg.app.tab.state import TabState
 
 RUN_POINTS = 1500  # while a run moves the scan, each cloud is drawn with at most this many points: software
 # WebGL pays per point, hardly per pixel of a point (bunny pair, 1400 x 900 page, no run: 11-14 frames a second

@@ -11,11 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import viser
-
-from app.options import KNOBS, Settings, parse_lock, to_config
-from app.tab.fields import parse_setting
-from core.problem import ProblemConfig
-from core.register import Config
+from rangereg.app.options import KNOBS, Settings, parse_lock, to_config
+from rangereg.app.tab.fields import parse_setting
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.register import Config
 
 ANNEALS = "applies to Run hybrid and Run SA (the methods that anneal)"
 _CORE = Config()
@@ -102,7 +101,7 @@ def checked_lock(text: str) -> str | None:
 
 def guess_text(s: Settings, T_init, source, target) -> str:
     """The initial pose's stated region as Run global takes it (core.region), in the user's words."""
-    from core.region import Region
+    from rangereg.core.region import Region
 
     return Region.stated(T_init, page_config(s, "global").problem, source, target).describe()
 

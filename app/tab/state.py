@@ -28,15 +28,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from app.runner import Run
-from app.views import Display
-from core.errors import InputError
-from core.landscape import Slice
-from core.problem import Problem
-from core.register import Result
-from core.scan import Scan
-from core.surface import Surface
+from rangereg.app.runner import Run
+from rangereg.app.views import Display
+from rangereg.core.errors import InputError
+from rangereg.core.landscape import Slice
+from rangereg.core.problem import Problem
+from rangereg.core.register import Result
+from rangereg.core.scan import Scan
+from rangereg.core.surface import Surface
 
 
 @dataclass(eq=False)

@@ -12,12 +12,11 @@ shown pose's marker moves on every push; the mesh is sent once per slice and the
 from __future__ import annotations
 
 import numpy as np
+from rangereg.app.figures import MINIMUM_RGB, PHASE_TABLE, axis_label, fmt, log_values, phase_code, squared_unit
+from rangereg.app.tab.scene3d import MARKER
+from rangereg.app.views import phase_ends, thin
+from rangereg.core.landscape import Slice, project
 from scipy.interpolate import RegularGridInterpolator
-
-from app.figures import MINIMUM_RGB, PHASE_TABLE, axis_label, fmt, log_values, phase_code, squared_unit
-from app.tab.scene3d import MARKER
-from app.views import phase_ends, thin
-from core.landscape import Slice, project
 
 TERRAIN_AT = (1.4, -0.4, 0.0)  # page units: right of the scans (the page scales the target to size 1)
 TERRAIN_SIZE = 1.0  # width and depth of the box; its height is HEIGHT

@@ -5,9 +5,9 @@ from .events import Cancelled, Event
 from .io import load_conf, load_scan, read_transform, save_scan
 from .problem import ProblemConfig, prepare, relative_guess
 from .register import METHODS, Config, Result, register
-from .scan import Scan
+from .scan import Scan, ScanKind
 from .surface import Surface
 
-__all__ = ["Cancelled", "Config", "Event", "InputError", "METHODS", "ProblemConfig", "Result", "Scan",
+__all__ = ["Cancelled", "Config", "Event", "InputError", "METHODS", "ProblemConfig", "Result", "Scan", "ScanKind",
            "Surface", "load_conf", "load_scan", "prepare", "read_transform", "register", "relative_guess",
            "save_scan"]

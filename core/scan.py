@@ -7,6 +7,7 @@ ground-truth ``T_world_scan`` when known; ``guess`` a rough ``T_world_scan`` suc
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from functools import cached_property
 
 import numpy as np
@@ -52,6 +53,22 @@ class RangeGrid:
         return self.index.shape
 
 
+class ScanKind(StrEnum):
+    """How a scan was taken, which decides its surface and its overlap (the error E is the same for all).
+
+    - ``SINGLE_VIEW``: one sensor position in front of the points (object scanners, RGB-D frames, a
+      structured E57 scan): a range grid or a 2.5-D triangulation from the viewpoint, the paper's frustum.
+    - ``PANORAMA``: the points lie all around the sensor (spinning LiDAR, terrestrial scanners): a spherical
+      range image about the sensor, overlap by visibility in that image.
+    - ``UNSTRUCTURED``: no single viewpoint (fused fragments, photogrammetry, merged clouds): local planes
+      from the points' normals, overlap by mutual closeness.
+    """
+
+    SINGLE_VIEW = "single-view"
+    PANORAMA = "panorama"
+    UNSTRUCTURED = "unstructured"
+
+
 @dataclass(frozen=True, eq=False)
 class Scan:
     """points: (N, 3) float64 in ``units``; viewpoint: (3,) sensor origin in the same frame."""
@@ -67,6 +84,7 @@ class Scan:
     guess: np.ndarray | None = None  # rough T_world_scan (e.g. odometry)
     dropped: int = 0  # non-finite points dropped on loading
     source: str = ""  # the file it came from
+    kind: ScanKind = ScanKind.SINGLE_VIEW
     meta: dict = field(default_factory=dict)  # e.g. "units_stated": the units come from the file, not a guess
 
     def __repr__(self) -> str:

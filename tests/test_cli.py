@@ -191,13 +191,13 @@ def test_the_cli_defaults_make_the_config_they_made_before():
 
 
 def test_serve_hands_the_workbench_typed_options(rangereg, monkeypatch):
-    import rangereg.app.workbench
+    from rangereg.app import workbench  # `rangereg` here is the CLI fixture
 
     seen = []
-    monkeypatch.setattr(rangereg.app.workbench, "serve", lambda options: seen.append(options) or 0)
+    monkeypatch.setattr(workbench, "serve", lambda options: seen.append(options) or 0)
     code, _, err = rangereg("serve", "--scene", "bowl", "--port", "8123", "--upload-cap-mb", "5")
     assert code == 0, err
-    assert seen == [rangereg.app.workbench.ServeOptions(scene="bowl", port=8123, upload_cap_mb=5.0)]
+    assert seen == [workbench.ServeOptions(scene="bowl", port=8123, upload_cap_mb=5.0)]
     code, _, err = rangereg("serve", "--trace", "no-such-trace.jsonl")
     assert code == 2 and "no such file" in err
 

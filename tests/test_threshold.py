@@ -43,10 +43,13 @@ def test_the_pair_threshold_trusts_the_truth_and_not_a_pose_beside_it_on_every_s
         assert not thr.holds(basis, off)
 
 
-def test_the_pair_threshold_does_not_trust_a_twin_of_the_bowl_that_fits_in_distance(scene):
-    """The bowl turned 35 deg about a principal axis and refined ends in a valley 3.8 deg and 19 mm off,
-    where 71 % of the sample matches at 6.4 x the noise floor in d^2: a test of distance alone at 7 x would
-    trust it. The normals there disagree: the misfit rejects it, and trusts the truth."""
+def test_the_pair_threshold_trusts_no_twin_of_the_bowl_and_trusts_the_truth(scene):
+    """The bowl turned 20-90 deg about each principal axis and refined ends at the truth or in a twin valley
+    (8-90 deg off). No twin is trusted: the misfit (distance and normals) is above the factor at each.
+    Which turn finds which valley moves with the float32 closest points between processors: on one, the
+    35 deg turn about the third axis ended 3.8 deg and 19 mm off where 71 % of the sample matched at 6.4 x
+    the floor in d^2 (distance alone at 7 x would trust it); on another every twin sat at 8-16 x. Both
+    are claims of this test, whichever the processor gives."""
     from rangereg.core.candidates import CandidateConfig
     from rangereg.core.global_search import refine
     from rangereg.core.noise import noise_floor
@@ -63,13 +66,22 @@ def test_the_pair_threshold_does_not_trust_a_twin_of_the_bowl_that_fits_in_dista
     thr = pair_threshold(floor, basis.angle_floor, basis.min_overlap)
     assert thr.holds(basis, T_true)
     _, axes = np.linalg.eigh(np.cov((source.points - source.centroid).T))
-    turned = perturb(T_true, np.r_[0, 0, 0, np.radians(35) * (T_true[:3, :3] @ axes[:, 2])],
-                     apply(T_true, source.centroid[None])[0])
     pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * target.size)
-    T, _ = refine(source, target, surface, turned, pc, Config(candidates=CandidateConfig(refine_metric="plane")))
-    rot, trans = pose_error(T, T_true, source.centroid)
-    assert rot > 2.0 and trans > 10.0  # a wrong minimum (the scenes' success bound: 1 deg, 1 % of the size)
-    s = basis.evaluate(T[None])
-    assert s.inliers[0] > 0.6 and s.inlier_median[0] < 7 * floor  # distance alone would trust it
-    assert basis.normal_angle(T) > 2 * basis.angle_floor  # the normals tell: the misfit rejects it
-    assert thr.factor < thr.misfit(basis, T) < np.inf and not thr.holds(basis, T)
+    config = Config(candidates=CandidateConfig(refine_metric="plane"))
+    centre = apply(T_true, source.centroid[None])[0]
+    twins = right = 0
+    for axis in (2, 1, 0):
+        for deg in (35, -50, 70, 90):
+            turned = perturb(T_true, np.r_[0, 0, 0, np.radians(deg) * (T_true[:3, :3] @ axes[:, axis])], centre)
+            T, _ = refine(source, target, surface, turned, pc, config)
+            rot, trans = pose_error(T, T_true, source.centroid)
+            if rot > 2.0:  # a wrong minimum (the scenes' success bound: 1 deg, 1 % of the size)
+                twins += 1
+                assert thr.factor < thr.misfit(basis, T) and not thr.holds(basis, T), (axis, deg, rot, trans)
+                s = basis.evaluate(T[None])
+                if s.inliers[0] > 0.6 and s.inlier_median[0] < 7 * floor:  # distance alone would trust it:
+                    assert basis.normal_angle(T) > 2 * basis.angle_floor  # the normals tell
+            elif rot < 1.0:
+                right += 1
+                assert thr.holds(basis, T)
+    assert twins >= 3 and right >= 1  # both kinds of valley were met

@@ -208,7 +208,7 @@ def test_spherical_records_become_cartesian_and_invalid_records_are_left_out(tmp
     want = np.c_[rq * np.cos(el) * np.cos(az), rq * np.cos(el) * np.sin(az), rq * np.sin(el)][keep]
     np.testing.assert_allclose(s.points, want, atol=1e-9)
     assert s.grid.shape == (40, 50) and (s.grid.index >= 0).sum() == keep.sum()
-    assert s.meta["e57"]["invalid"] == 3 and s.meta["e57"]["coordinates"] == "spherical"
+    assert s.e57.invalid == 3 and s.e57.coordinates == "spherical"
     np.testing.assert_allclose(s.guess[:3, 3], (10, 20, 30))
     assert s.name == "station 1" and "intensity" not in s.meta
 
@@ -493,7 +493,7 @@ def test_a_panorama_is_read_and_said_to_surround_its_sensor(tmp_path, rangereg):
                                                "sphericalElevation": ("double", el), "rowIndex": ("int", rows.ravel()),
                                                "columnIndex": ("int", cols.ravel())}}])
     s = read_e57(tmp_path / "p.e57")
-    assert s.grid.shape == (20, 180) and any("surround the sensor" in n for n in s.meta["notes"])
+    assert s.grid.shape == (20, 180) and s.kind == "panorama" and s.viewpoint_from == "file"
     code, out, _ = rangereg("info", tmp_path / "p.e57#0")
     assert code == 0 and "note        its points surround the sensor" in out
 

@@ -56,6 +56,10 @@ def _vec3(text: str):
     return v
 
 
+# the commands that run Open3D's registration (its import costs ~1 s: info and scenes do without)
+LIBRARY_COMMANDS = ("register", "slice", "merge", "bench", "serve")
+
+
 def scan_kind(s) -> None:
     """The --scan-kind flag, the same on every command that reads scans (core.assemble: it overrides what
     the sidecar, the file and the points say)."""
@@ -263,6 +267,10 @@ def _run(argv: list[str] | None, command: list) -> int:
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
         return exc.code if isinstance(exc.code, int) else 2
     command[0] = args.command
+    if args.command in LIBRARY_COMMANDS:
+        from rangereg.core.quiet import quiet_open3d
+
+        quiet_open3d()  # Open3D's warnings stay off the console (core.quiet)
     status = importlib.import_module(f"rangereg.app.commands.{args.command}").run(args)
     sys.stdout.flush()
     return status

@@ -19,6 +19,7 @@ import numpy as np
 from .errors import InputError
 from .frustum import frustum_of, visible_from
 from .fuse import sample_quality
+from .quiet import quiet_open3d
 from .register import Config, register
 from .scan import Scan
 from .surface import Surface
@@ -101,7 +102,9 @@ def clear_geometry_cache() -> None:
 
 
 def built(shared: Shared, k: int) -> tuple[Scan, Surface]:
-    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused."""
+    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused. Every task
+    starts here, so a worker's Open3D is quieted here too (core.quiet)."""
+    quiet_open3d()
     if shared.token not in _BUILT:
         _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
         _BUILT[shared.token] = {}

@@ -20,8 +20,8 @@ intensity), nothing decided. :func:`assemble` then settles each value by the fir
 
 A range grid whose facing the format leaves open (PCD, E57) is mirrored, if need be, so that
 ``cross(d/dcol, d/drow)`` faces the sensor (core.scan.RangeGrid's convention). Points exactly at a
-viewpoint read from the file or the convention are a LiDAR's "no return" placeholders and are dropped
-(not a mesh's vertices).
+viewpoint known (not estimated) are a LiDAR's "no return" placeholders and are dropped (not a mesh's
+vertices, nor when most points sit there: that viewpoint is wrong).
 """
 
 from __future__ import annotations
@@ -139,8 +139,8 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
         kind, kind_from = side["kind"], Origin.SIDECAR
 
     vp, vp_from, kind, kind_from, tree = _place(parts, stated, kind, kind_from, what)
-    if vp_from in (Origin.FILE, Origin.CONVENTION) and kind is not ScanKind.UNSTRUCTURED and parts.faces is None:
-        parts = parts.without_points_at(vp, what)
+    if vp_from is not Origin.ESTIMATE and kind is not ScanKind.UNSTRUCTURED and parts.faces is None:
+        parts = parts.without_points_at(vp)
         if tree is not None and len(parts.points) != len(tree.data):
             tree = None
     grid = parts.grid
@@ -215,14 +215,11 @@ class _Parts:
         intensity = None if self.intensity is None else np.asarray(self.intensity, dtype=np.float64)[keep]
         return _Parts(self.points[keep], grid, faces, intensity, self.dropped, self.at_sensor)
 
-    def without_points_at(self, viewpoint: np.ndarray, what: str) -> _Parts:
+    def without_points_at(self, viewpoint: np.ndarray) -> _Parts:
         """Left out: points exactly on the sensor (a scanner writes a missing return there)."""
         on = np.all(self.points == viewpoint, axis=1)
-        if not on.any():
+        if not on.any() or on.mean() > 0.5 or len(on) - on.sum() < 3:  # most there: a wrong viewpoint (say so)
             return self
-        if len(self.points) - on.sum() < 3:
-            raise InputError(f"{what}: {int(on.sum())} of its {len(self.points)} points sit exactly on the sensor "
-                             f"position {viewpoint.tolist()} (no return): too few are left")
         return replace(self.subset(~on), at_sensor=self.at_sensor + int(on.sum()))
 
 

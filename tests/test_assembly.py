@@ -297,3 +297,20 @@ def test_open3d_warnings_stay_off_the_console(capfd, monkeypatch):
         assert "Open3D WARNING" not in capfd.readouterr().out
     finally:
         o3d.utility.set_verbosity_level(before)
+
+
+def test_a_saved_scan_comes_back_with_its_kind_units_and_viewpoint(tmp_path):
+    from rangereg.core.io import save_scan
+
+    np.savetxt(tmp_path / "s.xyz", _sheet())
+    s = load_scan(tmp_path / "s.xyz", kind="unstructured")
+    save_scan(tmp_path / "out.ply", s)
+    side = json.loads((tmp_path / "out.json").read_text())
+    assert side["kind"] == "unstructured" and "viewpoint" not in side and "units" not in side  # none invented
+    back = load_scan(tmp_path / "out.ply")
+    assert (back.kind, back.kind_from, back.viewpoint_from) == (ScanKind.UNSTRUCTURED, Origin.SIDECAR, Origin.NONE)
+    s = load_scan(tmp_path / "s.xyz", units="m")
+    save_scan(tmp_path / "out.ply", s)
+    back = load_scan(tmp_path / "out.ply")
+    assert (back.units, back.units_from, back.kind) == ("m", Origin.SIDECAR, ScanKind.SINGLE_VIEW)
+    np.testing.assert_allclose(back.viewpoint, s.viewpoint)

@@ -56,6 +56,21 @@ def _vec3(text: str):
     return v
 
 
+# the commands that run Open3D's registration (its import costs ~1 s: info and scenes do without)
+LIBRARY_COMMANDS = ("register", "slice", "merge", "bench", "serve")
+
+
+def scan_kind(s) -> None:
+    """The --scan-kind flag, the same on every command that reads scans (core.assemble: it overrides what
+    the sidecar, the file and the points say)."""
+    from rangereg.core.scan import ScanKind
+
+    kinds = [k.value for k in ScanKind]
+    s.add_argument("--scan-kind", choices=kinds, metavar="KIND", help=f"how the scans were taken, one of "
+                   f"{', '.join(kinds)} (default: from each file: points all around the sensor are a panorama, "
+                   "in front of it a single view, with no sensor position and no single view unstructured)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from rangereg.app.options import KNOBS
     from rangereg.core.frustum import KINDS
@@ -73,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .obj .stl .off .e57 .las .laz); an .e57 "
                    "alone lists its scans, FILE.e57#K (K from 0) or FILE.e57#NAME describes one")
     s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated)")
+    scan_kind(s)
     s.add_argument("--triangles", action="store_true", help="count the surface's triangles even for a large scan "
                    "without a range grid (a 2.5-D Delaunay: about 30 s for 2M points)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
@@ -87,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "else identity")
         s.add_argument("--viewpoint-source", type=_vec3, metavar="X,Y,Z")
         s.add_argument("--viewpoint-target", type=_vec3, metavar="X,Y,Z")
+        scan_kind(s)
         s.add_argument("--frustum", choices=KINDS, default=pc.frustum, help=f"overlap frustum (default {pc.frustum})")
         s.add_argument("--max-points", type=_knob("max_points"), default=pc.max_points,
                        help=f"overlap points in E, 3 to {KNOBS['max_points'].high:,} (default {pc.max_points})")
@@ -179,6 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--trace", help="a --trace file from 'register' (of SOURCE and TARGET) to replay on the page")
     s.add_argument("--upload-cap-mb", type=_knob("upload_cap_mb"), default=200.0,
                    help="largest upload accepted (default 200 MB)")
+    scan_kind(s)
 
     s = sub.add_parser("merge", help="register a set of scans and fuse them into one model",
                        description="Register overlapping pairs, make poses globally consistent, fuse one mesh. "
@@ -192,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), help="units each initial "
                    "pose may be off (default: unstated, a share of the scan's size)")
     s.add_argument("--truth", help="ground-truth poses (.conf) to report errors against")
+    scan_kind(s)
     s.add_argument("--out", default="model.ply", help="the fused mesh (.ply), or the scans with their registered "
                    "poses (.e57; points untouched, the first scan left at its initial pose)")
     s.add_argument("--seed", type=_knob("seed"), default=0)
@@ -248,6 +267,10 @@ def _run(argv: list[str] | None, command: list) -> int:
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
         return exc.code if isinstance(exc.code, int) else 2
     command[0] = args.command
+    if args.command in LIBRARY_COMMANDS:
+        from rangereg.core.quiet import quiet_open3d
+
+        quiet_open3d()  # Open3D's warnings stay off the console (core.quiet)
     status = importlib.import_module(f"rangereg.app.commands.{args.command}").run(args)
     sys.stdout.flush()
     return status

@@ -69,7 +69,6 @@ def window(scan: Scan, keep_cells: np.ndarray, rows: np.ndarray, cols: np.ndarra
     old, r, c = old[order], r[order], c[order]
     grid = np.full((r.max() - r.min() + 1, c.max() - c.min() + 1), -1, dtype=np.int64)
     grid[r - r.min(), c - c.min()] = np.arange(len(old))
-    # per-point arrays in meta (an E57 scan's intensity) are cut with the points; anything else is kept
-    meta = {k: (v[old] if isinstance(v, np.ndarray) and len(v) == len(scan.points) else v) for k, v in scan.meta.items()}
-    return replace(scan, points=scan.points[old], grid=RangeGrid(grid), faces=None, name=name, meta=meta,
+    intensity = None if scan.intensity is None else scan.intensity[old]  # cut with the points
+    return replace(scan, points=scan.points[old], grid=RangeGrid(grid), faces=None, name=name, intensity=intensity,
                    source=f"{scan.source}#{name}" if scan.source else name)

@@ -44,6 +44,7 @@ class ServeOptions:
     data_dir: str | None = None
     upload_cap_mb: float = 200.0
     trace: str | None = None  # a register --trace file of SOURCE -> TARGET, opened on the Replay timeline
+    scan_kind: str | None = None  # --scan-kind: every scan the page opens is of this kind (None: from each file)
 
     def __post_init__(self) -> None:
         if not self.upload_cap_mb > 0:
@@ -51,14 +52,14 @@ class ServeOptions:
 
 
 @cache
-def _load_cached(path: str, mtime: float) -> Scan:
-    return load_scan(path)
+def _load_cached(path: str, mtime: float, kind: str | None = None) -> Scan:
+    return load_scan(path, kind=kind)
 
 
-def _load(path: Path) -> Scan:
+def _load(path: Path, kind: str | None = None) -> Scan:
     path, selector = split_selection(path)  # one scan of an E57: site.e57#K or site.e57#NAME
     st = stat_regular(path, str(path), "a scan file")  # a FIFO, a device, a link loop: refused unread
-    return _load_cached(str(path.resolve()) + ("" if selector is None else f"#{selector}"), st.st_mtime)
+    return _load_cached(str(path.resolve()) + ("" if selector is None else f"#{selector}"), st.st_mtime, kind)
 
 
 def check_port(host: str, port: int) -> None:
@@ -96,7 +97,8 @@ class Workbench:
         if options.source or options.target:
             if not (options.source and options.target):
                 raise InputError("give both SOURCE and TARGET, or neither (the default scene opens)")
-            self.first_pair = (_load(Path(options.source)), _load(Path(options.target)))
+            kind = options.scan_kind
+            self.first_pair = (_load(Path(options.source), kind), _load(Path(options.target), kind))
         else:
             self.first_pair = self.scene_pair(options.scene)
         self.trace = self._check_trace(options.trace) if options.trace else None
@@ -160,7 +162,7 @@ class Workbench:
         path = (self.data_dir / relative).resolve()
         if not path.is_relative_to(self.data_dir):
             raise InputError(f"{relative}: outside the data folder")
-        return _load(path)
+        return _load(path, self.options.scan_kind)
 
     def _guard_uploads(self, client) -> None:
         """The client's uploads held to the cap while they arrive (app.access.UploadGuard): viser buffers them

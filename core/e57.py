@@ -6,17 +6,18 @@ One file holds many scans ("data3D" entries). Each becomes a :class:`core.scan.S
   are measured about its origin) and its ``pose`` maps that frame into the file's:
   ``T_world_scan``. We keep the points as stored (pye57's ``read_scan`` would apply the pose; we
   read the raw fields instead), the pose as the scan's rough pose (``Scan.guess``), and the sensor
-  at the scan frame's origin, (0, 0, 0), as its viewpoint. A scan without a pose gets no guess.
+  at the scan frame's origin, (0, 0, 0), as its viewpoint (from the file). A scan without a pose
+  gets no guess. The Scan is made by core.assemble (a scan all around its sensor is a panorama).
 - **Points**: cartesianX/Y/Z, or sphericalRange/Azimuth/Elevation turned into x, y, z
   (``x = r cos(el) cos(az)``, ``y = r cos(el) sin(az)``, ``z = r sin(el)``, the standard's).
   Records flagged by ``cartesianInvalidState`` / ``sphericalInvalidState`` (not 0) are left out.
   Units are metres (the standard's).
 - **Grid**: rowIndex/columnIndex, when both are present, become the :class:`RangeGrid` (rows and
   columns counted from their smallest value; where a cell holds several returns the first record
-  wins), mirrored if need be so that ``cross(d/dcol, d/drow)`` faces the sensor (the grid's
-  convention, core/scan.py). The surface is then triangulated on the grid, as for a PLY range grid.
-- **Intensity**, when present, is kept in ``Scan.meta["intensity"]`` ((N,) float64, NaN where
-  ``isIntensityInvalid``); nothing in the registration uses it.
+  wins), mirrored by the assembly if need be so that ``cross(d/dcol, d/drow)`` faces the sensor (the
+  grid's convention, core/scan.py). The surface is then triangulated on the grid, as for a PLY range grid.
+- **Intensity**, when present, is kept in ``Scan.intensity`` ((N,) float64, NaN where
+  ``isIntensityInvalid``); nothing in the registration uses it. ``Scan.e57`` names the file and scan.
 
 Choosing scans: ``site.e57#3`` is the scan at index 3, counted from 0 as the file stores them (the
 order ``info`` lists); ``site.e57#NAME`` the scan of that name (a selector of digits only is always
@@ -30,14 +31,15 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .assemble import RawScan
 from .errors import InputError
-from .scan import RangeGrid, Scan, clean_points
+from .scan import E57Record, Scan, ScanKind
 
 SUFFIX = ".e57"
 CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
@@ -48,7 +50,6 @@ GRID_CELLS_MAX = 400_000_000
 # 64-bit integer buffers as numpy's "q" (long long): pye57's binding takes the buffer format "l", numpy's
 # int64 on Linux, for 32 bits (measured: every other value read back 0)
 INT64 = "q"
-ORIENT_SAMPLE = 20_000  # grid cells that decide which way a grid's columns run
 _LISTED = 8  # scans named in an error that asks which one
 
 
@@ -316,22 +317,9 @@ def _scan_names(entries: Sequence[E57Entry], stem: str) -> list[str]:
             for e in entries]
 
 
-def _orient(grid: np.ndarray, points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
-    """The grid, mirrored left-right when most of its cells' ``cross(d/dcol, d/drow)`` face away from
-    the viewpoint (E57 leaves the direction in which rows and columns run to the scanner)."""
-    a, b, r = grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1]
-    cells = np.flatnonzero((a >= 0) & (b >= 0) & (r >= 0))
-    if not len(cells):
-        return grid
-    # a whole scan faces one way: a spread-out sample of cells tells it (all 1M cells took 0.3 s)
-    cells = cells[:: max(1, len(cells) // ORIENT_SAMPLE)]
-    pa, pb, pr = points[a.ravel()[cells]], points[b.ravel()[cells]], points[r.ravel()[cells]]
-    facing = np.einsum("ij,ij->i", np.cross(pb - pa, pr - pa), viewpoint - pa)
-    return grid if np.sum(facing > 0) >= np.sum(facing < 0) else np.ascontiguousarray(grid[:, ::-1])
-
-
-def _grid(rows: np.ndarray, cols: np.ndarray, points: np.ndarray, viewpoint: np.ndarray) -> tuple[RangeGrid | None, str]:
-    """The range grid of kept records (rows, cols (N,) int64) and a note when none is built."""
+def _grid(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """The range grid (R, C) int64 of kept records (rows, cols (N,) int64), facing left to the
+    assembly, and a note when none is built."""
     if len(rows) == 0:
         return None, ""
     r0, c0 = int(rows.min()), int(cols.min())
@@ -343,21 +331,10 @@ def _grid(rows: np.ndarray, cols: np.ndarray, points: np.ndarray, viewpoint: np.
     flat = (rows - r0) * C + (cols - c0)
     g = np.full(R * C, -1, dtype=np.int64)
     g[flat[::-1]] = np.arange(len(flat) - 1, -1, -1)  # written last to first: the first record of a cell wins
-    return RangeGrid(_orient(g.reshape(R, C), points, viewpoint)), ""
+    return g.reshape(R, C), ""
 
 
-def _surrounds(points: np.ndarray, viewpoint: np.ndarray) -> bool:
-    """Whether some points lie beside or behind the sensor's mean viewing direction (core.surface's test)."""
-    from .surface import view_projection
-
-    try:
-        view_projection(points[:: max(1, len(points) // 20_000)], viewpoint)
-    except InputError:
-        return True
-    return False
-
-
-def _read_one(imf, scan, entry: E57Entry, path: Path, name: str) -> Scan:
+def _read_one(imf, scan, entry: E57Entry, path: Path, name: str) -> RawScan:
     from pye57 import libe57
 
     what = f"{path}#{entry.index}"
@@ -387,26 +364,30 @@ def _read_one(imf, scan, entry: E57Entry, path: Path, name: str) -> Scan:
     if not valid.any():
         raise InputError(f"{what}: every one of its {len(xyz)} points is flagged invalid ({state})")
     keep = valid & finite
-    points, _ = clean_points(xyz[valid], what)  # the checks (enough points, not a line); drops non-finite
-    viewpoint = np.zeros(3)
     grid, note = (None, "")
     if "rowIndex" in d and "columnIndex" in d:
-        grid, note = _grid(d["rowIndex"][keep], d["columnIndex"][keep], points, viewpoint)
-    meta = {"e57": {"file": str(path), "index": entry.index, "name": entry.name, "coordinates": entry.coordinates,
-                    "invalid": int((~valid).sum())}}
-    notes = [note] if note else []
-    if _surrounds(points, viewpoint):
-        notes.append("its points surround the sensor (a panorama): the overlap frustum (paper section 2.1) "
-                     "spans less than a half-space around the sensor, so registering it as a whole fails")
-    if notes:
-        meta["notes"] = notes
+        grid, note = _grid(d["rowIndex"][keep], d["columnIndex"][keep])
+    intensity = None
     if "intensity" in d:
         intensity = d["intensity"][keep]
         if "isIntensityInvalid" in d:
             intensity = np.where(d["isIntensityInvalid"][keep] == 0, intensity, np.nan)
-        meta["intensity"] = intensity
-    return Scan(points=points, viewpoint=viewpoint, name=name, units="m", grid=grid, guess=entry.pose,
-                dropped=int((valid & ~finite).sum()), source=what, meta=meta)
+    record = E57Record(str(path), entry.index, entry.name, entry.coordinates, int((~valid).sum()))
+    # the standard's scan frame has the sensor at its origin and measures in metres; the pose is the
+    # scan's placement in the file's frame, kept as its rough pose
+    return RawScan(xyz[keep], what, name, grid=grid, viewpoint=np.zeros(3), guess=entry.pose, units="m",
+                   intensity=intensity, e57=record, dropped=int((valid & ~finite).sum()),
+                   notes=(note,) if note else ())
+
+
+def read_e57_raw(path: str | Path, selector: str | None = None) -> RawScan:
+    """What the scan ``selector`` names in the E57 file ``path`` holds (core.assemble.RawScan)."""
+    path = Path(path)
+    check_file(path)
+    with _open(path) as imf, translated(str(path)):
+        scans, entries = _scans_of(imf, path)
+        k = choose(entries, selector, path)
+        return _read_one(imf, scans[k], entries[k], path, _scan_names(entries, path.stem)[k])
 
 
 def read_e57(path: str | Path, selector: str | None = None, viewpoint: np.ndarray | None = None,
@@ -414,13 +395,9 @@ def read_e57(path: str | Path, selector: str | None = None, viewpoint: np.ndarra
     """The scan ``selector`` names in the E57 file ``path`` (None: the file's only scan).
 
     ``viewpoint`` (3,) in the scan's frame overrides the scan's origin. Raises InputError."""
-    path = Path(path)
-    check_file(path)
-    with _open(path) as imf, translated(str(path)):
-        scans, entries = _scans_of(imf, path)
-        k = choose(entries, selector, path)
-        scan = _read_one(imf, scans[k], entries[k], path, name or _scan_names(entries, path.stem)[k])
-    return _with_viewpoint(scan, viewpoint)
+    from .assemble import Given, assemble
+
+    return assemble(read_e57_raw(path, selector), Given(viewpoint=viewpoint, name=name))
 
 
 def _scans_of(imf, path: Path) -> tuple[list, list]:
@@ -432,22 +409,15 @@ def _scans_of(imf, path: Path) -> tuple[list, list]:
     return scans, entries
 
 
-def read_e57_all(path: str | Path) -> list[Scan]:
-    """Every scan of the E57 file ``path``, in the file's order."""
+def read_e57_all(path: str | Path, kind: ScanKind | str | None = None) -> list[Scan]:
+    """Every scan of the E57 file ``path``, in the file's order; ``kind`` overrides what each scan says."""
     path = Path(path)
     check_file(path)
     with _open(path) as imf, translated(str(path)):
         scans, entries = _scans_of(imf, path)
         names = _scan_names(entries, path.stem)
-        return [_read_one(imf, s, e, path, n) for s, e, n in zip(scans, entries, names)]
+        raws = [_read_one(imf, s, e, path, n) for s, e, n in zip(scans, entries, names)]
+    from .assemble import Given, assemble, scan_kind
 
-
-def _with_viewpoint(scan: Scan, viewpoint: np.ndarray | None) -> Scan:
-    if viewpoint is None:
-        return scan
-    from .sidefiles import vector3
-    from .viewpoint import check_viewpoint
-
-    v = vector3(viewpoint, f"{scan.source}: the viewpoint")
-    check_viewpoint(scan.points, v, scan.grid, scan.faces, scan.source)
-    return replace(scan, viewpoint=v)
+    given = Given(kind=scan_kind(kind))
+    return [assemble(raw, given) for raw in raws]

@@ -1,6 +1,6 @@
 """Writing scans with registered poses as one E57 file (pye57's binding of libE57Format).
 
-Each scan read from an E57 (``Scan.meta["e57"]`` names its file and index) is copied as it was:
+Each scan read from an E57 (``Scan.e57`` names its file and index) is copied as it was:
 every field of its header, its point records value for value (raw: scaled integers as their
 integers, floats at their stored precision), with only its ``pose`` replaced; so the grid,
 intensity, colours and timestamps are kept. A scan from another format is written as
@@ -52,9 +52,9 @@ def write_e57(path: str | Path, scans: Sequence[Scan], T_world_scan: Sequence[np
             _write_header(imf, _coordinate_metadata(scans, sources))
             data3d = libe57.VectorNode(imf.root().get("data3D"))
             for scan, T in zip(scans, T_world_scan):
-                origin = scan.meta.get("e57")
+                origin = scan.e57
                 if origin is not None:
-                    _copy_scan(imf, data3d, _source(sources, origin["file"]), origin["index"], T)
+                    _copy_scan(imf, data3d, _source(sources, origin.file), origin.index, T)
                 else:
                     _new_scan(imf, data3d, scan, T)
             imf.close()
@@ -78,8 +78,8 @@ def _source(sources: dict, file: str):
 def _coordinate_metadata(scans: Sequence[Scan], sources: dict) -> str:
     """The first E57 source's coordinateMetadata (its coordinate reference system), else ""."""
     for s in scans:
-        if "e57" in s.meta:
-            return text_of(_source(sources, s.meta["e57"]["file"]).root(), "coordinateMetadata")
+        if s.e57 is not None:
+            return text_of(_source(sources, s.e57.file).root(), "coordinateMetadata")
     return ""
 
 
@@ -222,7 +222,7 @@ def _new_scan(imf, data3d, scan: Scan, T: np.ndarray) -> None:
         node.set("indexBounds", index_bounds)
         proto.set("rowIndex", libe57.IntegerNode(imf, 0, 0, max(scan.grid.shape[0] - 1, 1)))
         proto.set("columnIndex", libe57.IntegerNode(imf, 0, 0, max(scan.grid.shape[1] - 1, 1)))
-    intensity = scan.meta.get("intensity")
+    intensity = scan.intensity
     if intensity is not None and len(intensity) == len(p) and np.all(np.isfinite(intensity)):
         data["intensity"] = np.asarray(intensity, dtype=np.float64)
         lo, hi = float(data["intensity"].min()), float(data["intensity"].max())

@@ -1,6 +1,7 @@
-"""Loading and saving scans: PLY (with Stanford range grids), PCD, XYZ/TXT/CSV, OBJ/STL/OFF meshes, E57
-(core.e57) and LAS/LAZ (core.las),
-Stanford ``.conf`` poses and our JSON sidecar (viewpoint, units, ground truth)."""
+"""Loading and saving scans: PLY (with Stanford range grids), PCD (its VIEWPOINT, an organised cloud's
+grid), XYZ/TXT/CSV, OBJ/STL/OFF meshes, E57 (core.e57) and LAS/LAZ (core.las), Stanford ``.conf`` poses
+and our JSON sidecar (viewpoint, units, kind, ground truth). The readers return what the file holds
+(core.assemble.RawScan); core.assemble makes the Scan by one precedence rule."""
 
 from __future__ import annotations
 
@@ -11,14 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .assemble import Given, RawScan, assemble, scan_kind
 from .e57 import SUFFIX as E57_SUFFIX
-from .e57 import read_e57, read_e57_all, split_selection
+from .e57 import read_e57_all, read_e57_raw, split_selection
 from .errors import InputError
 from .files import BINARY_FACTOR, HEADER_LIMIT, TEXT_FACTOR, check_memory, open_regular, stat_regular
 from .las import SUFFIXES as LAS_SUFFIXES
-from .las import read_las
+from .las import read_las_raw
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
-from .scan import RangeGrid, Scan, clean_points
+from .scan import Scan, ScanKind
 from .sidefiles import (  # noqa: F401  (callers read side files through core.io too)
     check_sidecar,
     load_conf,
@@ -31,7 +33,6 @@ from .sidefiles import (  # noqa: F401  (callers read side files through core.io
     write_sidecar,
     write_transform,
 )
-from .viewpoint import check_viewpoint, estimate_viewpoint
 
 POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
 MESH_FORMATS = (".obj", ".stl", ".off")
@@ -39,71 +40,42 @@ SCANNER_FORMATS = (E57_SUFFIX, *LAS_SUFFIXES)  # files that carry their own unit
 FORMATS = POINT_FORMATS + MESH_FORMATS + SCANNER_FORMATS
 
 
-def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str | None = None) -> Scan:
-    """Read a scan file. ``viewpoint`` (3,) overrides any stored or estimated one.
+def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str | None = None,
+              kind: ScanKind | str | None = None, units: str | None = None) -> Scan:
+    """Read a scan file. ``viewpoint`` (3,), ``kind`` and ``units`` override whatever the sidecar, the
+    file or the points say (core.assemble's precedence rule).
 
     ``path`` may pick one scan of an E57 file: ``site.e57#3`` or ``site.e57#NAME`` (core.e57).
     Raises InputError with a message naming the file for anything unreadable or degenerate.
     """
     path, selector = split_selection(path)
-    what = str(path)
     check_scan_file(path)
+    given = Given(viewpoint=viewpoint, units=units, kind=scan_kind(kind), name=name)
+    return assemble(read_raw(path, selector), given)
+
+
+def read_raw(path: str | Path, selector: str | None = None) -> RawScan:
+    """What the scan file ``path`` holds (core.assemble.RawScan), any format; ``selector`` picks an
+    E57 file's scan. Raises InputError naming the file."""
+    path = Path(path)
+    what = str(path)
     suffix = path.suffix.lower()
     if suffix == E57_SUFFIX:
-        return read_e57(path, selector, viewpoint, name)
+        return read_e57_raw(path, selector)
     if suffix in LAS_SUFFIXES:
-        return read_las(path, viewpoint, name)
-    stored_vp, grid, faces = None, None, None
+        return read_las_raw(path)
     try:
         if suffix == ".ply":
-            raw, grid_idx, faces = _load_ply(path)
-        elif suffix == ".pcd":
-            raw, stored_vp, grid_idx = _load_pcd(path)
-        elif suffix in MESH_FORMATS:
-            raw, faces = _load_mesh(path)
-            grid_idx = None
-        else:
-            raw = _load_text(path)
-            grid_idx = None
+            return _load_ply(path)
+        if suffix == ".pcd":
+            return _load_pcd(path)
+        if suffix in MESH_FORMATS:
+            return _load_mesh(path)
+        return RawScan(_load_text(path), what, path.stem, sidecar=path)
     except InputError:
         raise
     except (PlyError, ValueError, KeyError, IndexError, OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{what}: cannot read it as {suffix[1:].upper()} ({exc})") from None
-    points, keep = clean_points(raw, what)
-    dropped = int((~keep).sum())
-    remap = np.cumsum(keep) - 1
-    if grid_idx is not None:
-        g = grid_idx.copy()
-        occupied = g >= 0
-        valid = occupied.copy()
-        valid[occupied] = keep[g[occupied]]
-        g[~valid] = -1
-        g[valid] = remap[g[valid]]
-        grid = RangeGrid(g)
-    if faces is not None:
-        faces = faces[np.all(keep[faces], axis=1)]
-        faces = remap[faces]
-    side = read_sidecar(path)
-    pose = side.get("pose")
-    if pose is None:
-        pose = pose_from_conf_beside(path)
-    units = side.get("units") or _guess_units(points)
-    vp, estimated = (stored_vp, False)
-    if side.get("viewpoint") is not None:
-        vp = side["viewpoint"]
-    elif vp is not None and viewpoint is None:
-        vp = vector3(vp, f"{what}: the stored VIEWPOINT")
-    if viewpoint is not None:
-        vp, estimated = vector3(viewpoint, f"{what}: the viewpoint"), False
-        check_viewpoint(points, vp, grid, faces, what)
-    elif vp is None:
-        vp, estimated = estimate_viewpoint(points, grid, faces), True
-    scan = Scan(points=points, viewpoint=vp, name=name or path.stem, units=units,
-                viewpoint_estimated=estimated, grid=grid, faces=faces,
-                pose=None if pose is None else np.asarray(pose, dtype=np.float64),
-                guess=side.get("guess"), meta={"units_stated": bool(side.get("units"))},
-                dropped=dropped, source=str(path))
-    return scan
 
 
 def check_scan_file(path: str | Path) -> None:
@@ -124,7 +96,7 @@ def check_scan_file(path: str | Path) -> None:
     check_memory(st.st_size, BINARY_FACTOR if suffix in (".ply", ".pcd", ".stl", ".e57", ".las") else TEXT_FACTOR, what, st)
 
 
-def _load_ply(path: Path):
+def _load_ply(path: Path) -> RawScan:
     data, info = read_ply(path)
     if "vertex" not in data:
         raise InputError(f"{path}: the PLY file has no vertex element")
@@ -155,7 +127,18 @@ def _load_ply(path: Path):
         if faces.size and (faces.max() >= len(pts) or faces.min() < 0):
             bad = faces.max() if faces.max() >= len(pts) else faces.min()
             raise InputError(f"{path}: a face refers to vertex {bad}; the file has vertices 0 to {len(pts) - 1}")
-    return pts, grid_idx, faces
+    intensity = _intensity(v, len(pts))
+    return RawScan(pts, str(path), path.stem, grid=grid_idx, grid_faces_sensor=True, faces=faces,
+                   intensity=intensity, sidecar=path)
+
+
+def _intensity(fields: dict, n: int) -> np.ndarray | None:
+    """(n,) float64 of a per-point ``intensity`` (or ``scalar_intensity``) property, else None."""
+    for key in ("intensity", "scalar_intensity", "Intensity"):
+        value = fields.get(key)
+        if value is not None and not isinstance(value, tuple) and len(value) == n:
+            return np.asarray(value, dtype=np.float64).reshape(n)
+    return None
 
 
 def _whole(text: str, name: str, path: Path) -> int:
@@ -199,7 +182,7 @@ _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("
               ("I", 8): "i8", ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
 
 
-def _load_pcd(path: Path):
+def _load_pcd(path: Path) -> RawScan:
     with open_regular(path, str(path), "a scan file") as f:
         raw = f.read()
     header, pos = {}, 0
@@ -245,17 +228,37 @@ def _load_pcd(path: Path):
         n = len(pts)
     else:
         raise InputError(f"{path}: unsupported PCD DATA mode {mode!r}")
-    vp = None
-    if "VIEWPOINT" in header:
-        tx, ty, tz, qw, qx, qy, qz = (float(x) for x in header["VIEWPOINT"])
-        if (tx, ty, tz) != (0.0, 0.0, 0.0) or (qw, qx, qy, qz) != (1.0, 0.0, 0.0, 0.0) or True:
-            vp = np.array([tx, ty, tz])
+    intensity = None
+    if mode == "binary" and "intensity" in fields:
+        intensity = _intensity({"intensity": np.asarray(arr["intensity"]).reshape(len(arr), -1)[:, 0]}, len(pts))
+    elif mode == "ascii" and "intensity" in fields:
+        intensity = arr[:, offs[fields.index("intensity")]]
+    vp, rotation = _pcd_viewpoint(header.get("VIEWPOINT"), path)
     grid_idx = None
     w, h = int(header.get("WIDTH", [n])[0]), int(header.get("HEIGHT", ["1"])[0])
-    if h > 1 and w * h == len(pts) and mode != "binary_compressed":
-        grid_idx = np.arange(len(pts)).reshape(h, w)
-        grid_idx = np.where(np.all(np.isfinite(pts), axis=1).reshape(h, w), grid_idx, -1)
-    return pts, vp, grid_idx
+    if h > 1 and w * h == len(pts):
+        grid_idx = np.arange(len(pts)).reshape(h, w)  # row-major; NaN cells are emptied by the assembly
+    return RawScan(pts, str(path), path.stem, grid=grid_idx, viewpoint=vp, viewpoint_label="VIEWPOINT",
+                   sensor_rotation=rotation,
+                   intensity=intensity, sidecar=path)
+
+
+def _pcd_viewpoint(values: list[str] | None, path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A PCD's ``VIEWPOINT tx ty tz qw qx qy qz``: the sensor's position (3,) in the cloud's frame and its
+    orientation (3, 3) (the points are stored as they are, not turned by it); (None, None) without one."""
+    from scipy.spatial.transform import Rotation
+
+    if values is None:
+        return None, None
+    try:
+        tx, ty, tz, qw, qx, qy, qz = (float(x) for x in values)
+    except ValueError:
+        raise InputError(f"{path}: VIEWPOINT should be 7 numbers 'tx ty tz qw qx qy qz', found "
+                         f"{' '.join(values)[:60]!r}") from None
+    q = np.array([qx, qy, qz, qw])
+    if not (np.all(np.isfinite(q)) and np.linalg.norm(q) > 1e-9):
+        raise InputError(f"{path}: VIEWPOINT's quaternion (qw qx qy qz) {[qw, qx, qy, qz]} is not a rotation")
+    return np.array([tx, ty, tz]), Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
 
 
 def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> np.ndarray:
@@ -312,7 +315,7 @@ def _load_text(path: Path) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64)
 
 
-def _load_mesh(path: Path):
+def _load_mesh(path: Path) -> RawScan:
     import trimesh
 
     try:
@@ -323,12 +326,7 @@ def _load_mesh(path: Path):
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     if len(verts) == 0:
         raise InputError(f"{path}: the mesh has no vertices")
-    return verts, faces if len(faces) else None
-
-
-def _guess_units(points: np.ndarray) -> str:
-    size = float(np.linalg.norm(points.max(0) - points.min(0)))
-    return "m" if size < 20 else "mm"
+    return RawScan(verts, str(path), path.stem, faces=faces if len(faces) else None, sidecar=path)
 
 
 def save_scan(path: str | Path, scan: Scan) -> None:
@@ -341,20 +339,20 @@ def save_scan(path: str | Path, scan: Scan) -> None:
     write_sidecar(path, scan)
 
 
-def load_scans(paths: Sequence[str | Path]) -> list[Scan]:
+def load_scans(paths: Sequence[str | Path], kind: ScanKind | str | None = None) -> list[Scan]:
     """The scans ``paths`` name, in order: every scan of an E57 given without ``#``, one scan for any
-    other path (:func:`load_scan`). Names shared by scans of different files are made distinct by
-    the file's stem (``site:Scan 0``)."""
+    other path (:func:`load_scan`); ``kind`` overrides each file's. Names shared by scans of different
+    files are made distinct by the file's stem (``site:Scan 0``)."""
     scans: list[Scan] = []
     for p in paths:
         file, selector = split_selection(p)
         if file.suffix.lower() == E57_SUFFIX and selector is None:
-            scans += read_e57_all(file)
+            scans += read_e57_all(file, kind=kind)
         else:
-            scans.append(load_scan(p))
+            scans.append(load_scan(p, kind=kind))
     names = [s.name for s in scans]
     clash = {n for n in names if names.count(n) > 1}
     if clash:
-        scans = [replace(s, name=f"{Path(s.source.split('#')[0]).stem}:{s.name}") if s.name in clash and "e57" in s.meta
+        scans = [replace(s, name=f"{Path(s.source.split('#')[0]).stem}:{s.name}") if s.name in clash and s.e57
                  else s for s in scans]
     return scans

@@ -1,15 +1,14 @@
 """LAS and LAZ files (ASPRS) through laspy (LAZ decompressed by its lazrs backend).
 
 - **Points**: x, y, z with the header's scale and offset applied (float64, the file's frame and
-  units; metres unless the JSON sidecar says ``units``).
-- **Viewpoint**, first found of: the ``viewpoint`` argument (``--viewpoint``), the JSON sidecar's
-  ``viewpoint``, scan-origin extra fields, else estimated from the points as for an XYZ file
-  (core/viewpoint.py; ``Scan.viewpoint_estimated`` says so, and ``info``/``register`` print it).
+  units; metres by the format's convention unless the JSON sidecar says ``units``); intensity kept.
+- **Viewpoint**: scan-origin extra fields are the file's; the flag and the sidecar come first, the
+  frame's origin or an estimate after (core.assemble's one rule).
   Scan-origin extra fields are three extra-bytes dimensions whose names, lower-cased with spaces and
   underscores removed, are ``{prefix}x``, ``{prefix}y``, ``{prefix}z`` for a prefix of
   :data:`ORIGIN_PREFIXES`: ``scan_origin_x``, ``OriginX``, ``sensor x``, ``viewpoint_x``. They
   hold the sensor's position per point (in the points' frame); the scan's one viewpoint is their
-  median, and ``Scan.meta["origin_spread"]`` their spread (a mobile scanner's track is not one point).
+  median, and ``Scan.viewpoint_spread`` their spread (a mobile scanner's track is not one point).
 - Ground truth and rough pose as for any scan: the sidecar's ``pose``/``guess``, a ``.conf`` beside.
 """
 
@@ -20,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .assemble import RawScan
 from .errors import InputError
-from .scan import Scan, clean_points
+from .scan import Scan
 
 SUFFIXES = (".las", ".laz")
 ORIGIN_PREFIXES = ("scanorigin", "origin", "sensor", "viewpoint")
@@ -53,6 +53,8 @@ def _read(path: Path):
         points = np.asarray(las.xyz, dtype=np.float64)
         fields = _origin_fields(list(las.point_format.extra_dimension_names))
         origins = None if fields is None else np.c_[tuple(np.asarray(las[f], dtype=np.float64) for f in fields)]
+        names = set(las.point_format.dimension_names)
+        intensity = np.asarray(las["intensity"], dtype=np.float64) if "intensity" in names else None
     except InputError:
         raise
     except Exception as exc:  # laspy and lazrs raise many kinds (LaspyException, LazrsError, ValueError, OSError)
@@ -61,45 +63,32 @@ def _read(path: Path):
         if type(exc).__name__ == "LazrsError":
             why = f"its compressed points are corrupt or cut short; {why}"
         raise InputError(f"{path}: cannot read it as {kind} ({why})") from None
-    return points, origins, fields
+    return points, origins, fields, intensity
+
+
+def read_las_raw(path: str | Path) -> RawScan:
+    """What a LAS/LAZ file holds (core.assemble.RawScan; see the module notes). Raises InputError."""
+    path = Path(path)
+    what = str(path)
+    raw, origins, fields, intensity = _read(path)
+    if len(raw) == 0:
+        raise InputError(f"{what}: the file holds 0 points")
+    stored, spread, notes = None, None, ()
+    if origins is not None:
+        ok = np.all(np.isfinite(origins), axis=1) & np.all(np.isfinite(raw), axis=1)
+        if ok.any():
+            stored = np.median(origins[ok], axis=0)
+            spread = float(np.linalg.norm(origins[ok].max(0) - origins[ok].min(0)))
+            notes = (f"viewpoint: the median of the scan-origin fields {', '.join(fields)} "
+                     f"(they spread over {spread:.4g})",)
+    return RawScan(raw, what, path.stem, viewpoint=stored, viewpoint_label="the scan-origin fields",
+                   viewpoint_spread=spread, units_convention="m",
+                   intensity=intensity, sidecar=path, notes=notes)
 
 
 def read_las(path: str | Path, viewpoint: np.ndarray | None = None, name: str | None = None) -> Scan:
     """A scan from a LAS/LAZ file (see the module notes). ``viewpoint`` (3,) overrides any stored or
     estimated one. Raises InputError naming the file."""
-    from .sidefiles import pose_from_conf_beside, read_sidecar, vector3
-    from .viewpoint import check_viewpoint, estimate_viewpoint
+    from .assemble import Given, assemble
 
-    path = Path(path)
-    what = str(path)
-    raw, origins, fields = _read(path)
-    if len(raw) == 0:
-        raise InputError(f"{what}: the file holds 0 points")
-    points, keep = clean_points(raw, what)
-    meta: dict = {}
-    stored = None
-    if origins is not None:
-        origins = origins[keep]
-        ok = np.all(np.isfinite(origins), axis=1)
-        if ok.any():
-            stored = np.median(origins[ok], axis=0)
-            meta["origin_fields"] = list(fields)
-            meta["origin_spread"] = float(np.linalg.norm(origins[ok].max(0) - origins[ok].min(0)))
-    side = read_sidecar(path)
-    estimated = False
-    if viewpoint is not None:
-        vp = vector3(viewpoint, f"{what}: the viewpoint")
-    elif side.get("viewpoint") is not None:
-        vp = side["viewpoint"]
-    elif stored is not None:
-        vp = stored
-    else:
-        vp, estimated = estimate_viewpoint(points), True
-    if not estimated:
-        check_viewpoint(points, vp, None, None, what)
-    pose = side.get("pose")
-    if pose is None:
-        pose = pose_from_conf_beside(path)
-    return Scan(points=points, viewpoint=vp, name=name or path.stem, units=side.get("units") or "m",
-                viewpoint_estimated=estimated, pose=None if pose is None else np.asarray(pose, dtype=np.float64),
-                guess=side.get("guess"), dropped=int((~keep).sum()), source=what, meta=meta)
+    return assemble(read_las_raw(path), Given(viewpoint=viewpoint, name=name))

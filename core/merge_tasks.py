@@ -19,8 +19,9 @@ import numpy as np
 from .errors import InputError
 from .frustum import frustum_of, visible_from
 from .fuse import sample_quality
+from .quiet import quiet_open3d
 from .register import Config, register
-from .scan import RangeGrid, Scan
+from .scan import Scan
 from .surface import Surface
 from .transforms import apply, from_params, invert, pose_error
 
@@ -81,8 +82,7 @@ def verdict(res) -> tuple[bool, float | None, bool | None]:
 
 def scan_arrays(scan: Scan) -> dict:
     """A scan as plain numpy arrays and strings (picklable, cheap to ship)."""
-    return {"points": scan.points, "viewpoint": scan.viewpoint, "name": scan.name, "units": scan.units,
-            "grid": None if scan.grid is None else scan.grid.index, "faces": scan.faces}
+    return scan.to_arrays()
 
 
 def token(scans: list[Scan], config: Config) -> str:
@@ -102,15 +102,15 @@ def clear_geometry_cache() -> None:
 
 
 def built(shared: Shared, k: int) -> tuple[Scan, Surface]:
-    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused."""
+    """Scan k rebuilt from its arrays, with its surface: built once per process, then reused. Every task
+    starts here, so a worker's Open3D is quieted here too (core.quiet)."""
+    quiet_open3d()
     if shared.token not in _BUILT:
         _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
         _BUILT[shared.token] = {}
     cache = _BUILT[shared.token]
     if k not in cache:
-        d = shared.scans[k]
-        scan = Scan(points=d["points"], viewpoint=d["viewpoint"], name=d["name"], units=d["units"],
-                    grid=None if d["grid"] is None else RangeGrid(d["grid"]), faces=d["faces"])
+        scan = Scan.from_arrays(shared.scans[k])
         cache[k] = (scan, Surface.from_scan(scan))
     return cache[k]
 

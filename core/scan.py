@@ -2,13 +2,16 @@
 
 Points are stored in the scan's own frame (the sensor's, for a real scanner). ``pose`` is the
 ground-truth ``T_world_scan`` when known; ``guess`` a rough ``T_world_scan`` such as dead reckoning.
+Where the viewpoint, the units and the kind came from is said by :class:`Origin` fields (a loaded scan is
+assembled by core.assemble, one precedence rule for all formats).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, fields, replace
 from enum import StrEnum
 from functools import cached_property
+from types import MappingProxyType
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -69,15 +72,56 @@ class ScanKind(StrEnum):
     UNSTRUCTURED = "unstructured"
 
 
+class Origin(StrEnum):
+    """Where a scan's value (viewpoint, units, kind) came from, in the order one overrides the next:
+    given (a flag, or the program that built the scan), the JSON sidecar, the file itself, the
+    convention of how such files are written (a sensor at the frame's origin), an estimate from the
+    points; ``none`` when there is no such value (an unstructured cloud's viewpoint)."""
+
+    GIVEN = "given"
+    SIDECAR = "sidecar"
+    FILE = "file"
+    CONVENTION = "convention"
+    ESTIMATE = "estimate"
+    NONE = "none"
+
+    @property
+    def stated(self) -> bool:
+        """Said by someone (a flag, the sidecar, the file), not inferred."""
+        return self in (Origin.GIVEN, Origin.SIDECAR, Origin.FILE)
+
+
+@dataclass(frozen=True)
+class E57Record:
+    """Which scan of which E57 file a scan was read from (core.e57_write copies its records from there):
+    file path, index in the file's data3D, its stored name, "cartesian" or "spherical", and how many
+    records the file flags invalid."""
+
+    file: str
+    index: int
+    name: str
+    coordinates: str
+    invalid: int
+
+
 @dataclass(frozen=True, eq=False)
 class Scan:
-    """points: (N, 3) float64 in ``units``; viewpoint: (3,) sensor origin in the same frame."""
+    """points: (N, 3) float64 in ``units``; viewpoint: (3,) sensor origin in the same frame.
+
+    viewpoint_from / units_from / kind_from: where each came from (:class:`Origin`). An unstructured scan
+    has no sensor position (``viewpoint_from`` is NONE): its ``viewpoint`` then holds the standoff
+    estimate of core.viewpoint only so that single-view tools asked of it still have a point to use.
+    sensor_rotation: (3, 3) the sensor's orientation in the scan frame when the file stores one (a PCD's
+    VIEWPOINT quaternion), else None. intensity: (N,) float64 per point (NaN where the file flags it
+    invalid), or None. viewpoint_spread: the extent of per-point sensor origins a file stores (a LAS
+    scan-origin track), in ``units``. at_sensor: points dropped because they sat exactly on the sensor
+    (a LiDAR's "no return"). notes: what the assembly wants said about the file.
+    """
 
     points: np.ndarray
     viewpoint: np.ndarray
     name: str = "scan"
     units: str = "unknown"
-    viewpoint_estimated: bool = False
     grid: RangeGrid | None = None
     faces: np.ndarray | None = None  # (M, 3) int64, a surface stored in the file
     pose: np.ndarray | None = None  # ground truth T_world_scan
@@ -85,12 +129,59 @@ class Scan:
     dropped: int = 0  # non-finite points dropped on loading
     source: str = ""  # the file it came from
     kind: ScanKind = ScanKind.SINGLE_VIEW
-    meta: dict = field(default_factory=dict)  # e.g. "units_stated": the units come from the file, not a guess
+    viewpoint_from: Origin = Origin.GIVEN
+    units_from: Origin = Origin.NONE
+    kind_from: Origin = Origin.GIVEN
+    sensor_rotation: np.ndarray | None = None
+    intensity: np.ndarray | None = None
+    viewpoint_spread: float | None = None
+    at_sensor: int = 0
+    e57: E57Record | None = None
+    notes: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         grid = "x".join(map(str, self.grid.shape)) if self.grid is not None else "no"
-        return (f"Scan({self.name!r}, {len(self.points)} points, units={self.units}, grid={grid}, "
-                f"viewpoint={np.round(self.viewpoint, 4).tolist()}{' (estimated)' if self.viewpoint_estimated else ''})")
+        vp = "none" if self.viewpoint_from is Origin.NONE else np.round(self.viewpoint, 4).tolist()
+        return (f"Scan({self.name!r}, {len(self.points)} points, {self.kind}, units={self.units}, grid={grid}, "
+                f"viewpoint={vp}{' (estimated)' if self.viewpoint_from is Origin.ESTIMATE else ''})")
+
+    @property
+    def viewpoint_estimated(self) -> bool:
+        """The viewpoint is not the sensor's known position (estimated, or none at all)."""
+        return self.viewpoint_from in (Origin.ESTIMATE, Origin.NONE)
+
+    @property
+    def units_stated(self) -> bool:
+        """The units come from a flag, the sidecar or the file, not from the scale."""
+        return self.units_from.stated
+
+    @property
+    def meta(self) -> MappingProxyType:
+        """Read-only: ``{"units_stated": bool}``, for callers not yet reading :attr:`units_stated`."""
+        return MappingProxyType({"units_stated": self.units_stated})
+
+    def to_arrays(self) -> dict:
+        """The scan as plain arrays, strings and numbers (picklable, cheap to ship to another process);
+        :meth:`from_arrays` rebuilds it. The grid is its index array; the E57 record a dict."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["grid"] = None if self.grid is None else self.grid.index
+        out["e57"] = None if self.e57 is None else vars(self.e57).copy()
+        for key in ("kind", "viewpoint_from", "units_from", "kind_from"):
+            out[key] = str(out[key])
+        return out
+
+    @classmethod
+    def from_arrays(cls, d: dict) -> Scan:
+        """The scan :meth:`to_arrays` gave ``d``."""
+        kw = dict(d)
+        kw["grid"] = None if d.get("grid") is None else RangeGrid(d["grid"])
+        kw["e57"] = None if d.get("e57") is None else E57Record(**d["e57"])
+        kw["kind"] = ScanKind(d.get("kind", ScanKind.SINGLE_VIEW))
+        for key in ("viewpoint_from", "units_from", "kind_from"):
+            if key in d:
+                kw[key] = Origin(d[key])
+        kw["notes"] = tuple(d.get("notes", ()))
+        return cls(**kw)
 
     @cached_property
     def tree(self) -> cKDTree:
@@ -125,7 +216,7 @@ class Scan:
         v = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(v)):
             raise InputError(f"{self.name}: the viewpoint {v.tolist()} is not finite")
-        return replace(self, viewpoint=v, viewpoint_estimated=estimated)
+        return replace(self, viewpoint=v, viewpoint_from=Origin.ESTIMATE if estimated else Origin.GIVEN)
 
 
 def clean_points(points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""The files beside a scan: its JSON sidecar (viewpoint, units, ground truth, rough guess), Stanford
+"""The files beside a scan: its JSON sidecar (viewpoint, units, kind, ground truth, rough guess), Stanford
 ``.conf`` poses and transform files (16 numbers or JSON), each read with one clear error."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 from .files import CONF_LIMIT, SIDECAR_LIMIT, TRANSFORM_LIMIT, read_bytes
-from .scan import Scan, check_coordinates
+from .scan import Origin, Scan, ScanKind, check_coordinates
 
 
 def sidecar_path(path: Path) -> Path:
@@ -41,7 +41,8 @@ def read_sidecar(path: Path) -> dict:
 
 
 def check_sidecar(data: dict, what: str) -> dict:
-    """Check a sidecar's known keys; returns them as arrays: viewpoint (3,), pose and guess (4, 4) rigid."""
+    """Check a sidecar's known keys; returns them as arrays: viewpoint (3,), pose and guess (4, 4) rigid,
+    kind a core.scan.ScanKind ("single-view", "panorama" or "unstructured")."""
     from .transforms import check_rigid
 
     out = dict(data)
@@ -63,6 +64,14 @@ def check_sidecar(data: dict, what: str) -> dict:
     units = data.get("units")
     if units is not None and (not isinstance(units, str) or not units.strip()):
         raise InputError(f"{what}: 'units' should be a name such as \"mm\" or \"m\", found {_short(units)}")
+    if data.get("kind") is not None:
+        kinds = ", ".join(f'"{k.value}"' for k in ScanKind)
+        try:
+            out["kind"] = ScanKind(data["kind"]) if isinstance(data["kind"], str) else None
+        except ValueError:
+            out["kind"] = None
+        if out["kind"] is None:
+            raise InputError(f"{what}: 'kind' should be one of {kinds}, found {_short(data['kind'])}")
     return out
 
 
@@ -140,7 +149,11 @@ def pose_from_conf_beside(path: Path):
 
 
 def write_sidecar(path: Path, scan: Scan, **extra) -> None:
-    data = {"name": scan.name, "units": scan.units, "viewpoint": scan.viewpoint.tolist()}
+    data = {"name": scan.name, "kind": str(scan.kind)}
+    if scan.units != "unknown":
+        data["units"] = scan.units
+    if scan.viewpoint_from is not Origin.NONE:
+        data["viewpoint"] = scan.viewpoint.tolist()
     if scan.pose is not None:
         data["pose"] = scan.pose.tolist()
     if scan.guess is not None:

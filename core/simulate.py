@@ -80,7 +80,7 @@ def scan_mesh(vertices: np.ndarray, faces: np.ndarray, T_world_sensor: np.ndarra
     index = np.full(hit.shape, -1, dtype=np.int64)
     index[ok] = np.arange(ok.sum())
     return Scan(points=points, viewpoint=np.zeros(3), name=name, units="mm", grid=RangeGrid(index.reshape(r.shape)),
-                pose=T_world_sensor.copy(), meta={"spurious": int(spurious.sum())})
+                pose=T_world_sensor.copy())
 
 
 def height_field(fn, half: float, n: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -218,8 +218,8 @@ def make_scene(name: str, seed: int = 0) -> tuple[Scan, Scan]:
     D = from_params(np.r_[t, 0, 0, 0]) @ _rotate_about(r, center)
     from dataclasses import replace
 
-    a = replace(a, guess=a.pose.copy(), meta={**a.meta, "scene": name, "size": spec.size})
-    b = replace(b, guess=D @ b.pose, meta={**b.meta, "scene": name, "size": spec.size})
+    a = replace(a, guess=a.pose.copy())
+    b = replace(b, guess=D @ b.pose)
     return a, b
 
 

@@ -91,3 +91,106 @@ def check_viewpoint(points: np.ndarray, viewpoint: np.ndarray, grid: RangeGrid |
         raise InputError(
             f"{what}: the viewpoint {np.round(viewpoint, 4).tolist()} is on the wrong side of the surface "
             f"(it faces only {front:.0%} of it); give the sensor position on the scanned side")
+
+
+# ---- how the points lie about a sensor position (core.assemble decides the scan kind from these) ----
+
+# Points more than VIEW_HALF_ANGLE off the mean viewing direction, as a share, above which they lie all
+# around the sensor (a panorama). A single view has none (a camera's half field of view is under 60
+# degrees: the Kinect frames 35, the simulated scenes 35, the bunny about its frame's origin 62); the
+# spinning-LiDAR frame of ../shared/data/lidar has 26 % beyond 90 degrees, and still covers 360 degrees
+# of azimuth when its frame's origin is 3 m above the sensor (every point then below it).
+AROUND_SHARE = 0.05
+VIEW_HALF_ANGLE = 75.0
+# A sensor at the frame's origin is assumed only when the points lie within this many scan sizes of it
+# (the bunny at 1 m is ~4 sizes away; a georeferenced cloud, kilometres from its origin, is not a view from it).
+CONVENTION_REACH = 10.0
+# A range spread (90th over 10th percentile of the distances) below which the spacing says nothing of the
+# range: a sensor looking at one thing (the bunny's points 1 m from their scanner; the Kinect frames, a
+# scene 1.5-3 m away, spread 1.41 and still give a slope of 1.0).
+RANGE_SPREAD = 1.2
+# The slope of log(spacing) against log(range) above which the points were sampled by a sensor there:
+# a fixed angular step spaces returns in proportion to their range. Measured: the LiDAR frames 1.05,
+# the Kinect frames 1.01 (about their origins); the bunny scans about their frame's origin -0.09..0.08;
+# the LiDAR frame about a point 10 m or 30 m off its sensor 0.46 and 0.53, the Kinect frame about a
+# point 1 m behind its camera 0.58.
+SENSOR_SLOPE = 0.7
+# Layers: a single view holds one surface along each ray, so points next to each other as seen from the
+# viewpoint lie at about one range, but at its occluding contours. The share of points with a neighbour
+# (of 8, in the view) more than 10 spacings nearer or farther, measured from the estimated viewpoint:
+# single views 0.05-0.27 (the bunny's points alone 0.05, bun090 with its ears 0.27, the Kinect frame
+# 0.07, the simulated corner and ribbed scenes 0.20), two bunny views fused 0.09; the four bunny views
+# fused all around 0.45, the LiDAR frame seen from outside 0.73.
+LAYERED_SHARE = 0.35
+LAYER_NEIGHBOURS = 8
+LAYER_GAP = 10.0  # spacings
+SAMPLE = 5000  # points the spacing and incidence tests are measured on
+
+
+def sample(points: np.ndarray, n: int = SAMPLE) -> np.ndarray:
+    """Indices of an even spread of at most ``n`` of the (N, 3) points (deterministic)."""
+    return np.linspace(0, len(points) - 1, min(len(points), n)).astype(np.int64)
+
+
+def share_around(points: np.ndarray, viewpoint: np.ndarray) -> float:
+    """The share of (N, 3) points more than :data:`VIEW_HALF_ANGLE` degrees off the mean viewing
+    direction from ``viewpoint`` (0 for a single view; a large share for a panorama)."""
+    rays = points - viewpoint
+    r = np.linalg.norm(rays, axis=1)
+    seen = r > 0
+    if not seen.any():
+        return 0.0
+    unit = rays[seen] / r[seen, None]
+    mean = unit.mean(0)
+    if not np.linalg.norm(mean) > 1e-9:
+        return 1.0
+    return float(np.mean(unit @ (mean / np.linalg.norm(mean)) < np.cos(np.radians(VIEW_HALF_ANGLE))))
+
+
+def surrounds(points: np.ndarray, viewpoint: np.ndarray) -> bool:
+    """Whether the points lie all around ``viewpoint`` (see :data:`AROUND_SHARE`)."""
+    return share_around(points, viewpoint) > AROUND_SHARE
+
+
+def sensor_slope(points: np.ndarray, spacing: np.ndarray, at: np.ndarray) -> tuple[float, float]:
+    """(slope, spread) of log(spacing) against log(range from ``at``) over points (n, 3) and their
+    nearest-neighbour spacings (n,): slope ~1 where a sensor at ``at`` sampled them; spread: the 90th
+    over the 10th percentile of the ranges."""
+    r = np.linalg.norm(points - at, axis=1)
+    ok = (r > 0) & (spacing > 0)
+    if ok.sum() < 10:
+        return 0.0, 1.0
+    lo, hi = np.percentile(r[ok], [10, 90])
+    spread = float(hi / lo) if lo > 0 else float("inf")
+    if not spread > 1.0:
+        return 0.0, 1.0
+    return float(np.polyfit(np.log(r[ok]), np.log(spacing[ok]), 1)[0]), spread
+
+
+def layered_share(points: np.ndarray, tree, viewpoint: np.ndarray) -> float:
+    """The share of a sample of (N, 3) points (``tree`` their k-d tree) with a neighbour, as seen from
+    ``viewpoint``, at a range more than :data:`LAYER_GAP` spacings apart (see :data:`LAYERED_SHARE`);
+    1.0 when some points lie beside or behind the viewpoint (no single view then)."""
+    from scipy.spatial import cKDTree
+
+    rays = points - viewpoint
+    r = np.linalg.norm(rays, axis=1)
+    if not np.all(r > 0):
+        return 1.0
+    unit = rays / r[:, None]
+    axis = unit.mean(0)
+    if not np.linalg.norm(axis) > 1e-9:
+        return 1.0
+    axis /= np.linalg.norm(axis)
+    depth = unit @ axis
+    if depth.min() <= 1e-9:
+        return 1.0
+    u = np.cross(axis, np.eye(3)[np.argmin(np.abs(axis))])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    seen = np.c_[unit @ u, unit @ v] / depth[:, None]
+    idx = sample(points)
+    d, _ = tree.query(points[idx], k=2)
+    spacing = float(np.median(d[:, 1]))
+    _, nb = cKDTree(seen).query(seen[idx], k=min(LAYER_NEIGHBOURS, len(points)))
+    return float(np.mean(np.any(np.abs(r[nb] - r[idx, None]) > LAYER_GAP * spacing, axis=1)))

@@ -14,7 +14,10 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-BUNNY = ROOT.parent / "shared" / "data" / "bunny"
+# ../shared beside the repository (a git worktree of it one folder deeper finds the same one)
+SHARED = next((p for p in (ROOT.parent / "shared", ROOT.parent.parent / "shared") if p.is_dir()), ROOT.parent / "shared")
+DATA = SHARED / "data"
+BUNNY = DATA / "bunny"
 ASSETS = ROOT / "assets"
 # (scene, rotation deg, translation mm, seed): a start where ICP alone ends ~15 deg off in a local minimum and
 # annealing gets it out (tests/test_search.py shows both); found by trying seeds 0-11 at 10 deg / 400 mm

@@ -31,7 +31,7 @@ def sensor_frame(scan: Scan) -> tuple[Scan, np.ndarray]:
     Tv = np.eye(4)
     Tv[:3, 3] = scan.viewpoint
     moved = Scan(points=scan.points - scan.viewpoint, viewpoint=np.zeros(3), name=scan.name, units="m",
-                 grid=scan.grid, meta={"intensity": np.linspace(0.0, 1.0, len(scan.points))})
+                 grid=scan.grid, intensity=np.linspace(0.0, 1.0, len(scan.points)))
     return moved, scan.pose @ Tv
 
 
@@ -163,7 +163,7 @@ def test_every_scan_is_read_in_its_own_frame_with_its_pose_grid_and_intensity(bu
         np.testing.assert_allclose(s.guess, T, atol=1e-12)
         np.testing.assert_array_equal(s.viewpoint, np.zeros(3))
         assert not s.viewpoint_estimated and s.units == "m" and s.pose is None
-        np.testing.assert_array_equal(s.meta["intensity"], np.arange(len(s.points)))
+        np.testing.assert_array_equal(s.intensity, np.arange(len(s.points)))
     # pye57's read_scan (transform=True) returns the points in the file's frame: our pose maps ours there
     with pye57.E57(str(path)) as e:
         d = e.read_scan(1, ignore_missing_fields=True)
@@ -208,9 +208,9 @@ def test_spherical_records_become_cartesian_and_invalid_records_are_left_out(tmp
     want = np.c_[rq * np.cos(el) * np.cos(az), rq * np.cos(el) * np.sin(az), rq * np.sin(el)][keep]
     np.testing.assert_allclose(s.points, want, atol=1e-9)
     assert s.grid.shape == (40, 50) and (s.grid.index >= 0).sum() == keep.sum()
-    assert s.meta["e57"]["invalid"] == 3 and s.meta["e57"]["coordinates"] == "spherical"
+    assert s.e57.invalid == 3 and s.e57.coordinates == "spherical"
     np.testing.assert_allclose(s.guess[:3, 3], (10, 20, 30))
-    assert s.name == "station 1" and "intensity" not in s.meta
+    assert s.name == "station 1" and s.intensity is None
 
 
 def test_a_scan_is_chosen_by_index_from_0_or_by_name(bunny, tmp_path):
@@ -439,7 +439,7 @@ def test_the_scans_tab_offers_each_scan_of_an_e57(bunny, tmp_path):
     assert load_scan(tmp_path / "site.e57#bun045").name == "bun045"  # each choice loads as it reads
     scans = load_upload_all("my site.e57", (tmp_path / "site.e57").read_bytes())
     assert [s.name for s in scans] == ["bun000", "bun045"] and scans[1].source == "upload:my site.e57#1"
-    assert all("e57" not in s.meta for s in scans)  # the upload's temporary file is not referred to
+    assert all(s.e57 is None for s in scans)  # the upload's temporary file is not referred to
     assert choice_labels(scans) == ["#0 bun000 (40256 points)", "#1 bun045 (40097 points)"]
     with pytest.raises(InputError, match=r"^my site.e57: cannot read it as E57") as err:
         load_upload_all("my site.e57", b"no")
@@ -493,9 +493,9 @@ def test_a_panorama_is_read_and_said_to_surround_its_sensor(tmp_path, rangereg):
                                                "sphericalElevation": ("double", el), "rowIndex": ("int", rows.ravel()),
                                                "columnIndex": ("int", cols.ravel())}}])
     s = read_e57(tmp_path / "p.e57")
-    assert s.grid.shape == (20, 180) and any("surround the sensor" in n for n in s.meta["notes"])
+    assert s.grid.shape == (20, 180) and s.kind == "panorama" and s.viewpoint_from == "file"
     code, out, _ = rangereg("info", tmp_path / "p.e57#0")
-    assert code == 0 and "note        its points surround the sensor" in out
+    assert code == 0 and "kind        panorama (the points lie all around the viewpoint)" in out
 
 
 def test_merge_of_ply_scans_into_an_e57_keeps_the_project_frame_of_init(bunny, tmp_path, rangereg):

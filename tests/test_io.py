@@ -37,7 +37,15 @@ def test_point_formats_round_trip(tmp_path, fmt):
         path.write_text(("x,y,z\n" if fmt == "csv" else "") + "\n".join(sep.join(f"{v:.6f}" for v in p) for p in pts))
     s = load_scan(path)
     np.testing.assert_allclose(s.points, pts, atol=1e-5)
-    assert s.viewpoint_estimated
+    # the sheet lies 3 units in front of the frame's origin: the sensor there, by convention
+    assert s.viewpoint_from == "convention" and np.allclose(s.viewpoint, 0)
+
+
+def test_bare_points_around_the_origin_get_an_estimated_viewpoint(tmp_path):
+    pts = _cube_points() + [0, 0, 3.0]  # the origin now lies within the sheet: no view from there
+    np.savetxt(tmp_path / "s.xyz", pts)
+    s = load_scan(tmp_path / "s.xyz")
+    assert s.viewpoint_estimated and s.viewpoint_from == "estimate" and s.kind == "single-view"
 
 
 def test_ascii_ply_and_faces(tmp_path):

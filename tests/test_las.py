@@ -57,7 +57,7 @@ def test_scan_origin_fields_give_the_viewpoint(names, bunny, tmp_path, rangereg)
     write_las(tmp_path / "s.laz", ply.points, names, ply.viewpoint)
     s = load_scan(tmp_path / "s.laz")
     np.testing.assert_allclose(s.viewpoint, ply.viewpoint)
-    assert not s.viewpoint_estimated and s.meta["origin_spread"] == 0.0
+    assert not s.viewpoint_estimated and s.viewpoint_from == "file" and s.viewpoint_spread == 0.0
     code, out, _ = rangereg("info", tmp_path / "s.laz")
     assert code == 0 and "(estimated)" not in out
 
@@ -78,7 +78,7 @@ def test_without_origin_fields_the_viewpoint_is_estimated_and_said_so(bunny, tmp
     write_las(tmp_path / "m.las", ply.points, ("origin_x", "origin_y", "origin_z"), moving)
     m = load_scan(tmp_path / "m.las")
     np.testing.assert_allclose(m.viewpoint, np.median(moving, axis=0), atol=1e-9)
-    assert m.meta["origin_spread"] == pytest.approx(1.0)
+    assert m.viewpoint_spread == pytest.approx(1.0)
 
 
 @pytest.mark.parametrize("case, words", [

@@ -10,6 +10,7 @@ took 6.4 times the memory here.
 from __future__ import annotations
 
 import tracemalloc
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -71,7 +72,7 @@ def _stages():
         "surface": lambda s: _FACES.setdefault(len(s.points), triangulate(s)),
         "visibility": lambda s: visible_from(Surface(s.points, _faces(s)), s.viewpoint, s.points, 1.0),
         "noise floor": lambda s: noise_floor(s, np.random.default_rng(0), 300),
-        "spacing": lambda s: s.spacing,
+        "spacing": lambda s: replace(s).spacing,  # a fresh copy: loading has cached the scan's own
     }
 
 

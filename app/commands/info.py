@@ -1,5 +1,5 @@
-"""``rangereg info``: describe a scan (points, bounds, units, viewpoint, range grid, triangles, spacing);
-an E57 file given without ``#K`` is listed scan by scan (core.e57)."""
+"""``rangereg info``: describe a scan (points, kind, bounds, units, viewpoint, range grid, triangles, spacing),
+each with where it came from (core.assemble); an E57 file given without ``#K`` is listed scan by scan (core.e57)."""
 
 from __future__ import annotations
 
@@ -14,39 +14,72 @@ COUNT_TRIANGLES_UP_TO = 200_000
 
 
 def run(a: Namespace) -> int:
+    from rangereg.core.assemble import kind_text, units_text, viewpoint_text
     from rangereg.core.e57 import SUFFIX, split_selection
     from rangereg.core.io import load_scan
-    from rangereg.core.surface import Surface
+    from rangereg.core.scan import Origin
 
     file, selector = split_selection(a.scan)
     if file.suffix.lower() == SUFFIX and selector is None:
         return list_e57(a, file)
-    scan = load_scan(a.scan, viewpoint=a.viewpoint)
-    cheap = scan.grid is not None or scan.faces is not None or len(scan.points) <= COUNT_TRIANGLES_UP_TO
-    tri = Surface.from_scan(scan).n_triangles if cheap or a.triangles else None
+    scan = load_scan(a.scan, viewpoint=a.viewpoint, kind=getattr(a, "scan_kind", None))
+    tri, why_not = _triangles(scan, a.triangles)
+    has_vp = scan.viewpoint_from is not Origin.NONE
     info = {"points": len(scan.points), "bounds": [scan.points.min(0).tolist(), scan.points.max(0).tolist()],
-            "units": scan.units, "viewpoint": scan.viewpoint.tolist(), "viewpoint_estimated": scan.viewpoint_estimated,
-            "grid": scan.grid is not None, "triangles": tri, "spacing": scan.spacing, "dropped": scan.dropped,
+            "kind": str(scan.kind), "kind_from": str(scan.kind_from),
+            "units": scan.units, "units_from": str(scan.units_from),
+            "viewpoint": scan.viewpoint.tolist() if has_vp else None, "viewpoint_from": str(scan.viewpoint_from),
+            "viewpoint_estimated": scan.viewpoint_estimated,
+            "grid": scan.grid is not None, "grid_shape": None if scan.grid is None else list(scan.grid.shape),
+            "triangles": tri, "spacing": scan.spacing, "dropped": scan.dropped, "at_sensor": scan.at_sensor,
+            "intensity": scan.intensity is not None,
             "ground_truth": scan.pose is not None, "stored_pose": scan.guess is not None}
     if a.json:
         print(json.dumps(info))
         return 0
     lo, hi = info["bounds"]
+    dropped = [f"{scan.dropped} NaN/inf"] if scan.dropped else []
+    dropped += [f"{scan.at_sensor} on the sensor (no return)"] if scan.at_sensor else []
     print(f"{a.scan}")
-    print(f"  points      {info['points']}" + (f" ({scan.dropped} NaN/inf dropped)" if scan.dropped else ""))
+    print(f"  points      {info['points']}" + (f" ({', '.join(dropped)} dropped)" if dropped else "")
+          + (", with intensity" if scan.intensity is not None else ""))
+    print(f"  kind        {kind_text(scan)}")
     print(f"  bounds      {np.round(lo, 5).tolist()} .. {np.round(hi, 5).tolist()} {scan.units}")
-    print(f"  viewpoint   {np.round(scan.viewpoint, 5).tolist()}" + (" (estimated)" if scan.viewpoint_estimated else ""))
+    print(f"  units       {units_text(scan)}")
+    print(f"  viewpoint   {viewpoint_text(scan)}")
+    if scan.sensor_rotation is not None and not np.allclose(scan.sensor_rotation, np.eye(3)):
+        print(f"  sensor      turned {np.degrees(_angle(scan.sensor_rotation)):.1f} deg from the scan frame's axes "
+              "(the file's orientation; the points are as stored)")
     print(f"  range grid  {'x'.join(map(str, scan.grid.shape)) if scan.grid is not None else 'no'}")
-    print(f"  triangles   {tri}" if tri is not None else
-          f"  triangles   not counted (no range grid, {len(scan.points)} points; --triangles counts them)")
+    print(f"  triangles   {tri}" if tri is not None else f"  triangles   not counted ({why_not})")
     print(f"  spacing     {scan.spacing:.6g} {scan.units} (median nearest-neighbour)")
     if scan.pose is not None:
         print("  ground truth pose: yes")
     if scan.guess is not None:
         print(f"  stored pose {_pose_text(scan.guess)} (the rough guess)")
-    for note in scan.meta.get("notes", ()):
+    for note in scan.notes:
         print(f"  note        {note}")
     return 0
+
+
+def _triangles(scan, asked: bool) -> tuple[int | None, str]:
+    """The surface's triangle count, or None and why not."""
+    from rangereg.core.errors import InputError
+    from rangereg.core.surface import Surface
+
+    cheap = scan.grid is not None or scan.faces is not None or len(scan.points) <= COUNT_TRIANGLES_UP_TO
+    if not (cheap or asked):
+        return None, f"no range grid, {len(scan.points)} points; --triangles counts them"
+    try:
+        return Surface.from_scan(scan).n_triangles, ""
+    except InputError as exc:
+        return None, str(exc)
+
+
+def _angle(R: np.ndarray) -> float:
+    from rangereg.core.transforms import rotation_angle
+
+    return float(rotation_angle(R))
 
 
 def _pose_text(T: np.ndarray) -> str:

@@ -88,7 +88,7 @@ def run(a) -> int:
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
     # the runner's flags (and a --scheduler's reach) are checked before any scan is read
     runner = TaskRunner(workers, scheduler, progress=say, threads=threads)
-    scans = load_scans(a.scans)
+    scans = load_scans(a.scans, kind=getattr(a, "scan_kind", None))
     names = [s.name for s in scans]
     if len(set(names)) != len(names):
         raise InputError(f"two scans share a name ({', '.join(names)}): rename one")

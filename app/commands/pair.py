@@ -48,9 +48,11 @@ def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     T_init = getattr(a, "init_transform", None)
     if T_init is None and a.init is not None:
         T_init = parse_init(a.init)
-    source = load_scan(a.source, viewpoint=a.viewpoint_source)
-    target = load_scan(a.target, viewpoint=a.viewpoint_target)
+    kind = getattr(a, "scan_kind", None)
+    source = load_scan(a.source, viewpoint=a.viewpoint_source, kind=kind)
+    target = load_scan(a.target, viewpoint=a.viewpoint_target, kind=kind)
     mismatch = scale_mismatch(source, target)
-    if mismatch and source.units == target.units:  # stated alike (else core.problem refuses the pair)
+    # stated alike: registered, with a warning (else core.problem refuses the pair)
+    if mismatch and source.units_stated and target.units_stated and source.units == target.units:
         sys.stderr.write(f"warning: {mismatch}, though both sidecars say {source.units}\n")
     return source, target, T_init if T_init is not None else relative_guess(source, target)

@@ -27,4 +27,5 @@ def run(a: Namespace) -> int:
     if not a.host.strip():
         raise InputError("--host: expected a host name or address, got nothing")
     return serve(ServeOptions(source=a.source, target=a.target, scene=a.scene, host=a.host, port=a.port,
-                              data_dir=a.data_dir, upload_cap_mb=a.upload_cap_mb, trace=a.trace))
+                              data_dir=a.data_dir, upload_cap_mb=a.upload_cap_mb, trace=a.trace,
+                              scan_kind=getattr(a, "scan_kind", None)))

@@ -120,7 +120,7 @@ def load_upload_all(name: str, content: bytes) -> list[Scan]:
 
 def _uploaded(scan: Scan, source: str) -> Scan:
     # the upload's temporary file is gone: nothing may later read the scan's records from it (core.e57_write)
-    return replace(scan, source=source, meta={k: v for k, v in scan.meta.items() if k != "e57"})
+    return replace(scan, source=source, e57=None)
 
 
 def _read_upload(name: str, content: bytes, read):

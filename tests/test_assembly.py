@@ -1,0 +1,316 @@
+"""One assembly from what a file holds to a Scan (core.assemble): the precedence rule (given > sidecar > file >
+convention > estimate) for viewpoint, units, pose and kind, case by case; the shared real files as ``info``
+names them; PCD viewpoints and organised grids; --scan-kind; the scan's round trip to a worker."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from rangereg.core.assemble import Given, RawScan, assemble, units_from_scale
+from rangereg.core.errors import InputError
+from rangereg.core.io import load_scan, read_raw
+from rangereg.core.ply import write_ply
+from rangereg.core.scan import Origin, Scan, ScanKind
+from rangereg.core.viewpoint import grid_normals
+from scipy.spatial.transform import Rotation
+
+from tests.conftest import DATA
+
+LIDAR = DATA / "lidar"
+KINECT = DATA / "kinect"
+
+
+def _needs(folder):
+    if not folder.is_dir():
+        pytest.skip(f"the shared data {folder} is absent")
+
+
+def _sheet(n=30, depth=5.0) -> np.ndarray:
+    """(n*n, 3) a gently curved sheet ``depth`` in front of the origin along +z, 4 x 4 units."""
+    u, v = np.meshgrid(np.linspace(-2, 2, n), np.linspace(-2, 2, n))
+    return np.c_[u.ravel(), v.ravel(), depth + 0.1 * np.sin(u.ravel()) + 0.05 * v.ravel() ** 2]
+
+
+def _write_pcd(path, points, viewpoint="0 0 0 1 0 0 0", width=None, height=1, extra=""):
+    width = width or len(points)
+    head = (f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {width}\nHEIGHT {height}\n"
+            + (f"VIEWPOINT {viewpoint}\n" if viewpoint else "") + f"POINTS {len(points)}\nDATA ascii\n")
+    path.write_text(head + extra + "\n".join(" ".join(map(str, p)) for p in points) + "\n")
+
+
+# ---- the precedence rule, one value at a time ----
+
+def test_viewpoint_given_beats_sidecar_beats_file_beats_convention(tmp_path):
+    pts = _sheet()
+    _write_pcd(tmp_path / "s.pcd", pts, viewpoint="0.5 0 0 1 0 0 0")
+    s = load_scan(tmp_path / "s.pcd")
+    assert s.viewpoint_from == Origin.FILE and s.viewpoint.tolist() == [0.5, 0, 0]
+    (tmp_path / "s.json").write_text(json.dumps({"viewpoint": [0, 0.5, 0]}))
+    s = load_scan(tmp_path / "s.pcd")
+    assert s.viewpoint_from == Origin.SIDECAR and s.viewpoint.tolist() == [0, 0.5, 0]
+    s = load_scan(tmp_path / "s.pcd", viewpoint=np.array([0, 0, -1.0]))
+    assert s.viewpoint_from == Origin.GIVEN and s.viewpoint.tolist() == [0, 0, -1]
+    _write_pcd(tmp_path / "bare.pcd", pts, viewpoint=None)  # nothing stated: the frame's origin, by convention
+    s = load_scan(tmp_path / "bare.pcd")
+    assert s.viewpoint_from == Origin.CONVENTION and s.viewpoint.tolist() == [0, 0, 0]
+    assert s.kind == ScanKind.SINGLE_VIEW and s.kind_from == Origin.ESTIMATE
+
+
+def test_viewpoint_is_estimated_only_when_no_sensor_could_be_at_the_origin(tmp_path):
+    np.savetxt(tmp_path / "far.xyz", _sheet() + [1e4, 2e4, 0])  # kilometres from its origin: no view from there
+    s = load_scan(tmp_path / "far.xyz")
+    assert s.viewpoint_from == Origin.ESTIMATE and s.kind == ScanKind.SINGLE_VIEW
+    assert s.viewpoint[2] > s.points[:, 2].max() or s.viewpoint[2] < s.points[:, 2].min()  # off the sheet
+
+
+def test_units_given_beats_sidecar_beats_file_beats_convention_beats_scale():
+    pts = _sheet() * 100  # spacing ~14: millimetres by the scale
+    raw = RawScan(pts, "t", "t", units="m", units_convention="ft")
+    assert (assemble(raw, Given(units="cm")).units, assemble(raw, Given(units="cm")).units_from) == ("cm", Origin.GIVEN)
+    s = assemble(raw)
+    assert (s.units, s.units_from, s.units_stated) == ("m", Origin.FILE, True)
+    s = assemble(RawScan(pts, "t", "t", units_convention="ft"))
+    assert (s.units, s.units_from, s.units_stated) == ("ft", Origin.CONVENTION, False)
+    s = assemble(RawScan(pts, "t", "t"))
+    assert (s.units, s.units_from, s.units_stated) == ("mm", Origin.ESTIMATE, False)
+
+
+def test_units_from_sidecar_and_from_the_scale(tmp_path):
+    pts = _sheet()
+    np.savetxt(tmp_path / "s.xyz", pts)
+    s = load_scan(tmp_path / "s.xyz")
+    assert (s.units, s.units_from) == ("unknown", Origin.NONE)  # spacing 0.14: an object in mm or a room in m
+    np.savetxt(tmp_path / "s.xyz", pts * 0.1)  # spacing 1.4 cm, 0.4 wide: metres
+    assert (load_scan(tmp_path / "s.xyz").units, load_scan(tmp_path / "s.xyz").units_from) == ("m", Origin.ESTIMATE)
+    (tmp_path / "s.json").write_text(json.dumps({"units": "cm"}))
+    s = load_scan(tmp_path / "s.xyz")
+    assert (s.units, s.units_from, s.units_stated) == ("cm", Origin.SIDECAR, True)
+
+
+def test_units_from_the_scale_follow_the_spacing_not_the_size():
+    assert units_from_scale(0.0005) == "m"  # the bunny, 0.15 m wide
+    assert units_from_scale(0.01) == "m"  # a street 50 m wide at 1 cm
+    assert units_from_scale(5.6) == "mm"  # the simulated bowl, 850 mm wide
+    assert units_from_scale(0.2) == "unknown"  # an object at 0.2 mm or a street at 20 cm
+    assert units_from_scale(0.2, ScanKind.PANORAMA) == "m"  # a panorama is a scene
+
+
+def test_kind_given_beats_sidecar_beats_the_points(tmp_path):
+    pts = _sheet()
+    np.savetxt(tmp_path / "s.xyz", pts)
+    assert load_scan(tmp_path / "s.xyz").kind == ScanKind.SINGLE_VIEW
+    (tmp_path / "s.json").write_text(json.dumps({"kind": "unstructured"}))
+    s = load_scan(tmp_path / "s.xyz")
+    assert (s.kind, s.kind_from, s.viewpoint_from) == (ScanKind.UNSTRUCTURED, Origin.SIDECAR, Origin.NONE)
+    s = load_scan(tmp_path / "s.xyz", kind="panorama")
+    assert (s.kind, s.kind_from, s.viewpoint_from) == (ScanKind.PANORAMA, Origin.GIVEN, Origin.CONVENTION)
+    (tmp_path / "s.json").write_text(json.dumps({"kind": "spiral"}))
+    with pytest.raises(InputError, match="'kind' should be one of \"single-view\", \"panorama\", \"unstructured\""):
+        load_scan(tmp_path / "s.xyz")
+    with pytest.raises(InputError, match="unknown scan kind 'spiral'"):
+        load_scan(tmp_path / "s.xyz", kind="spiral")
+
+
+def test_pose_sidecar_beats_file_beats_conf(tmp_path):
+    pts = _sheet()
+    T_file, T_side, T_conf = (np.eye(4) for _ in range(3))
+    T_file[:3, 3], T_side[:3, 3], T_conf[:3, 3] = (1, 0, 0), (0, 2, 0), (0, 0, 3)
+    np.savetxt(tmp_path / "s.xyz", pts)
+    (tmp_path / "a.conf").write_text("bmesh s.xyz 0 0 3 0 0 0 1\n")
+    np.testing.assert_allclose(assemble(RawScan(pts, "s", "s", sidecar=tmp_path / "s.xyz")).pose, T_conf)
+    np.testing.assert_allclose(assemble(RawScan(pts, "s", "s", pose=T_file, sidecar=tmp_path / "s.xyz")).pose, T_file)
+    (tmp_path / "s.json").write_text(json.dumps({"pose": T_side.tolist()}))
+    np.testing.assert_allclose(assemble(RawScan(pts, "s", "s", pose=T_file, sidecar=tmp_path / "s.xyz")).pose, T_side)
+
+
+# ---- PCD: VIEWPOINT, organised grids ----
+
+def test_pcd_viewpoint_position_and_rotation_are_read_and_the_points_kept(tmp_path):
+    pts = _sheet() + [1.0, 2.0, 0.0]
+    q = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()  # x y z w
+    _write_pcd(tmp_path / "r.pcd", pts, viewpoint=f"1 2 -0.5 {q[3]} {q[0]} {q[1]} {q[2]}")
+    s = load_scan(tmp_path / "r.pcd")
+    np.testing.assert_allclose(s.points, pts, atol=1e-5)  # as stored, not turned by the orientation
+    assert s.viewpoint.tolist() == [1, 2, -0.5] and s.viewpoint_from == Origin.FILE
+    np.testing.assert_allclose(s.sensor_rotation, Rotation.from_quat(q).as_matrix(), atol=1e-9)
+    _write_pcd(tmp_path / "z.pcd", pts, viewpoint="1 2 -0.5 0 0 0 0")
+    with pytest.raises(InputError, match=r"z.pcd: VIEWPOINT's quaternion .* is not a rotation"):
+        load_scan(tmp_path / "z.pcd")
+
+
+def test_an_organised_pcd_keeps_its_grid_with_nan_cells_empty_facing_the_sensor(tmp_path):
+    rows, cols = 12, 16
+    y, x = np.mgrid[0:rows, 0:cols]
+    # a camera frame: x right, y down, depth +z (the Kinect frames' layout), row-major cells
+    pts = np.c_[(x.ravel() - 7.5) * 0.01, (y.ravel() - 5.5) * 0.01, 1.0 + 0.001 * x.ravel()].astype(float)
+    pts[[5, 40, 41]] = np.nan  # cells the sensor saw nothing in
+    _write_pcd(tmp_path / "o.pcd", pts, width=cols, height=rows)
+    s = load_scan(tmp_path / "o.pcd")
+    assert s.grid.shape == (rows, cols) and (s.grid.index < 0).sum() == 3 and s.dropped == 3
+    n = grid_normals(s.points, s.grid)
+    a, b, r = s.grid.index[:-1, :-1], s.grid.index[:-1, 1:], s.grid.index[1:, :-1]
+    at = s.points[a[(a >= 0) & (b >= 0) & (r >= 0)]]
+    assert np.all(np.einsum("ij,ij->i", n, s.viewpoint - at) > 0)  # cross(d/dcol, d/drow) faces the sensor
+
+
+def test_points_on_the_sensor_are_no_returns_and_are_dropped(tmp_path):
+    pts = np.r_[_sheet(), np.zeros((7, 3))]
+    _write_pcd(tmp_path / "z.pcd", pts)
+    s = load_scan(tmp_path / "z.pcd")
+    assert len(s.points) == len(pts) - 7 and s.at_sensor == 7
+
+
+# ---- the shared real files ----
+
+def test_lidar_pcd_is_a_panorama_about_its_stored_viewpoint(rangereg):
+    _needs(LIDAR)
+    s = load_scan(LIDAR / "251370668.pcd")
+    assert (s.kind, s.viewpoint_from, s.viewpoint.tolist()) == (ScanKind.PANORAMA, Origin.FILE, [0, 0, 0])
+    assert s.grid is None and s.units == "m" and s.units_from == Origin.ESTIMATE and s.intensity is not None
+    code, out, _ = rangereg("info", LIDAR / "251370668.pcd")
+    assert code == 0
+    for line in ("kind        panorama (the points lie all around the viewpoint)", "units       m (from the scale)",
+                 "viewpoint   [0.0, 0.0, 0.0] (from the file)", "range grid  no"):
+        assert line in out
+
+
+def test_lidar_frame_written_as_ply_without_a_viewpoint_is_a_panorama_at_the_origin_in_metres(tmp_path, rangereg):
+    _needs(LIDAR)
+    write_ply(tmp_path / "frame.ply", read_raw(LIDAR / "251371071.pcd").points)
+    s = load_scan(tmp_path / "frame.ply")
+    assert (s.kind, s.viewpoint_from, s.viewpoint.tolist(), s.units) == (
+        ScanKind.PANORAMA, Origin.CONVENTION, [0, 0, 0], "m")
+    code, out, _ = rangereg("info", tmp_path / "frame.ply")
+    assert code == 0 and "kind        panorama" in out and "units       m (from the scale)" in out
+    assert "viewpoint   [0.0, 0.0, 0.0] (the frame's origin" in out
+
+
+@pytest.mark.parametrize("name", ["capture0001", "capture0004"])
+def test_kinect_frames_are_single_views_with_their_grid_and_file_viewpoint(name, rangereg):
+    _needs(KINECT)
+    s = load_scan(KINECT / f"{name}.pcd")
+    assert (s.kind, s.viewpoint_from, s.grid.shape, s.units) == (ScanKind.SINGLE_VIEW, Origin.FILE, (480, 640), "m")
+    n = grid_normals(s.points, s.grid)
+    a, b, r = s.grid.index[:-1, :-1], s.grid.index[:-1, 1:], s.grid.index[1:, :-1]
+    facing = np.einsum("ij,ij->i", n, s.viewpoint - s.points[a[(a >= 0) & (b >= 0) & (r >= 0)]])
+    assert np.mean(facing > 0) > 0.95  # mirrored from the file's layout: the surface faces the camera
+    code, out, _ = rangereg("info", KINECT / f"{name}.pcd")
+    assert code == 0 and "kind        single-view (the points lie in front of the viewpoint)" in out
+    assert "range grid  480x640" in out and "viewpoint   [0.0, 0.0, 0.0] (from the file)" in out
+
+
+def test_bunny_scans_are_single_views_with_a_grid_as_before(bunny, rangereg):
+    from tests.conftest import BUNNY
+
+    for name in ("bun000", "bun090"):
+        s = bunny(name)
+        assert (s.kind, s.viewpoint_from, s.units) == (ScanKind.SINGLE_VIEW, Origin.ESTIMATE, "m")
+    code, out, _ = rangereg("info", BUNNY / "bun000.ply")
+    assert code == 0 and "kind        single-view (a range grid)" in out and "units       m (from the scale)" in out
+    assert "viewpoint   [-0.02402, 0.35889, 1.24455] (estimated)" in out and "range grid  400x512" in out
+
+
+def test_scene_scans_read_their_sidecars_as_before(rangereg):
+    from tests.conftest import ASSETS
+
+    s = load_scan(ASSETS / "corner" / "scan1.ply")
+    assert (s.kind, s.viewpoint_from, s.units, s.units_from) == (ScanKind.SINGLE_VIEW, Origin.SIDECAR, "mm",
+                                                                 Origin.SIDECAR)
+    code, out, _ = rangereg("info", ASSETS / "corner" / "scan1.ply")
+    assert code == 0 and "units       mm (from the sidecar)" in out and "(from the sidecar)" in out
+
+
+def test_fused_views_all_around_an_object_are_unstructured_without_a_viewpoint(bunny, tmp_path, rangereg):
+    from rangereg.core.transforms import apply
+
+    pts = np.vstack([apply(bunny(n).pose, bunny(n).points) for n in ("bun000", "bun045", "bun090", "bun315")])
+    np.savetxt(tmp_path / "fused.xyz", pts[::2])
+    s = load_scan(tmp_path / "fused.xyz")
+    assert (s.kind, s.viewpoint_from) == (ScanKind.UNSTRUCTURED, Origin.NONE) and s.viewpoint_estimated
+    code, out, _ = rangereg("info", tmp_path / "fused.xyz", "--json")
+    info = json.loads(out)
+    assert info["kind"] == "unstructured" and info["viewpoint"] is None and info["viewpoint_from"] == "none"
+    np.savetxt(tmp_path / "one.xyz", bunny("bun000").points)  # one view alone, no grid: estimated, a single view
+    assert load_scan(tmp_path / "one.xyz").kind == ScanKind.SINGLE_VIEW
+
+
+# ---- --scan-kind, bad inputs ----
+
+def test_scan_kind_flag_overrides_the_file(tmp_path, rangereg):
+    np.savetxt(tmp_path / "s.xyz", _sheet())
+    code, out, _ = rangereg("info", tmp_path / "s.xyz", "--scan-kind", "unstructured")
+    assert code == 0 and "kind        unstructured (given)" in out and "viewpoint   none" in out
+    code, out, _ = rangereg("info", tmp_path / "s.xyz", "--scan-kind", "panorama")
+    assert code == 0 and "kind        panorama (given)" in out
+    code, out, err = rangereg("info", tmp_path / "s.xyz", "--scan-kind", "spiral")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--scan-kind" in err
+    for command in ("register", "merge", "serve", "slice"):
+        code, out, _ = rangereg(command, "--help")
+        assert code == 0 and "--scan-kind" in out
+
+
+def test_a_stated_viewpoint_behind_a_single_view_is_still_refused(tmp_path):
+    from rangereg.core.ply import write_range_grid_ply
+
+    pts = _sheet(20)
+    grid = np.arange(len(pts)).reshape(20, 20)
+    write_range_grid_ply(tmp_path / "g.ply", pts, grid)
+    with pytest.raises(InputError, match="wrong side of the surface"):
+        load_scan(tmp_path / "g.ply", viewpoint=np.array([0, 0, -20.0]))  # behind the sheet (its grid faces +z)
+    assert load_scan(tmp_path / "g.ply", viewpoint=np.array([0, 0, -20.0]), kind="panorama").kind == "panorama"
+
+
+# ---- the round trip to a worker ----
+
+def test_scan_arrays_round_trip_keeps_kind_and_typed_fields():
+    from rangereg.core.merge_tasks import scan_arrays
+    from rangereg.core.scan import E57Record, RangeGrid
+
+    pts = _sheet(10)
+    s = Scan(points=pts, viewpoint=np.zeros(3), name="p", units="m", grid=RangeGrid(np.arange(100).reshape(10, 10)),
+             kind=ScanKind.PANORAMA, viewpoint_from=Origin.FILE, units_from=Origin.ESTIMATE, kind_from=Origin.GIVEN,
+             intensity=np.arange(100.0), sensor_rotation=np.eye(3), at_sensor=4, notes=("n",),
+             e57=E57Record("f.e57", 1, "x", "spherical", 0))
+    back = Scan.from_arrays(scan_arrays(s))
+    for key in ("name", "units", "kind", "viewpoint_from", "units_from", "kind_from", "at_sensor", "notes", "e57"):
+        assert getattr(back, key) == getattr(s, key), key
+    np.testing.assert_array_equal(back.grid.index, s.grid.index)
+    np.testing.assert_array_equal(back.intensity, s.intensity)
+    assert back.units_stated is False and s.meta["units_stated"] is False
+
+
+def test_open3d_warnings_stay_off_the_console(capfd, monkeypatch):
+    import open3d as o3d
+    from rangereg.core import quiet
+
+    before = o3d.utility.get_verbosity_level()
+    monkeypatch.setattr(quiet, "_done", False)
+    monkeypatch.delenv(quiet.ENV, raising=False)
+    try:
+        o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Warning)
+        o3d.io.read_point_cloud("/nonexistent/x.ply")
+        assert "Open3D WARNING" in capfd.readouterr().out  # a library warning, as Open3D prints it
+        quiet.quiet_open3d()
+        o3d.io.read_point_cloud("/nonexistent/x.ply")
+        assert "Open3D WARNING" not in capfd.readouterr().out
+    finally:
+        o3d.utility.set_verbosity_level(before)
+
+
+def test_a_saved_scan_comes_back_with_its_kind_units_and_viewpoint(tmp_path):
+    from rangereg.core.io import save_scan
+
+    np.savetxt(tmp_path / "s.xyz", _sheet())
+    s = load_scan(tmp_path / "s.xyz", kind="unstructured")
+    save_scan(tmp_path / "out.ply", s)
+    side = json.loads((tmp_path / "out.json").read_text())
+    assert side["kind"] == "unstructured" and "viewpoint" not in side and "units" not in side  # none invented
+    back = load_scan(tmp_path / "out.ply")
+    assert (back.kind, back.kind_from, back.viewpoint_from) == (ScanKind.UNSTRUCTURED, Origin.SIDECAR, Origin.NONE)
+    s = load_scan(tmp_path / "s.xyz", units="m")
+    save_scan(tmp_path / "out.ply", s)
+    back = load_scan(tmp_path / "out.ply")
+    assert (back.units, back.units_from, back.kind) == ("m", Origin.SIDECAR, ScanKind.SINGLE_VIEW)
+    np.testing.assert_allclose(back.viewpoint, s.viewpoint)

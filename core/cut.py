@@ -55,8 +55,7 @@ def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: n
     used = src_mask.copy()
     if visibility and used.any():
         radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
-        used[np.flatnonzero(used)] = f_tgt.visible(surface, moved[used],
-                                                   translation_uncertainty + rotation_uncertainty * radius)
+        used = f_tgt.guessed(surface, moved, used, translation_uncertainty + rotation_uncertainty * radius)
     if used.sum() >= enough:
         return Cut(used, CUTS[0], overlap)
     widest = used

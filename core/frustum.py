@@ -48,6 +48,12 @@ class View(Protocol):
         ``surface`` by more than ``margin`` (units)."""
         ...
 
+    def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: the cut under a guess off by ``margin`` (units, at the points) of (N, 3) points of which
+        ``inside`` (N,) are in :meth:`contains`: those inside and :meth:`visible` (a frustum, a panorama), or
+        those within reach of the guess (a cloud)."""
+        ...
+
     def widened(self, points: np.ndarray, angle: float, translation: float = 0.0) -> np.ndarray:
         """(N,) bool: :meth:`contains` opened by ``angle`` radians (and ``translation`` units where the view
         measures distance)."""
@@ -120,6 +126,10 @@ class Frustum:
     def visible(self, surface, points: np.ndarray, margin: float) -> np.ndarray:
         """:func:`visible_from` this frustum's apex on ``surface`` (the scan's own, in its frame)."""
         return visible_from(surface, self.apex, points, margin)
+
+    def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: the points ``inside`` (N,) that are also :meth:`visible` (the frustum cut's visibility)."""
+        return visible_cut(self, surface, points, inside, margin)
 
     def widened(self, points: np.ndarray, angle: float, translation: float = 0.0, chunk: int = 65536) -> np.ndarray:
         """(N,) bool: points inside the frustum opened by ``angle`` radians on every side: each point's ray from
@@ -302,6 +312,13 @@ def segment_overlap(source: Scan, target: Scan, T_target_source: np.ndarray, kin
     f_src, f_tgt = frusta if frusta is not None else (frustum_of(source, kind), frustum_of(target, kind))
     T = np.array(T_target_source, dtype=np.float64)
     return Overlap(f_tgt.contains(apply(T, source.points)), f_src, target.points, T)
+
+
+def visible_cut(view: View, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+    """(N,) bool: the points ``inside`` (N,) of (N, 3) points that ``view`` finds visible with ``margin``."""
+    out = inside.copy()
+    out[np.flatnonzero(inside)] = view.visible(surface, points[inside], margin)
+    return out
 
 
 def visible_from(target_surface, viewpoint: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:

@@ -8,10 +8,11 @@ LiDAR's lasers), else equal elevation bins; columns are equal azimuth bins at th
 that a scanner's firings sit at cell centres. The image is then a range grid that wraps round in azimuth:
 
 - its mesh joins neighbouring cells as a range grid's does, a triangle kept only when every edge is at most
-  ``EDGE_FACTOR`` (core.surface) times the local spacing of its endpoints, the spacing of a cell being the
-  median distance to its four image neighbours (the median, so that one depth jump beside a cell does not
-  make its own spacing large; the image's, because a ring scanner's spacing along a ring and across rings
-  differ tenfold and more, so the 3-D nearest neighbours, all on one ring, would cut every ring from the next);
+  ``EDGE_FACTOR`` (core.surface) times the smaller local spacing of its endpoints, the spacing of a cell
+  being the coarser of its two image axes, each measured to the nearer of the cell's two neighbours along it
+  (the nearer, so that one depth jump beside a cell does not make its own spacing large; per image axis,
+  because a ring scanner's spacing along a ring and across rings differ tenfold and more, so the 3-D nearest
+  neighbours, all on one ring, would cut every ring from the next);
 - its view (:class:`PanoramaView`) is the single-view frustum's counterpart: a direction is inside when the
   sensor saw something there (an occupied cell, or one beside it), and a point is visible when its range lies
   within a margin of the range seen in its cell (farther: hidden behind that surface; nearer: the sensor
@@ -38,7 +39,8 @@ from .scan import Scan
 RING_GAP_RATIO = 10.0
 MAX_RINGS = 1024
 MIN_RING_POINTS = 8
-SAMPLE = 20_000  # points the angular steps are measured on (a median: a sample says as much as all)
+SAMPLE = 20_000  # points the azimuth phase is measured on (a mean: a sample says as much as all)
+REACH_SLACK = 1.05  # a panorama's reach: the farthest range seen and 5 % (core.frustum draws a frustum as deep)
 
 
 def spherical(rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,15 +99,27 @@ class SphericalImage:
         wrapped = np.hstack([seen[:, -1:], seen, seen[:, :1]])
         return ndimage.binary_dilation(wrapped, np.ones((3, 3), dtype=bool))[:, 1:-1]
 
-    def nearest_range(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(N,) the nearest range seen in cells (rows, cols) and their eight neighbours (inf where none): the
-        surface a point in that direction is judged against."""
-        return self._min_ranges[rows, cols]
+    def range_bounds(self, rows: np.ndarray, cols: np.ndarray, grow: tuple[int, int] = (1, 1)
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) the nearest and the farthest range seen in cells (rows, cols) and their neighbours ``grow``
+        (rows, columns) cells away (inf, -inf where none): the surface a point in that direction is judged
+        against."""
+        near, far = self._bounds(grow)
+        return near[rows, cols], far[rows, cols]
 
-    @cached_property
-    def _min_ranges(self) -> np.ndarray:
-        wrapped = np.hstack([self.ranges[:, -1:], self.ranges, self.ranges[:, :1]])
-        return ndimage.minimum_filter(wrapped, size=3, mode="constant", cval=np.inf)[:, 1:-1]
+    def _bounds(self, grow: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        cache = self.__dict__.setdefault("_bounds_cache", {})
+        if grow not in cache:
+            gr, gc = grow
+            C = self.cols
+            pad = min(gc, C)
+            size = (2 * gr + 1, 2 * pad + 1)
+            near = np.hstack([self.ranges[:, C - pad:], self.ranges, self.ranges[:, :pad]])
+            far = np.where(np.isfinite(near), near, -np.inf)
+            near = ndimage.minimum_filter(near, size=size, mode="constant", cval=np.inf)[:, pad:pad + C]
+            far = ndimage.maximum_filter(far, size=size, mode="constant", cval=-np.inf)[:, pad:pad + C]
+            cache[grow] = (near, far)
+        return cache[grow]
 
     def faces(self, points: np.ndarray, edge_factor: float) -> tuple[np.ndarray, np.ndarray]:
         """(M, 3) int64 faces over (N, 3) ``points`` (the scan's, which the image indexes) joining neighbouring
@@ -124,8 +138,9 @@ class SphericalImage:
         return faces[kept], lengths[kept]
 
     def spacing(self, points: np.ndarray) -> np.ndarray:
-        """(N,) per point: the median distance from its cell's point to the points of its four image
-        neighbours (azimuth wraps; inf for a point in no cell or with no neighbour)."""
+        """(N,) per point: its cell's spacing, the larger of the distances to its nearer neighbour along the
+        row and to its nearer neighbour along the column (azimuth wraps; inf for a point in no cell or with
+        no neighbour)."""
         idx = self.index
         R, C = idx.shape
         d = np.full((4, R, C), np.nan)
@@ -136,12 +151,9 @@ class SphericalImage:
             if dr:  # rows do not wrap
                 q[(R - 1 if dr > 0 else 0)] = np.nan
             d[k] = np.linalg.norm(q - p, axis=-1)
-        with np.errstate(all="ignore"):
-            import warnings
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # a cell with no neighbour: all NaN
-                cell = np.nanmedian(d, axis=0)
+        # per axis the nearer neighbour (one depth jump beside a cell does not count), then the coarser axis
+        cell = np.fmax(np.fmin(d[0], d[1]), np.fmin(d[2], d[3]))  # NaN (no neighbour) only where all are
+        cell = np.where(np.isnan(cell), np.inf, cell)
         out = np.full(len(points), np.inf)
         out[idx[held]] = np.where(np.isfinite(cell[held]), cell[held], np.inf)
         return out
@@ -157,8 +169,8 @@ def _rings(el: np.ndarray) -> np.ndarray | None:
     order = np.argsort(gaps)[::-1][:MAX_RINGS]
     top = gaps[order]
     # the split: the largest drop from one gap to the next smaller (the ring gaps, then the spread inside)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = top[:-1] / np.maximum(top[1:], 1e-300)
+    top = np.maximum(top, 1e-9)  # differences of rounding (float32 files) are no gaps: ratios among them 1
+    ratio = top[:-1] / top[1:]
     k = int(np.argmax(ratio)) + 1  # k gaps split the elevations into k + 1 rings
     if ratio[k - 1] < RING_GAP_RATIO:
         return None
@@ -272,39 +284,43 @@ class PanoramaView:
     image: SphericalImage
 
     def contains(self, points: np.ndarray) -> np.ndarray:
-        """(N,) bool: (N, 3) points (this scan's frame) in a direction the sensor saw something."""
-        row, col, _, ok = self.image.cells(points)
-        return ok & self.image.occupied[row, col]
+        """(N,) bool: (N, 3) points (this scan's frame) in a direction the sensor saw something, within its
+        reach (:attr:`far`): the frustum's counterpart, free space and what lies behind the surface included
+        (:meth:`visible` tells those apart)."""
+        row, col, r, ok = self.image.cells(points)
+        return ok & self.image.occupied[row, col] & (r <= self.far)
 
     def visible(self, surface, points: np.ndarray, margin: float) -> np.ndarray:
-        """(N,) bool: points whose range lies within ``margin`` (units) of the nearest range seen about their
-        cell: farther, they hide behind that surface; nearer, the sensor looked through them. (``surface``
-        is not needed: the image holds the ranges.)"""
+        """(N,) bool: points whose range lies within ``margin`` (units) of the ranges seen about their cell:
+        farther, they hide behind that surface; nearer, the sensor looked through them. (``surface`` is not
+        needed: the image holds the ranges.)"""
         row, col, r, ok = self.image.cells(points)
-        seen = self.image.nearest_range(row, col)
-        return ok & np.isfinite(seen) & (np.abs(r - seen) <= margin)
+        near, far = self.image.range_bounds(row, col)
+        return ok & (r >= near - margin) & (r <= far + margin)
+
+    def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: the points ``inside`` (N,) that are also :meth:`visible` with ``margin``."""
+        from .frustum import visible_cut
+
+        return visible_cut(self, surface, points, inside, margin)
 
     def widened(self, points: np.ndarray, angle: float, translation: float = 0.0) -> np.ndarray:
-        """(N,) bool: points within ``angle`` radians of a direction the sensor saw something (every point
-        from a quarter turn: as the frustum, opened that far, holds every direction ahead)."""
+        """(N,) bool: points within ``angle`` radians of a direction the sensor saw something and within its
+        reach moved by the rotation and ``translation`` (units): :meth:`contains` opened (every point from a
+        quarter turn, as the frustum opened that far holds every direction ahead)."""
         if angle <= 0:
             return self.contains(points)
         if angle >= np.pi / 2:
             return np.ones(len(points), dtype=bool)
         img = self.image
-        rows = np.diff(img.row_edges)
-        grow_r = int(np.ceil(angle / max(float(rows.min()), 1e-12)))
-        grow_c = int(np.ceil(angle / img.az_step))
-        seen = img.index >= 0
-        C = seen.shape[1]
-        pad = min(grow_c, C)
-        wrapped = np.hstack([seen[:, C - pad:], seen, seen[:, :pad]])
-        grown = ndimage.binary_dilation(wrapped, np.ones((2 * grow_r + 1, 2 * pad + 1), dtype=bool))[:, pad:pad + C]
+        grow = (int(np.ceil(angle / max(float(np.diff(img.row_edges).min()), 1e-12))),
+                int(np.ceil(angle / img.az_step)))
         az, el, r = spherical(np.asarray(points, dtype=np.float64) - self.apex)
         inside_rows = (r > 0) & (el >= img.row_edges[0] - angle) & (el < img.row_edges[-1] + angle)
-        row = np.clip(np.searchsorted(img.row_edges, el, side="right") - 1, 0, len(rows) - 1)
-        col = np.floor((az - img.az0) / img.az_step).astype(np.int64) % C
-        return inside_rows & grown[row, col]
+        row = np.clip(np.searchsorted(img.row_edges, el, side="right") - 1, 0, len(img.row_elevation) - 1)
+        col = np.floor((az - img.az0) / img.az_step).astype(np.int64) % img.cols
+        seen = np.isfinite(img.range_bounds(row, col, grow)[0])
+        return inside_rows & seen & (r <= self.far + translation + 2 * self.far * np.sin(angle / 2))
 
     def wireframe(self) -> np.ndarray:
         """(0, 2, 3): a panorama has no pyramid to draw (the page shows a sensor marker at ``apex``)."""
@@ -314,9 +330,10 @@ class PanoramaView:
         """No side faces (see :meth:`wireframe`): vertices (1, 3) the apex, faces (0, 3)."""
         return self.apex[None].copy(), np.zeros((0, 3), dtype=np.int64)
 
-    @property
+    @cached_property
     def far(self) -> float:
-        return float(np.max(self.image.ranges[np.isfinite(self.image.ranges)], initial=0.0))
+        """The sensor's reach (units): REACH_SLACK x the farthest range seen (as a frustum is drawn)."""
+        return REACH_SLACK * float(np.max(self.image.ranges[np.isfinite(self.image.ranges)], initial=0.0))
 
 
 def panorama_view(scan: Scan) -> PanoramaView:

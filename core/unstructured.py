@@ -22,32 +22,40 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .scan import Scan
-from .surface import PARALLEL_QUERY, Surface, local_spacing
+from .surface import PARALLEL_QUERY, Surface, local_spacing, pca_normals
 
-# Open3D's recipe fits normals within 2 voxels of a downsampled cloud (its points ~1 voxel apart); a raw cloud's
-# median nearest-neighbour spacing is less than its mean spacing, so 3 of them: ~28 points on a plane (pi 3^2),
-# capped at 30 as the recipe does.
-NORMAL_RADIUS_SPACINGS = 3.0
+# Open3D's recipe fits normals to at most 30 neighbours within 2 voxels of a downsampled cloud (its points ~1
+# voxel apart). A raw cloud's median nearest-neighbour distance (Scan.spacing) is half its mean spacing where the
+# points fall at random (uniform on a plane: 0.47 / sqrt(density)), so the radius is 5 of them: ~17 neighbours on
+# a plane sampled at random, the 30 nearest on a grid-like scan (~78 within the radius).
+NORMAL_RADIUS_SPACINGS = 5.0
 NORMAL_MAX_NEIGHBOURS = 30
+FALLBACK_NEIGHBOURS = 8  # a rim point's plane: its nearest points, whatever their distance
 # A patch reaches 2 local spacings from its point: half the longest edge a triangulated surface keeps
 # (core.surface.EDGE_FACTOR = 4), so a hole the single-view mesh would bridge the patches cover too.
 PATCH_SPACINGS = 2.0
-# Inside the view: within the normals' neighbourhood of a cloud point (a point that close lies on the surface
-# up to the noise and the sampling).
-NEAR_SPACINGS = NORMAL_RADIUS_SPACINGS
+# Inside the view: within 3 spacings of a cloud point (a point that close lies on the surface up to the noise
+# and the sampling: 3 nearest-neighbour distances cover a random sampling's holes, twice its mean spacing).
+NEAR_SPACINGS = 3.0
 
 
-def point_normals(points: np.ndarray, spacing: float) -> np.ndarray:
+def point_normals(points: np.ndarray, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
     """(N, 3) unit normals (sign arbitrary) of (N, 3) points: Open3D's, from a hybrid KD search within
-    ``NORMAL_RADIUS_SPACINGS`` x ``spacing`` (units), at most ``NORMAL_MAX_NEIGHBOURS`` neighbours."""
+    ``NORMAL_RADIUS_SPACINGS`` x ``spacing`` (units), at most ``NORMAL_MAX_NEIGHBOURS`` neighbours (``tree``:
+    a k-d tree of the points, for the few refitted)."""
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_SPACINGS * spacing,
                                                               max_nn=NORMAL_MAX_NEIGHBOURS))
-    n = np.asarray(pcd.normals)
-    bad = ~np.all(np.isfinite(n), axis=1) | (np.linalg.norm(n, axis=1) < 0.5)
-    n[bad] = (0.0, 0.0, 1.0)  # a point with too few neighbours for a plane: any plane, its patch bounds it
+    n = np.array(pcd.normals)
+    # Open3D leaves (0, 0, 1) where fewer than 3 neighbours lie within the radius (a point at a rim): those
+    # (and any exact +-z normal, which the refit gives back on a true plane) are fitted to their nearest points
+    suspect = ~np.all(np.isfinite(n), axis=1) | (np.abs(n[:, 2]) == 1.0)
+    if suspect.any() and len(points) >= 3:
+        k = min(FALLBACK_NEIGHBOURS, len(points))
+        _, idx = cKDTree(points).query(points[suspect], k) if tree is None else tree.query(points[suspect], k)
+        n[suspect] = pca_normals(np.asarray(points, dtype=np.float64), idx.reshape(-1, k))
     return n
 
 
@@ -65,7 +73,7 @@ class TangentPlanes(Surface):
         """Planes over ``scan``'s points, normals fitted at its spacing, patches from its local spacing."""
         if not scan.spacing > 0:
             raise InputError(f"{scan.name}: the points repeat one another (no spacing); no surface")
-        normals = point_normals(scan.points, scan.spacing)
+        normals = point_normals(scan.points, scan.spacing, scan.tree)
         patch = PATCH_SPACINGS * local_spacing(scan.points, scan.tree)
         return cls(scan.points, np.zeros((0, 3), dtype=np.int64), tree=scan.tree, normals=normals, patch=patch)
 
@@ -139,6 +147,11 @@ class CloudView:
     def visible(self, surface, points: np.ndarray, margin: float) -> np.ndarray:
         """(N,) bool, all True: with no single sensor, nothing is hidden from it."""
         return np.ones(len(points), dtype=bool)
+
+    def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: points within ``near`` plus ``margin`` (units: how far the guess may move them) of the
+        cloud, whether ``inside`` or not."""
+        return self._within(points, self.near + margin)
 
     def widened(self, points: np.ndarray, angle: float, translation: float = 0.0) -> np.ndarray:
         """(N,) bool: points within ``near`` plus the move a rotation of ``angle`` radians (about the cloud's

@@ -49,13 +49,19 @@ def point_normals(points: np.ndarray, spacing: float, tree: cKDTree | None = Non
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_SPACINGS * spacing,
                                                               max_nn=NORMAL_MAX_NEIGHBOURS))
     n = np.array(pcd.normals)
-    # Open3D leaves (0, 0, 1) where fewer than 3 neighbours lie within the radius (a point at a rim): those
-    # (and any exact +-z normal, which the refit gives back on a true plane) are fitted to their nearest points
-    suspect = ~np.all(np.isfinite(n), axis=1) | (np.abs(n[:, 2]) == 1.0)
-    if suspect.any() and len(points) >= 3:
-        k = min(FALLBACK_NEIGHBOURS, len(points))
-        _, idx = cKDTree(points).query(points[suspect], k) if tree is None else tree.query(points[suspect], k)
-        n[suspect] = pca_normals(np.asarray(points, dtype=np.float64), idx.reshape(-1, k))
+    # Open3D leaves (0, 0, 1) where fewer than 3 points (itself included) lie within the radius (a point at a
+    # rim): those are fitted to their nearest points instead. An exact +-z normal is often real (a depth
+    # camera's quantised ranges make flat steps: 29 % of a Kinect frame's normals), so it is refitted only
+    # where the neighbours say so.
+    pts = np.asarray(points, dtype=np.float64)
+    tree = cKDTree(pts) if tree is None else tree
+    z = np.flatnonzero(~np.all(np.isfinite(n), axis=1) | (np.abs(n[:, 2]) == 1.0))
+    if len(z) and len(pts) >= 3:
+        d, _ = tree.query(pts[z], 3, distance_upper_bound=NORMAL_RADIUS_SPACINGS * spacing)
+        rim = z[~np.isfinite(d[:, 2])]
+        if len(rim):
+            k = min(FALLBACK_NEIGHBOURS, len(pts))
+            n[rim] = pca_normals(pts, tree.query(pts[rim], k)[1].reshape(-1, k))
     return n
 
 

@@ -103,7 +103,7 @@ def main() -> None:
     deg, move = _error(T, T_true)
     print(f"LiDAR    open3d point-to-plane (0.25 m voxels, 1 -> 0.25 m) {deg:.3f} deg {100 * move:.1f} cm  {s:.2f} s")
 
-    for kind in (ScanKind(k) for k in a.kinect_kinds.split(",")):
+    for kind in (ScanKind(k) for k in a.kinect_kinds.split(",") if k):
         runs = [(m, lambda s, t, m=m: register(s, t, np.eye(4), Config(method=m)).transform) for m in methods]
         runs.append(("open3d", lambda s, t: o3d_plane_icp(s, t, (0.1, 0.05, 0.02), 0.01)))
         for m, fn in runs:

@@ -36,9 +36,9 @@ from .errors import InputError
 from .scan import Scan
 
 # Rings: the sorted elevations split at gaps at least RING_GAP_RATIO times every gap inside a group (the
-# shared HDL-32E frames: 32 groups 1.33 deg apart, no spread inside a group beyond 1e-6 deg; a simulated
-# 16-ring scanner with 0.02 deg elevation jitter: gaps 2 deg against 0.04 deg), into at most MAX_RINGS groups
-# of at least MIN_RING_POINTS points each (a ring seen by so few points is no ring).
+# shared HDL-32E frames: 32 groups 1.33 deg apart, no gap inside a group above 1e-6 deg; the ratio asks only that
+# the rings stand out by an order of magnitude), into at most MAX_RINGS groups of at least MIN_RING_POINTS points
+# each (a ring seen by so few points is no ring), each narrower than half the smallest gap between them.
 RING_GAP_RATIO = 10.0
 MAX_RINGS = 1024
 MIN_RING_POINTS = 8

@@ -202,6 +202,17 @@ def test_the_closest_point_on_tangent_planes_is_the_projection_onto_the_nearest_
     assert np.allclose(within[near], d2[near]) and np.all(within[~near] > 0.05 ** 2)
 
 
+def test_rays_hit_tangent_planes_where_the_surface_is():
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-1, 1, (2000, 2))
+    pts = np.c_[xy, np.zeros(2000)]
+    surface = surface_of(Scan(points=pts, viewpoint=np.zeros(3), kind=ScanKind.UNSTRUCTURED))
+    origins = np.c_[rng.uniform(-0.8, 0.8, (50, 2)), np.full(50, 2.0)]
+    down = np.tile([0.0, 0.0, -1.0], (50, 1))
+    assert np.allclose(surface.first_hit(origins, down), 2.0, atol=1e-5)
+    assert np.all(np.isinf(surface.first_hit(origins + [5.0, 0.0, 0.0], down)))  # beside the cloud: no patch
+
+
 def test_normals_of_tangent_planes_follow_the_surface():
     rng = np.random.default_rng(2)
     xy = rng.uniform(-1, 1, (3000, 2))

@@ -5,6 +5,9 @@ poor guess that cut can be empty (the source lands beside the target's view) alt
 stated uncertainty allows overlap. Then, rather than refuse, the cut widens step by step: the frustum
 opened by half the rotation uncertainty, by all of it, and finally the whole scan. The first cut
 holding enough points is used, and its name is reported.
+
+The same steps hold for every kind of scan through its view (core.frustum.View): a panorama's visibility
+in its spherical image, an unstructured scan's closeness to its points. The names stay the frustum's.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frustum import Frustum, Overlap, frustum_of, visible_from
+from .frustum import Overlap, frustum_of
 from .scan import Scan
 from .surface import Surface
 from .transforms import apply
@@ -40,24 +43,6 @@ class Cut:
         return self.overlap.target_mask
 
 
-def _widened(f: Frustum, points: np.ndarray, angle: float, chunk: int = 65536) -> np.ndarray:
-    """(N,) bool: points inside frustum ``f`` opened by ``angle`` radians on every side: each point's ray from
-    the apex within ``angle`` of every side plane (through the apex and an edge of the convex outline)."""
-    if angle <= 0:
-        return f.contains(points)
-    if angle >= np.pi / 2:
-        return np.ones(len(points), dtype=bool)
-    # an edge a u + b v + c = 0 on the image plane (z = 1) is the side plane a x + b y + c z = 0
-    sides = f.equations / np.linalg.norm(f.equations, axis=1, keepdims=True)
-    out = np.zeros(len(points), dtype=bool)
-    for start in range(0, len(points), chunk):  # (chunk, K) at a time: a 2M-point scan in bounded memory
-        local = (np.asarray(points[start:start + chunk], dtype=np.float64) - f.apex) @ f.basis.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rays = local / np.linalg.norm(local, axis=1, keepdims=True)  # a point at the apex: NaN, outside
-        out[start:start + chunk] = np.all(rays @ sides.T <= np.sin(angle), axis=1)
-    return out
-
-
 def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: np.ndarray, kind: str,
                 visibility: bool, rotation_uncertainty: float, translation_uncertainty: float) -> Cut | None:
     """The first cut of CUTS with enough points, or None when even the frustum opened by the whole
@@ -70,13 +55,13 @@ def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: n
     used = src_mask.copy()
     if visibility and used.any():
         radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
-        used[np.flatnonzero(used)] = visible_from(surface, target.viewpoint, moved[used],
-                                                  translation_uncertainty + rotation_uncertainty * radius)
+        used = f_tgt.guessed(surface, moved, used, translation_uncertainty + rotation_uncertainty * radius)
     if used.sum() >= enough:
         return Cut(used, CUTS[0], overlap)
     widest = used
-    for name, angle in ((CUTS[1], rotation_uncertainty / 2), (CUTS[2], rotation_uncertainty)):
-        widest = _widened(f_tgt, moved, angle)
+    for name, angle, shift in ((CUTS[1], rotation_uncertainty / 2, translation_uncertainty / 2),
+                               (CUTS[2], rotation_uncertainty, translation_uncertainty)):
+        widest = f_tgt.widened(moved, angle, shift)
         if widest.sum() >= enough:
             return Cut(widest, name, overlap)
     if widest.sum() < 3:

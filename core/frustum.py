@@ -8,6 +8,11 @@ footprint: an occupancy mask of the projected points, closed over the sampling g
 Given a guess ``T_a_b`` (B into A's frame), the points of B inside A's frustum and the points of A
 inside B's are the overlap that registration uses; points outside are culled before they can
 become outliers.
+
+The frustum is the single-view case of a scan's view (:class:`View`, by the scan's kind): a panorama's is
+visibility in its spherical image (core.panorama), an unstructured scan's closeness to its points
+(core.unstructured). Every overlap cut, score and drawing asks :func:`frustum_of` and uses the view's
+methods, whatever the kind.
 """
 
 from __future__ import annotations
@@ -15,16 +20,48 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .errors import InputError
-from .scan import Scan
+from .scan import Scan, ScanKind
 from .transforms import apply, invert
 
 KINDS = ("convex", "nonconvex")
+
+
+class View(Protocol):
+    """Where a scan saw, in its own frame: the overlap tests of one kind (a :class:`Frustum`,
+    core.panorama.PanoramaView, core.unstructured.CloudView). ``apex``: (3,) the sensor, for drawing."""
+
+    apex: np.ndarray
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: which (N, 3) points (this scan's frame) lie where the scan saw."""
+        ...
+
+    def visible(self, surface, points: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: which of (N, 3) points the sensor could have seen, not hidden behind (or seen through)
+        ``surface`` by more than ``margin`` (units)."""
+        ...
+
+    def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: the cut under a guess off by ``margin`` (units, at the points) of (N, 3) points of which
+        ``inside`` (N,) are in :meth:`contains`: those inside and :meth:`visible` (a frustum, a panorama), or
+        those within reach of the guess (a cloud)."""
+        ...
+
+    def widened(self, points: np.ndarray, angle: float, translation: float = 0.0) -> np.ndarray:
+        """(N,) bool: :meth:`contains` opened by ``angle`` radians (and ``translation`` units where the view
+        measures distance)."""
+        ...
+
+    def wireframe(self) -> np.ndarray:
+        """(S, 2, 3) line segments to draw ((0, 2, 3) when the view has no outline)."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +122,32 @@ class Frustum:
             hull_ok &= ok
         inside[front] = hull_ok
         return inside
+
+    def visible(self, surface, points: np.ndarray, margin: float) -> np.ndarray:
+        """:func:`visible_from` this frustum's apex on ``surface`` (the scan's own, in its frame)."""
+        return visible_from(surface, self.apex, points, margin)
+
+    def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: the points ``inside`` (N,) that are also :meth:`visible` (the frustum cut's visibility)."""
+        return visible_cut(self, surface, points, inside, margin)
+
+    def widened(self, points: np.ndarray, angle: float, translation: float = 0.0, chunk: int = 65536) -> np.ndarray:
+        """(N,) bool: points inside the frustum opened by ``angle`` radians on every side: each point's ray from
+        the apex within ``angle`` of every side plane (through the apex and an edge of the convex outline).
+        ``translation`` does not open a frustum (its sides are directions)."""
+        if angle <= 0:
+            return self.contains(points)
+        if angle >= np.pi / 2:
+            return np.ones(len(points), dtype=bool)
+        # an edge a u + b v + c = 0 on the image plane (z = 1) is the side plane a x + b y + c z = 0
+        sides = self.equations / np.linalg.norm(self.equations, axis=1, keepdims=True)
+        out = np.zeros(len(points), dtype=bool)
+        for start in range(0, len(points), chunk):  # (chunk, K) at a time: a 2M-point scan in bounded memory
+            local = (np.asarray(points[start:start + chunk], dtype=np.float64) - self.apex) @ self.basis.T
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rays = local / np.linalg.norm(local, axis=1, keepdims=True)  # a point at the apex: NaN, outside
+            out[start:start + chunk] = np.all(rays @ sides.T <= np.sin(angle), axis=1)
+        return out
 
     @cached_property
     def _wedges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -153,14 +216,29 @@ def _inside_convex(q: np.ndarray, table, tol: float = 1e-12) -> np.ndarray:
 _FRUSTA: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def frustum_of(scan: Scan, kind: str = "convex") -> Frustum:
-    """The frustum of ``scan`` (``kind``: 'convex' as in the paper, or 'nonconvex')."""
+def frustum_of(scan: Scan, kind: str = "convex") -> View:
+    """The view of ``scan`` by its kind: a single-view scan's frustum (``kind``: 'convex' as in the paper,
+    or 'nonconvex'), a panorama's spherical visibility, an unstructured scan's closeness (``kind`` does not
+    apply to those two)."""
     if kind not in KINDS:
         raise InputError(f"unknown frustum kind {kind!r}; use one of {', '.join(KINDS)}")
     cache = _FRUSTA.setdefault(scan, {})
-    if kind not in cache:
-        cache[kind] = _build_frustum(scan, kind)
-    return cache[kind]
+    key = kind if scan.kind is ScanKind.SINGLE_VIEW else scan.kind
+    if key not in cache:
+        cache[key] = _build_view(scan, kind)
+    return cache[key]
+
+
+def _build_view(scan: Scan, kind: str) -> View:
+    if scan.kind is ScanKind.PANORAMA:
+        from .panorama import panorama_view
+
+        return panorama_view(scan)
+    if scan.kind is ScanKind.UNSTRUCTURED:
+        from .unstructured import cloud_view
+
+        return cloud_view(scan)
+    return _build_frustum(scan, kind)
 
 
 def _build_frustum(scan: Scan, kind: str) -> Frustum:
@@ -207,7 +285,7 @@ class Overlap:
     target for it)."""
 
     source_mask: np.ndarray
-    source_frustum: Frustum = field(repr=False)
+    source_frustum: View = field(repr=False)
     target_points: np.ndarray = field(repr=False)
     T_target_source: np.ndarray = field(repr=False)
 
@@ -229,11 +307,18 @@ class Overlap:
 
 
 def segment_overlap(source: Scan, target: Scan, T_target_source: np.ndarray, kind: str = "convex",
-                    frusta: tuple[Frustum, Frustum] | None = None) -> Overlap:
+                    frusta: tuple[View, View] | None = None) -> Overlap:
     """Segment the overlap both ways under the guess ``T_target_source``."""
     f_src, f_tgt = frusta if frusta is not None else (frustum_of(source, kind), frustum_of(target, kind))
     T = np.array(T_target_source, dtype=np.float64)
     return Overlap(f_tgt.contains(apply(T, source.points)), f_src, target.points, T)
+
+
+def visible_cut(view: View, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
+    """(N,) bool: the points ``inside`` (N,) of (N, 3) points that ``view`` finds visible with ``margin``."""
+    out = inside.copy()
+    out[np.flatnonzero(inside)] = view.visible(surface, points[inside], margin)
+    return out
 
 
 def visible_from(target_surface, viewpoint: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:

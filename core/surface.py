@@ -1,10 +1,15 @@
 """Surfaces (paper section 2): triangulate a scan, then find closest points on it.
 
-A surface comes from the range grid when there is one (neighbouring occupied cells make
-triangles), else from a 2.5-D Delaunay triangulation of the points as seen from the viewpoint.
-Either way, triangles with an edge longer than ``EDGE_FACTOR`` times the local point spacing are
-dropped, so a surface never bridges a depth jump or a hole. Faces are wound so that their normals
-face the sensor.
+How the surface is made depends on the scan's kind (core.scan.ScanKind); the closest-point queries that E,
+ICP and the search use are the same for every kind (:class:`Surface`):
+
+- single view: from the range grid when there is one (neighbouring occupied cells make triangles), else
+  from a 2.5-D Delaunay triangulation of the points as seen from the viewpoint;
+- panorama: from the spherical range image about the sensor, triangulated as a grid (core.panorama);
+- unstructured: tangent planes at the points (core.unstructured), no triangles.
+
+Triangles with an edge longer than ``EDGE_FACTOR`` times the local point spacing are dropped, so a
+surface never bridges a depth jump or a hole. Faces are wound so that their normals face the sensor.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .errors import InputError
-from .scan import Scan
+from .scan import Scan, ScanKind
 
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
@@ -94,14 +99,26 @@ def view_projection(points: np.ndarray, viewpoint: np.ndarray,
 
 def triangulate(scan: Scan, axis: np.ndarray | None = None) -> np.ndarray:
     """(M, 3) int64 faces over ``scan.points``; see the module notes. ``axis``: the viewing direction
-    to project along (default the mean ray), so that a part of a scan triangulates as within the whole."""
+    to project along (default the mean ray), so that a part of a scan triangulates as within the whole
+    (a single-view scan's; a panorama's image has no axis). An unstructured scan has no triangulation
+    (InputError): its surface is :func:`surface_of`'s tangent planes."""
     return _triangulate(scan, axis)[0]
+
+
+def surface_of(scan: Scan) -> Surface:
+    """The surface of ``scan`` by its kind (module notes): :meth:`Surface.from_scan`. Of a part of a scan
+    too (``dataclasses.replace(scan, points=part, grid=None, faces=None)``), e.g. half of its points."""
+    return Surface.from_scan(scan)
 
 
 def _triangulate(scan: Scan, axis: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """:func:`triangulate`'s faces and their longest edge (units; :attr:`Surface.reach`), from the edge
     lengths the triangulation measures anyway."""
     pts = scan.points
+    if scan.kind is ScanKind.PANORAMA:
+        return _panorama_faces(scan)
+    if scan.kind is ScanKind.UNSTRUCTURED:
+        raise InputError(f"{scan.name}: an unstructured scan is not triangulated (its surface is tangent planes)")
     if scan.grid is not None:
         faces = _grid_faces(scan.grid.index)
     else:
@@ -123,6 +140,18 @@ def _triangulate(scan: Scan, axis: np.ndarray | None = None) -> tuple[np.ndarray
         raise InputError(f"{scan.name}: no surface could be built (every triangle bridged a gap)")
     # winding a face the other way measures the same three edges
     return _face_sensor(pts, faces, scan.viewpoint), float(lengths.max())
+
+
+def _panorama_faces(scan: Scan) -> tuple[np.ndarray, float]:
+    """A panorama's faces (core.panorama: its spherical image as a grid, edges bounded by the image's spacing)
+    and their longest edge."""
+    from .panorama import image_of
+
+    faces, lengths = image_of(scan).faces(scan.points, EDGE_FACTOR)
+    if len(faces) == 0:
+        raise InputError(f"{scan.name}: no surface could be built from the spherical image (every triangle "
+                         "bridged a gap)")
+    return _face_sensor(scan.points, faces, scan.viewpoint), float(lengths.max())
 
 
 def _grid_faces(idx: np.ndarray) -> np.ndarray:
@@ -169,10 +198,14 @@ class Surface:
 
     @classmethod
     def from_scan(cls, scan: Scan) -> Surface:
-        """The scan's stored faces, else its triangulation (module notes), over its points; with the
+        """The scan's stored faces, else its surface by its kind (module notes), over its points; with the
         scan's k-d tree (its points are the vertices)."""
         if scan.faces is not None and len(scan.faces):
             return cls(scan.points, scan.faces, tree=scan.tree)
+        if scan.kind is ScanKind.UNSTRUCTURED:
+            from .unstructured import TangentPlanes
+
+            return TangentPlanes.from_scan(scan)
         faces, longest = _triangulate(scan)
         return cls(scan.points, faces, tree=scan.tree, longest_edge=longest)
 

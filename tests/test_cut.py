@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rangereg.core.cut import CUTS, MIN_SHARE, _widened, overlap_cut
+from rangereg.core.cut import CUTS, MIN_SHARE, overlap_cut
 from rangereg.core.frustum import frustum_of
 from rangereg.core.simulate import true_transform
 from rangereg.core.surface import Surface
@@ -39,11 +39,11 @@ def test_a_widening_holds_every_point_the_narrower_one_holds(corner):
     from rangereg.core.transforms import apply
 
     moved = apply(sideways(T, target, 2000.0), source.points)
-    assert np.array_equal(_widened(f, moved, 0.0), f.contains(moved))
-    masks = [_widened(f, moved, np.radians(a)) for a in (0, 5, 20, 60)]
+    assert np.array_equal(f.widened(moved, 0.0), f.contains(moved))
+    masks = [f.widened(moved, np.radians(a)) for a in (0, 5, 20, 60)]
     assert all(np.all(wide[narrow]) for narrow, wide in zip(masks, masks[1:]))
     assert masks[-1].sum() > masks[0].sum()
-    assert _widened(f, moved, np.pi / 2).all()
+    assert f.widened(moved, np.pi / 2).all()
 
 
 def test_the_frustum_opens_by_the_angle_on_every_side(corner):
@@ -57,7 +57,7 @@ def test_the_frustum_opens_by_the_angle_on_every_side(corner):
         ray = np.cos(np.radians(10)) * r0 + np.sin(np.radians(10)) * n
         point = f.apex + 1000.0 * ray @ f.basis
         assert not f.contains(point[None])[0]
-        assert _widened(f, point[None], np.radians(12))[0] and not _widened(f, point[None], np.radians(8))[0]
+        assert f.widened(point[None], np.radians(12))[0] and not f.widened(point[None], np.radians(8))[0]
 
 
 def test_a_guess_beside_the_view_widens_the_cut_to_what_its_uncertainty_allows(corner):

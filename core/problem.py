@@ -101,7 +101,7 @@ def check_registrable(*scans: Scan) -> None:
     first = scans[0]
     for other in scans[1:]:
         mismatch = scale_mismatch(other, first)
-        if mismatch and not (other.meta.get("units_stated") and first.meta.get("units_stated")
+        if mismatch and not (other.units_stated and first.units_stated
                              and other.units == first.units):
             raise InputError(f"{mismatch}; no rigid pose joins scans in different units: scale one, or state the "
                              "same \"units\" in both sidecars if they are alike")

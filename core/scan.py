@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 from enum import StrEnum
 from functools import cached_property
-from types import MappingProxyType
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -154,11 +153,6 @@ class Scan:
     def units_stated(self) -> bool:
         """The units come from a flag, the sidecar or the file, not from the scale."""
         return self.units_from.stated
-
-    @property
-    def meta(self) -> MappingProxyType:
-        """Read-only: ``{"units_stated": bool}``, for callers not yet reading :attr:`units_stated`."""
-        return MappingProxyType({"units_stated": self.units_stated})
 
     def to_arrays(self) -> dict:
         """The scan as plain arrays, strings and numbers (picklable, cheap to ship to another process);

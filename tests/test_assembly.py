@@ -278,7 +278,7 @@ def test_scan_arrays_round_trip_keeps_kind_and_typed_fields():
         assert getattr(back, key) == getattr(s, key), key
     np.testing.assert_array_equal(back.grid.index, s.grid.index)
     np.testing.assert_array_equal(back.intensity, s.intensity)
-    assert back.units_stated is False and s.meta["units_stated"] is False
+    assert back.units_stated is False and s.units_stated is False
 
 
 def test_open3d_warnings_stay_off_the_console(capfd, monkeypatch):

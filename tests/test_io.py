@@ -256,13 +256,15 @@ def test_quads_are_split_into_fans(tmp_path):
     assert load_scan(path).faces.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]]
 
 
-def test_viewpoint_at_the_centre_of_the_points_is_refused(tmp_path):
+def test_viewpoint_at_the_centre_of_the_points_is_a_panorama_and_refused_as_a_single_view(tmp_path):
     from rangereg.core.frustum import frustum_of
+    from rangereg.core.scan import ScanKind
     from rangereg.core.surface import triangulate
 
     pts = np.r_[_cube_points(200), -_cube_points(200, seed=1)]  # two sheets around the origin
     write_ply(tmp_path / "s.ply", pts)
-    s = load_scan(tmp_path / "s.ply", viewpoint=pts.mean(0))
+    assert load_scan(tmp_path / "s.ply", viewpoint=pts.mean(0)).kind is ScanKind.PANORAMA  # seen all around
+    s = load_scan(tmp_path / "s.ply", viewpoint=pts.mean(0), kind=ScanKind.SINGLE_VIEW)  # as a user insists
     for build in (triangulate, frustum_of):
         with pytest.raises(InputError, match="centre of the points|beside or behind"):
             build(s)

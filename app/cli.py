@@ -119,9 +119,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
     s.add_argument("--full-search", action="store_true", help="global: no bound on the search when no candidate is "
                    "trusted: every stage runs and the paper's hybrid searches round the best candidate until it "
-                   "stops by itself (default: 2.5 s of search and 300 of the hybrid's steps at most)")
-    s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: seconds of search at most "
-                   "when nothing is trusted (default 2.5; with --full-search, none unless given)")
+                   "stops by itself (default: 1000 steps of search, 300 of them the hybrid's, at most)")
+    s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: seconds of search at most, "
+                   "counted after the setup (default: none; the search is bounded by its work, so a busy machine gives "
+                   "the same answer; a bound in seconds may not)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
                    "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")

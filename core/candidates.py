@@ -37,6 +37,9 @@ from .transforms import apply, invert
 CAP_SPACINGS = 0.7
 SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
 SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
+# the point-to-plane system that says whether a pose is pinned is built on this many source points
+# (core.threshold.constraint: the basis's 160 leave a road's few poles and kerbs to chance)
+CONSTRAINT_SAMPLE = 1500
 RECENT_POSES = 8  # single poses a basis remembers its answers for (Basis.evaluate, normal_angle)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 # RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
@@ -92,18 +95,22 @@ class CandidateConfig:
     distinct_rotation_deg: float = 2.0  # candidates closer than this (and distinct_translation) are refined once
     distinct_translation: float = 0.01  # share of the target's size
     local_translation: float = 0.05  # the hybrid's translation uncertainty round the best candidate (share of size)
-    # When no candidate is trusted the paper's hybrid searches round the best one, for at most this many
-    # steps (ICP iterations and annealing moves; None: until it stops by itself, as --method hybrid): a
-    # bound on work, so a run ends the same on every machine. In the sweep it never turned an untrusted
-    # candidate into a trusted pose (0 of the runs that reached it); 300 steps cost ~0.3-1 s of CPU
+    # The search's bound on work (core.search.budget), counted from the end of the setup: a run ends the same on
+    # every machine, however busy. Steps are ICP iterations and annealing moves over every refinement and the
+    # fallback; a refinement takes at most 2 x refine_iterations (80), and the stages refine at most ~8 poses
+    # (the guess, KISS-Matcher, 3 rotation samples, FPFH at two grids), so 1000 lets every stage run to its own
+    # end and leaves the hybrid its share. Candidates: the rotation samples (at most ROTATION_SAMPLES) and the
+    # feature matches, so 2000 bounds only a config asking for more samples than that.
+    search_steps: int | None = 1000
+    max_candidates: int | None = 2000
+    # When no candidate is trusted the paper's hybrid searches round the best one, for at most this many of the
+    # search's steps (None: until it stops by itself, as --method hybrid, or the search's steps are spent). In
+    # the sweep it never turned an untrusted candidate into a trusted pose (0 of the runs that reached it); 300
+    # steps cost ~0.3-1 s of CPU on the bunny
     fallback_steps: int | None = 300
-    # The search starts no stage and ends its refinements once this many seconds have passed since the
-    # setup began (None: no bound); the pose then is the best scored so far, not trusted. A bound on time,
-    # not work: a run that meets it may end otherwise on a slower or busier machine. Measured here (files
-    # -> pose, load 1-3): runs trusted on the shared pairs end in 0.5-0.8 s, 3-5 x below it; a pair no rigid
-    # pose registers (benchmarks/register_time.py --unregistrable) searched on for 5-9 s, and with this bound
-    # ends 2.8-2.9 s after its files began to be read.
-    time_limit: float | None = 2.5
+    # Seconds of search at most, from the end of the setup (None: no bound on time; the default). A user's explicit
+    # choice: a bound on time, not work, so a run that meets it may end otherwise on a slower or busier machine.
+    time_limit: float | None = None
 
     def validate(self) -> None:
         if self.sample < 10:
@@ -129,6 +136,9 @@ class CandidateConfig:
         for name in ("distinct_translation", "local_translation"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise InputError(f"{name} must be a share of the target's size > 0, got {getattr(self, name)}")
+        for name in ("search_steps", "max_candidates"):
+            if getattr(self, name) is not None and getattr(self, name) < 0:
+                raise InputError(f"{name} must be >= 0 (or None: unbounded), got {getattr(self, name)}")
         if self.fallback_steps is not None and self.fallback_steps < 0:
             raise InputError(f"the fallback's steps must be >= 0 (or None: unbounded), got {self.fallback_steps}")
         if self.time_limit is not None and not (np.isfinite(self.time_limit) and self.time_limit > 0):
@@ -168,6 +178,7 @@ class Basis:
     neighbours: int
     target: Scan
     angle_floor: float
+    constraint_points: np.ndarray | None = None  # (C, 3) a larger seeded source sample (core.threshold.constraint)
     # the last few single poses asked about (a pose found is scored, tested for trust and reported: the
     # same answers three times over), by the pose's bytes
     _recent: dict = field(default_factory=dict, init=False, repr=False)
@@ -260,8 +271,12 @@ def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: 
     floors = [f for f in (normal_floor(source, src, config.normal_neighbours),
                           normal_floor(target, tgt, config.normal_neighbours)) if f > 0]
     angle_floor = float(np.mean(floors)) if floors else 0.0
+    # drawn from a generator of its own, so the draws above (and every score) stay as they were
+    dense = np.random.default_rng([len(source.points), len(target.points), 6])
+    n_dense = min(CONSTRAINT_SAMPLE, len(source.points))
+    constraint_points = source.points[np.sort(dense.choice(len(source.points), n_dense, replace=False))]
     return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
-                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor)
+                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor, constraint_points)
 
 
 # ---- where candidates come from -------------------------------------------------------------------------

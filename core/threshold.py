@@ -17,6 +17,7 @@ from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
 from .noise import noise_floors
 from .problem import Problem
+from .surface import pca_normals
 
 
 def estimate_threshold(problem: Problem, seed: int = 0, config: ThresholdConfig = ThresholdConfig()) -> float:
@@ -74,6 +75,79 @@ FACTOR = 4.5  # see the notes above and benchmarks/threshold_evidence.py
 MIN_TRUST_OVERLAP = 0.3
 
 
+# ---- what the matched overlap pins: the point-to-plane system's eigenvalues --------------------------------
+# A pose fitted at the noise level is still not pinned where the matched surfaces let it slide: a road between
+# two walls (a corridor of planes) leaves the motion along the road free, a plane leaves three motions free.
+# LiDAR odometry checks this on the point-to-plane system (Zhang, Kaess and Singh, "On degeneracy of
+# optimization-based state estimation problems", ICRA 2016; X-ICP's localizability): rows
+#     J_i = [n_i, ((q_i - c) x n_i) / L]
+# for the matched points q_i (target frame) with the target's normals n_i, c their centroid and L their RMS
+# radius about it, so that a rotation is measured by how far it moves the points and the system is unit-free;
+# H = J^T J / m (6 x 6). Its smallest eigenvalue over its largest is 0 along a free motion, and its eigenvector
+# says which motion. A pose is trusted only where that ratio is at least MIN_CONSTRAINT.
+# Measured (benchmarks/threshold_evidence.py --constraint, at the truths, the system over the matched points of
+# CONSTRAINT_SAMPLE): see MIN_CONSTRAINT_EVIDENCE below; the bound sits between the free motions (a corridor of
+# planes, a plane pair, the wing's panel along its flat axis) and every pinned truth.
+MIN_CONSTRAINT = 0.02
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """What the matched overlap pins at a pose: eigenvalues (6,) of the unit-free point-to-plane system, smallest
+    first; weakest (6,) the eigenvector of the smallest (translation part first, then rotation about the
+    overlap's centroid); ratio: smallest / largest; matched: points it was built on (0: too few to judge)."""
+
+    eigenvalues: np.ndarray
+    weakest: np.ndarray
+    ratio: float
+    matched: int
+
+    @property
+    def free_motion(self) -> str:
+        """The motion the overlap pins least, in words (target frame)."""
+        t, r = self.weakest[:3], self.weakest[3:]
+        if np.linalg.norm(t) >= np.linalg.norm(r):
+            d = t / np.linalg.norm(t)
+            return f"a translation along ({d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f})"
+        d = r / np.linalg.norm(r)
+        return f"a rotation about ({d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}) through the overlap's centroid"
+
+    def pins(self, bound: float | None = None) -> bool:
+        """Whether the ratio reaches ``bound`` (default MIN_CONSTRAINT) on enough matched points."""
+        return self.matched > 0 and self.ratio >= (MIN_CONSTRAINT if bound is None else bound)
+
+    def to_json(self) -> dict:
+        return {"eigenvalues": self.eigenvalues.tolist(), "ratio": self.ratio, "matched": self.matched,
+                "free_motion": self.free_motion if self.matched else ""}
+
+
+def constraint(basis: Basis, T: np.ndarray) -> Constraint:
+    """:class:`Constraint` of pose T (4, 4) over the points of ``basis.constraint_points`` that match (inside the
+    target's frustum, within the cap), with the target's normals fitted at their closest points."""
+    T = np.asarray(T, dtype=np.float64).reshape(4, 4)
+    return basis._remembered("constraint", T, lambda: _constraint(basis, T))
+
+
+def _constraint(basis: Basis, T: np.ndarray) -> Constraint:
+    pts = basis.constraint_points if basis.constraint_points is not None else basis.points
+    moved = pts @ T[:3, :3].T + T[:3, 3]
+    closest, d2 = basis.surface.closest(moved)
+    close = basis.target_frustum.contains(moved) & (d2 < basis.cap)
+    k = min(basis.neighbours, len(basis.target.points))
+    if close.sum() < 6 or k < 3:
+        return Constraint(np.zeros(6), np.r_[1.0, 0, 0, 0, 0, 0], 0.0, 0)
+    q = closest[close]
+    _, idx = basis.target.tree.query(q, k)
+    n = pca_normals(basis.target.points, idx.reshape(len(q), k))
+    c = q.mean(0)
+    L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, axis=1)))) or 1.0
+    J = np.hstack([n, np.cross(q - c, n) / L])
+    vals, vecs = np.linalg.eigh(J.T @ J / len(q))
+    vals = np.clip(vals, 0.0, None)
+    ratio = float(vals[0] / vals[-1]) if vals[-1] > 0 else 0.0
+    return Constraint(vals, vecs[:, 0], ratio, int(close.sum()))
+
+
 @dataclass(frozen=True)
 class PairThreshold:
     """value: the bound on the median matched d^2 (squared units) where the normals agree at their floor;
@@ -85,12 +159,14 @@ class PairThreshold:
     factor: float
     min_overlap: float
     angle_floor: float
+    min_constraint: float = MIN_CONSTRAINT
     derivation: str = ("sqrt(median matched d^2 / noise floor) x (median normal angle / angle floor) < factor on "
-                       "the fixed basis; >= 30 % of the source sample matched; overlap both ways")
+                       "the fixed basis; >= 30 % of the source sample matched; overlap both ways; the matched "
+                       "point-to-plane system's smallest / largest eigenvalue >= min_constraint")
 
     def to_json(self) -> dict:
         return {"value": self.value, "floor": self.floor, "angle_floor_deg": self.angle_floor, "factor": self.factor,
-                "min_overlap": self.min_overlap, "derivation": self.derivation}
+                "min_overlap": self.min_overlap, "min_constraint": self.min_constraint, "derivation": self.derivation}
 
     def misfit(self, basis: Basis, T: np.ndarray, scores: Scores | None = None) -> float:
         """sqrt(median matched d^2 / floor) x (median normal angle / angle floor) at pose T (4, 4), whatever
@@ -104,12 +180,15 @@ class PairThreshold:
         return float(m) if np.isfinite(m) else float("inf")
 
     def holds(self, basis: Basis, T: np.ndarray, scores: Scores | None = None, misfit: float | None = None) -> bool:
-        """Whether pose T (4, 4) passes: it overlaps enough (notes above) and its misfit is below the factor
-        (``scores``, ``misfit``: T's, when computed already)."""
+        """Whether pose T (4, 4) passes: it overlaps enough (notes above), its misfit is below the factor
+        (``scores``, ``misfit``: T's, when computed already) and the matched overlap pins all six degrees of
+        freedom (:func:`constraint`)."""
         s = basis.evaluate(np.asarray(T)[None]) if scores is None else scores
         if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP):
             return False
-        return bool((self.misfit(basis, T, s) if misfit is None else misfit) < self.factor)
+        if not (self.misfit(basis, T, s) if misfit is None else misfit) < self.factor:
+            return False
+        return constraint(basis, T).pins(self.min_constraint)
 
 
 def pair_threshold(floor: float, angle_floor: float, min_overlap: float, factor: float = FACTOR) -> PairThreshold:

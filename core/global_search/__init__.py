@@ -19,8 +19,12 @@ pair's fixed basis.
                two with the lower score
     events     (stream.py) every stage's events in one numbered stream; the bounds raised from it
 
-No new stage or leg starts once ``CandidateConfig.time_limit`` seconds have passed. With candidates off
-(``CandidateConfig.enabled=False``) only the guess is a candidate.
+    budget     (core.search.budget) the search's work: candidates scored (``CandidateConfig.max_candidates``)
+               and steps (``search_steps``: refinement iterations and the hybrid's steps, of them at most
+               ``fallback_steps`` the hybrid's), counted from the end of the setup; seconds only when asked for
+               (``time_limit``). No stage or leg starts once it is spent; a loaded machine ends at the same pose.
+
+With candidates off (``CandidateConfig.enabled=False``) only the guess is a candidate.
 """
 
 from __future__ import annotations
@@ -36,13 +40,14 @@ from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
 from ..surface import Surface
+from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
 from .refinement import Found, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
 from .stages import Hypotheses, Stage
-from .stream import EventStream, TimeBound
+from .stream import EventStream
 
-__all__ = ["EventStream", "Hypotheses", "Stage", "TimeBound", "kiss_ahead", "refine", "register_global"]
+__all__ = ["EventStream", "Hypotheses", "Stage", "kiss_ahead", "refine", "register_global"]
 
 
 def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
@@ -53,7 +58,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     ``surface``: the target's, when triangulated already."""
     config.validate()
     setup = prepare_setup(source, target, T_init, config, surface)
-    run = EventStream(listener, setup.frame, setup.t0, config.candidates.time_limit)
+    run = EventStream(listener, setup.frame, setup.budget())
     found, local_minima = Found(), 0
     try:
         found, sources = search_stages(setup, run)
@@ -82,6 +87,6 @@ def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut:
     trusted = setup.threshold.holds(setup.basis, T, s, misfit)
     details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
                             setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]),
-                            run.n["candidates"], sources, found_by)
+                            run.n["candidates"], sources, found_by, constraint(setup.basis, T))
     return Result(T, last_cut.error(T), run.iterations(), local_minima, run.total(), time.perf_counter() - setup.t0,
                   "global", setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)

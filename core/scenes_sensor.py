@@ -178,12 +178,12 @@ def lidar_pair(scene: str, seed: int = 0, lidar: Spinning = Spinning()) -> tuple
 class DepthCamera:
     """A depth camera (x right, y down, looking along +z, as RGB-D frames are written): ``cols x rows`` pixels
     over ``fov_deg`` horizontally, depth noise sigma ``noise_at_1m`` x depth^2 (m; structured light's
-    quadratic growth), depths between ``near`` and ``far`` (m)."""
+    quadratic growth: 3 mm at 2 m, about what a fused fragment keeps after averaging), depths between ``near`` and ``far`` (m)."""
 
     cols: int = 160
     rows: int = 120
     fov_deg: float = 58.0
-    noise_at_1m: float = 0.0015
+    noise_at_1m: float = 0.0008
     near: float = 0.4
     far: float = 5.0
 

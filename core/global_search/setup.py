@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..candidates import Basis, CandidateConfig, make_basis, pair_spacing
+from ..candidates import Basis, CandidateConfig, feature_spacing, make_basis
 from ..config import Config
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
@@ -67,7 +67,7 @@ def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None
     if not (cc.enabled and cc.kiss_matcher and kiss_available()):
         return None
     pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
-    future = pool.submit(kiss_candidates, source, target, pair_spacing(source, target), max(cc.fpfh_voxels))
+    future = pool.submit(kiss_candidates, source, target, feature_spacing(source, target), max(cc.fpfh_voxels))
     pool.shutdown(wait=False)
     return future
 

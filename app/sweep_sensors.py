@@ -196,6 +196,8 @@ def _ours(s, t, T0, task) -> tuple[np.ndarray | None, bool, str, float]:
         g = register(s, t, T0, Config(method="global", seed=task.start, problem=told(task.mode, task.rot, task.trans)))
     except InputError as exc:
         return None, False, f"refused: {exc}", time.perf_counter() - t0
+    except Exception as exc:  # noqa: BLE001 (a crash is a result of the sweep: kept, said, and the sweep goes on)
+        return None, False, f"crashed: {type(exc).__name__}: {exc}", time.perf_counter() - t0
     return g.transform, bool(g.below_threshold), g.trust_text, time.perf_counter() - t0
 
 
@@ -234,7 +236,7 @@ def run_task(task: SensorTask) -> list[dict]:
 
             try:
                 T = peer(m, s, t, T0, scene_voxel(s, t), task.start)
-            except (InputError, RuntimeError) as exc:
+            except Exception as exc:  # noqa: BLE001 (a peer that fails is a wrong pose)
                 T, why = None, str(exc)
             sec = time.perf_counter() - t1
         ok, rot, tr = _judge(T, T_true) if T is not None else (False, np.nan, np.nan)
@@ -258,7 +260,7 @@ def _chain(task: SensorTask, method: str, frames: list[Scan], load_s: float) -> 
             t1 = time.perf_counter()
             try:
                 T = peer(method, s, t, T0, scene_voxel(s, t), task.start)
-            except (InputError, RuntimeError) as exc:
+            except Exception as exc:  # noqa: BLE001 (a peer that fails is a wrong pose)
                 T, why = None, str(exc)
             dt = time.perf_counter() - t1
         sec += dt
@@ -310,7 +312,7 @@ def sensor_table(rows: list[dict], load: str = "") -> str:
         lines.append(f"| {fam} | {mode} | {len(g)} | {k}/{len(g)} | {tw} | {tr} | "
                      f"{np.median([r['seconds'] for r in g]):.2f} | " + " | ".join(cells) + " |")
     reasons = sorted({f"{r['family']}: {r['why'][:160]}" for r in rows
-                      if r["method"] == "global" and r["why"].startswith("refused")} if rows else [])
+                      if r["method"] == "global" and r["why"].startswith(("refused", "crashed"))} if rows else [])
     lines += ["", "start-free peers (open3d-fpfh, kiss-matcher) run once per start of the identity mode and stand "
               "for every mode" + (f"; load average {load}" if load else "")]
     lines += [f"- {r}" for r in reasons]

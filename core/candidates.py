@@ -276,6 +276,44 @@ SCENE_SPAN_CELLS = 80.0
 SPAN_POINTS = 20_000  # the reach is a median: measured on an even spread of at most this many points
 
 
+# A scan of more points than this is searched on a thinned copy (for_search) and the pose found refined on the
+# whole scan: the setup's work (the surface, the noise floors, the overlap cut, the feature grids) grows with the
+# points, the search's does not (its E uses max_points of them). The bunny's scans (30-40k points), the simulated
+# scenes and the LiDAR frames (70k) are searched whole; a 250k-point Kinect frame or a 300k-point fragment thinned.
+SEARCH_POINTS = 100_000
+
+
+def for_search(scan: Scan, limit: int = SEARCH_POINTS) -> Scan:
+    """``scan`` itself, or thinned to about ``limit`` points when it has more: a range grid keeps every k-th row
+    and column (still a grid), other scans one point (the first, unmoved) per cell of a grid sized so that about
+    ``limit`` cells are occupied. Deterministic; kind, viewpoint, pose and units kept."""
+    from dataclasses import replace
+
+    from .scan import RangeGrid
+
+    n = len(scan.points)
+    if n <= limit:
+        return scan
+    if scan.grid is not None:
+        k = int(np.ceil(np.sqrt(n / limit)))
+        index = scan.grid.index[::k, ::k]
+        keep = index[index >= 0]
+        remap = np.full(n, -1, dtype=np.int64)
+        remap[keep] = np.arange(len(keep))
+        grid = RangeGrid(np.where(index >= 0, remap[np.maximum(index, 0)], -1))
+        return replace(scan, points=scan.points[keep], grid=grid, faces=None)
+    cell = scan.spacing * np.sqrt(n / limit)
+    for _ in range(6):  # a surface's cells grow as the square of their side: a few steps reach the count
+        cells = np.floor((scan.points - scan.points.min(0)) / cell).astype(np.int64)
+        span = cells.max(0) + 1
+        keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # one integer a cell (< 2^63 here)
+        _, first = np.unique(keys, return_index=True)
+        if len(first) <= 1.2 * limit:
+            break
+        cell *= np.sqrt(len(first) / limit)
+    return replace(scan, points=scan.points[np.sort(first)], grid=None, faces=None)
+
+
 def scene_span(scan: Scan) -> float:
     """sqrt(bounding-box diagonal x reach) in units, reach = twice the median distance of the points from their
     median (on at most SPAN_POINTS of them, evenly spread)."""

@@ -30,12 +30,16 @@ With candidates off (``CandidateConfig.enabled=False``) only the guess is a cand
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 
+from ..candidates import for_search
 from ..config import Config
+from ..errors import InputError
 from ..events import Cancelled, Listener
+from ..icp import icp
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
@@ -57,7 +61,14 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     ``config.candidates`` holds its own knobs, ``config.problem`` the stated region (core.region);
     ``surface``: the target's, when triangulated already."""
     config.validate()
-    setup = prepare_setup(source, target, T_init, config, surface)
+    whole = (source, target, surface)
+    source, target = for_search(source), for_search(target)  # thinned when large (core.candidates.SEARCH_POINTS)
+    thinned = source is not whole[0] or target is not whole[1]
+    if thinned and surface is None:  # the whole target's surface, made on a thread while the search runs
+        pool = ThreadPoolExecutor(1, thread_name_prefix="whole-surface")
+        whole = (whole[0], whole[1], pool.submit(Surface.from_scan, whole[1]))
+        pool.shutdown(wait=False)
+    setup = prepare_setup(source, target, T_init, config, surface if target is whole[1] else None)
     run = EventStream(listener, setup.frame, setup.budget())
     found, local_minima = Found(), 0
     try:
@@ -70,8 +81,34 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
             best, stop, local_minima = bounded_hybrid(setup, run, found)
     except Cancelled:
         best, stop, sources = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}
-    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, sources,
-                   found.source_of(best) or ("guess" if best is setup.T_guess else ""), local_minima)
+    found_by = found.source_of(best) or ("guess" if best is setup.T_guess else "")
+    last_cut = found.last_cut if best is found.inside else None
+    if thinned and stop.reason is not StopReason.CANCELLED:
+        best, last_cut, found_by = _on_the_whole(setup, run, whole, best, last_cut, found_by)
+    return _result(setup, run, best, stop, last_cut, sources, found_by, local_minima)
+
+
+def _on_the_whole(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray, last_cut: Problem | None,
+                  found_by: str) -> tuple[np.ndarray, Problem | None, str]:
+    """The pose the search found on the thinned scans, refined on the whole ones (the converged cut: one ICP leg
+    of the refinement's, not charged to the search's budget); kept unless it loses the pair threshold's trust.
+    Returns the pose, its last cut (None: cut it again) and who found it."""
+    source, target, surface = whole
+    cfg = setup.config
+    surface = surface.result() if isinstance(surface, Future) else surface
+    surface = surface if surface is not None else Surface.from_scan(target)
+    converged = replace(cfg.problem, rotation_uncertainty_deg=cfg.search.resegment_rotation_deg,
+                        translation_uncertainty=cfg.search.resegment_translation * target.size)
+    icp_config = replace(cfg.icp, metric=cfg.candidates.refine_metric, patience=cfg.candidates.refine_patience,
+                         max_iterations=min(cfg.icp.max_iterations, cfg.candidates.refine_iterations))
+    try:
+        p = prepare(source, target, T, converged, surface=surface, seed=cfg.seed)
+    except InputError:  # no overlap cut on the whole scans at this pose: the thinned scans' answer stands
+        return T, last_cut, found_by
+    T_whole = icp(p.error, T, icp_config, lambda T_, E: run.emit("icp", T_, E, charge=False), frame=setup.frame).T
+    if setup.trusted(T) and not setup.trusted(T_whole):
+        return T, last_cut, found_by
+    return T_whole, None, f"{found_by}, refined on the whole scans" if found_by else "refined on the whole scans"
 
 
 def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut: Problem | None, sources: dict,

@@ -29,10 +29,10 @@ class EventStream:
         self.legs[phase] += 1
         self.in_leg = 0
 
-    def emit(self, phase: str, T: np.ndarray, E: float) -> None:
+    def emit(self, phase: str, T: np.ndarray, E: float, charge: bool = True) -> None:
         """A step of the stages (a candidate scored: charged by the stage beforehand; a refinement's ICP
-        iteration: charged here)."""
-        if phase != "candidates":
+        iteration: charged here, unless ``charge`` is False: the last refinement on the whole scans)."""
+        if phase != "candidates" and charge:
             self.budget.take_or_stop("steps")
         self.n[phase] += 1
         self.in_leg += 1

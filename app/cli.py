@@ -157,9 +157,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--modes", help="--sweep: how starts are made, comma-separated of origin, turntable, centroid, "
-                   "no-guess (default all)")
+                   "no-guess (default all); the sensor families: identity, sensor, no-guess")
     s.add_argument("--families", help="--sweep: which pairs, comma-separated of whole, crop-whole, crop-crop "
-                   "(default all)")
+                   "(default all), or of the sensor families lidar, kinect, sim-street, sim-room, sim-fragments "
+                   "(app/sweep_sensors.py)")
     s.add_argument("--lesson", action="store_true", help="the lesson's starts on its scene (ribbed) with ICP, "
                    "annealing and the hybrid, and the lesson's targets")
     s.add_argument("--json", help="write the rows as JSON to this file")

@@ -48,3 +48,21 @@ def test_the_shared_families_are_found_where_their_files_are():
     assert len(lidar) == 1 and lidar[0].files[0].endswith("251371071.pcd")  # the source; relative.txt maps it
     kinect = ss.family_pairs("kinect", quick=False)
     assert [p.name for p in kinect] == ["capture0001-capture0003", "capture0002-capture0004", "capture0003-capture0005"]
+
+
+@pytest.mark.slow  # 33 s at load 7 (the peers' KISS-Matcher process and Open3D on every start)
+def test_bench_sweep_runs_a_sensor_family_and_refuses_mixing_it_with_the_object_families(tmp_path, capsys):
+    import json
+    from types import SimpleNamespace
+
+    from rangereg.app.sweep import sweep
+    from rangereg.core.errors import InputError
+
+    a = SimpleNamespace(runs=None, quick=True, families="sim-room", modes="identity", json=str(tmp_path / "r.json"),
+                        bunny=str(tmp_path), workers=1, scheduler=None)
+    assert sweep(a) == 0
+    assert "| sim-room | identity |" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "r.json").read_text())
+    assert {r["method"] for r in rows} == {"global", *ss.PEERS}
+    with pytest.raises(InputError, match="run apart"):
+        sweep(SimpleNamespace(**{**vars(a), "families": "whole,sim-room"}))

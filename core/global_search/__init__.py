@@ -17,12 +17,20 @@ pair's fixed basis.
     fallback   (fallback.py) nothing trusted: the paper's hybrid (``--method hybrid``, unchanged) round
                the best refined pose for at most ``CandidateConfig.fallback_steps`` steps; the pose of the
                two with the lower score
-    events     (stream.py) every stage's events in one numbered stream; the bounds raised from it
-
+    events     (stream.py) every stage's events in one numbered stream, each refinement step charged to
+               the budget
     budget     (core.search.budget) the search's work: candidates scored (``CandidateConfig.max_candidates``)
                and steps (``search_steps``: refinement iterations and the hybrid's steps, of them at most
                ``fallback_steps`` the hybrid's), counted from the end of the setup; seconds only when asked for
                (``time_limit``). No stage or leg starts once it is spent; a loaded machine ends at the same pose.
+    thinned    a scan of more than core.candidates.SEARCH_POINTS points is searched on a thinned copy
+               (core.candidates.for_search) and the pose found refined on the whole scans (one ICP leg on
+               the converged cut, the whole target's surface made on a thread meanwhile), kept unless it loses
+               the pair threshold's trust
+    sized      the feature grids (FPFH, KISS-Matcher) in feature spacings: the point spacing, or the scene's
+               span over 400 where that is larger (core.candidates.feature_spacing)
+    trust      the pair threshold also asks that the matched overlap pin all six degrees of freedom
+               (core.threshold.constraint); the details say which motion it leaves free
 
 With candidates off (``CandidateConfig.enabled=False``) only the guess is a candidate.
 """

@@ -61,3 +61,22 @@ def test_the_shared_lidar_and_kinect_frames_get_the_voxels_their_recipes_use():
     street, room = scan(lidar), scan(kinect)
     assert 0.25 <= scene_voxel(street, street) <= 0.5  # a street at 0.25-0.5 m
     assert 0.03 <= scene_voxel(room, room) <= 0.06  # a room at ~5 cm
+
+
+def test_a_large_scan_is_thinned_for_the_search_and_a_small_one_is_left_as_it_is(scene):
+    from dataclasses import replace
+
+    from rangereg.core.candidates import for_search
+    from rangereg.core.scan import ScanKind
+
+    target, _ = scene("corner")
+    assert for_search(target) is target  # 6.5k points: searched whole
+    thin = for_search(target, limit=2000)  # a range grid: every k-th row and column, still a grid
+    assert thin.grid is not None and len(thin.points) <= 2000 < len(target.points)
+    idx = thin.grid.index[thin.grid.index >= 0]
+    assert np.array_equal(np.sort(idx), np.arange(len(thin.points)))
+    assert np.isin(thin.points.view([("", thin.points.dtype)] * 3), target.points.view([("", target.points.dtype)] * 3)).all()
+    cloud = replace(target, grid=None, kind=ScanKind.UNSTRUCTURED)
+    thin = for_search(cloud, limit=2000)  # a cloud: one unmoved point a cell, about the limit
+    assert 1000 <= len(thin.points) <= 2400 and thin.kind is ScanKind.UNSTRUCTURED
+    assert np.array_equal(thin.points, for_search(cloud, limit=2000).points)  # deterministic

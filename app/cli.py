@@ -136,9 +136,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "spread over all of SO(3), of which those within --rotation-uncertainty are tried (default 720)")
     s.add_argument("--full-search", action="store_true", help="global: no bound on the search when no candidate is "
                    "trusted: every stage runs and the paper's hybrid searches round the best candidate until it "
-                   "stops by itself (default: 2.5 s of search and 300 of the hybrid's steps at most)")
-    s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: seconds of search at most "
-                   "when nothing is trusted (default 2.5; with --full-search, none unless given)")
+                   "stops by itself (default: 1000 steps of search, 300 of them the hybrid's, at most)")
+    s.add_argument("--time-limit", type=_knob("time_limit"), metavar="S", help="global: seconds of search at most, "
+                   "counted after the setup (default: none; the search is bounded by its work, so a busy machine gives "
+                   "the same answer; a bound in seconds may not)")
     s.add_argument("--threshold", type=_knob("threshold"), help="stop below this E (squared units); default: "
                    "estimated from the scans' own noise; 0: search until annealing gives up")
     s.add_argument("--polish", action="store_true", help="finish with unweighted ICP (paper section 4)")
@@ -173,9 +174,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sweep", action="store_true", help="success per start offset on the bunny pairs, with "
                    "Open3D's ICP and FPFH+RANSAC on the same starts")
     s.add_argument("--modes", help="--sweep: how starts are made, comma-separated of origin, turntable, centroid, "
-                   "no-guess (default all)")
+                   "no-guess (default all); the sensor families: identity, sensor, no-guess")
     s.add_argument("--families", help="--sweep: which pairs, comma-separated of whole, crop-whole, crop-crop "
-                   "(default all)")
+                   "(default all), or of the sensor families lidar, kinect, sim-street, sim-room, sim-fragments "
+                   "(app/sweep_sensors.py)")
     s.add_argument("--lesson", action="store_true", help="the lesson's starts on its scene (ribbed) with ICP, "
                    "annealing and the hybrid, and the lesson's targets")
     s.add_argument("--json", help="write the rows as JSON to this file")

@@ -145,7 +145,7 @@ class Settings:
     rotation_samples: int | None = None  # method global: over all of SO(3)
     full_search: bool = False  # method global: no bound on the search (the paper's hybrid runs to its end)
     no_guess: bool = False  # method global: the guess says nothing (any rotation, any translation; core.region)
-    time_limit: float | None = None  # method global: seconds of search at most (None: the core's default)
+    time_limit: float | None = None  # method global: seconds of search at most (None: no bound on time)
     lock: object = None  # text (``--lock``: "rx,ry,tz", "rotation", "turntable:px,py,pz,dx,dy,dz") or a core Lock
 
     def __post_init__(self):
@@ -201,7 +201,8 @@ def to_config(s: Settings):
                   polish=s.polish, coarse_to_fine=s.coarse_to_fine, lock=s.lock,
                   candidates=replace(base.candidates, enabled=s.candidates,
                                      **given(rotation_samples=s.rotation_samples),
-                                     **({"fallback_steps": None, "time_limit": None} if s.full_search else {})
+                                     **({"fallback_steps": None, "search_steps": None, "max_candidates": None,
+                                         "time_limit": None} if s.full_search else {})
                                      | given(time_limit=s.time_limit)),
                   **given(method=s.method, hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()

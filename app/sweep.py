@@ -17,6 +17,8 @@ Modes (how a start is made from the truth, and what the method is told):
     centroid    rotated about the source's centroid, plus the shift; told max(offset, 15) deg (180 from 90
                 up) and max(shift, 25 mm)
     no-guess    no --init (the scans as stored, up to 90 deg apart here) and no flags: no guess at all
+Sensor families (LiDAR, Kinect, simulated streets, rooms and RGB-D fragments): app.sweep_sensors, its own
+modes and rules (``--families lidar,kinect,sim-street,sim-room,sim-fragments``).
 Offsets 5, 15, 30, 60, 90 and 180 deg with shifts of 10, 25, 50, 75, 75 and 75 mm. Success: < 2 deg and
 < 2 mm at the source centroid. Each side is timed from reading the two files to the pose (ours with our
 reader, the peers with Open3D's). The peers' parameters, fixed before we measured ourselves (Open3D's
@@ -350,11 +352,23 @@ def _choice(text: str | None, allowed: tuple[str, ...], flag: str) -> tuple[str,
 
 def sweep(a) -> int:
     runs = a.runs or (2 if a.quick else 10)
+    from rangereg.app import sweep_sensors as sensors
+
+    families = _choice(getattr(a, "families", None), FAMILIES + sensors.FAMILIES, "--families")
+    if set(families) & set(sensors.FAMILIES):  # the sensor families (app.sweep_sensors: their own modes)
+        if set(families) - set(sensors.FAMILIES):
+            raise InputError(f"--families: the object families ({', '.join(FAMILIES)}) and the sensor families "
+                             f"({', '.join(sensors.FAMILIES)}) run apart")
+        modes = _choice(getattr(a, "modes", None), sensors.MODES, "--modes")
+        rows, table = sensors.sweep_sensors(families, modes, a.quick, a.runs or (1 if a.quick else 2))
+        print(table)
+        if a.json:
+            Path(a.json).write_text(json.dumps(rows, indent=1, default=float) + "\n")
+        return 0
     folder = Path(a.bunny)
     if not folder.is_dir():
         raise InputError(f"--sweep needs a folder of scans with a .conf; {folder} is absent")
     modes = _choice(getattr(a, "modes", None), MODES, "--modes")
-    families = _choice(getattr(a, "families", None), FAMILIES, "--families")
     pairs = sweep_pairs(folder, families)
     if not pairs:
         raise InputError(f"{folder}: no pair of scans named in a .conf overlaps by {MIN_PAIR_OVERLAP:.0%} at the truth")

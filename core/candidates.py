@@ -37,6 +37,9 @@ from .transforms import apply, invert
 CAP_SPACINGS = 0.7
 SHIFT_STEPS = 3  # translation-only steps for each rotation sample (Basis.shift_to_fit) ...
 SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is three numbers)
+# the point-to-plane system that says whether a pose is pinned is built on this many source points
+# (core.threshold.constraint: the basis's 160 leave a road's few poles and kerbs to chance)
+CONSTRAINT_SAMPLE = 1500
 RECENT_POSES = 8  # single poses a basis remembers its answers for (Basis.evaluate, normal_angle)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 # RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
@@ -92,18 +95,22 @@ class CandidateConfig:
     distinct_rotation_deg: float = 2.0  # candidates closer than this (and distinct_translation) are refined once
     distinct_translation: float = 0.01  # share of the target's size
     local_translation: float = 0.05  # the hybrid's translation uncertainty round the best candidate (share of size)
-    # When no candidate is trusted the paper's hybrid searches round the best one, for at most this many
-    # steps (ICP iterations and annealing moves; None: until it stops by itself, as --method hybrid): a
-    # bound on work, so a run ends the same on every machine. In the sweep it never turned an untrusted
-    # candidate into a trusted pose (0 of the runs that reached it); 300 steps cost ~0.3-1 s of CPU
+    # The search's bound on work (core.search.budget), counted from the end of the setup: a run ends the same on
+    # every machine, however busy. Steps are ICP iterations and annealing moves over every refinement and the
+    # fallback; a refinement takes at most 2 x refine_iterations (80), and the stages refine at most ~8 poses
+    # (the guess, KISS-Matcher, 3 rotation samples, FPFH at two grids), so 1000 lets every stage run to its own
+    # end and leaves the hybrid its share. Candidates: the rotation samples (at most ROTATION_SAMPLES) and the
+    # feature matches, so 2000 bounds only a config asking for more samples than that.
+    search_steps: int | None = 1000
+    max_candidates: int | None = 2000
+    # When no candidate is trusted the paper's hybrid searches round the best one, for at most this many of the
+    # search's steps (None: until it stops by itself, as --method hybrid, or the search's steps are spent). In
+    # the sweep it never turned an untrusted candidate into a trusted pose (0 of the runs that reached it); 300
+    # steps cost ~0.3-1 s of CPU on the bunny
     fallback_steps: int | None = 300
-    # The search starts no stage and ends its refinements once this many seconds have passed since the
-    # setup began (None: no bound); the pose then is the best scored so far, not trusted. A bound on time,
-    # not work: a run that meets it may end otherwise on a slower or busier machine. Measured here (files
-    # -> pose, load 1-3): runs trusted on the shared pairs end in 0.5-0.8 s, 3-5 x below it; a pair no rigid
-    # pose registers (benchmarks/register_time.py --unregistrable) searched on for 5-9 s, and with this bound
-    # ends 2.8-2.9 s after its files began to be read.
-    time_limit: float | None = 2.5
+    # Seconds of search at most, from the end of the setup (None: no bound on time; the default). A user's explicit
+    # choice: a bound on time, not work, so a run that meets it may end otherwise on a slower or busier machine.
+    time_limit: float | None = None
 
     def validate(self) -> None:
         if self.sample < 10:
@@ -129,6 +136,9 @@ class CandidateConfig:
         for name in ("distinct_translation", "local_translation"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise InputError(f"{name} must be a share of the target's size > 0, got {getattr(self, name)}")
+        for name in ("search_steps", "max_candidates"):
+            if getattr(self, name) is not None and getattr(self, name) < 0:
+                raise InputError(f"{name} must be >= 0 (or None: unbounded), got {getattr(self, name)}")
         if self.fallback_steps is not None and self.fallback_steps < 0:
             raise InputError(f"the fallback's steps must be >= 0 (or None: unbounded), got {self.fallback_steps}")
         if self.time_limit is not None and not (np.isfinite(self.time_limit) and self.time_limit > 0):
@@ -168,6 +178,7 @@ class Basis:
     neighbours: int
     target: Scan
     angle_floor: float
+    constraint_points: np.ndarray | None = None  # (C, 3) a larger seeded source sample (core.threshold.constraint)
     # the last few single poses asked about (a pose found is scored, tested for trust and reported: the
     # same answers three times over), by the pose's bytes
     _recent: dict = field(default_factory=dict, init=False, repr=False)
@@ -248,6 +259,82 @@ def pair_spacing(source: Scan, target: Scan) -> float:
     return max(source.spacing, target.spacing)
 
 
+# ---- the search sized to the scene ---------------------------------------------------------------------
+# Feature grids (FPFH, KISS-Matcher) are sized in "feature spacings": the pair's point spacing, or, where the
+# scene is far wider than its spacing, SCENE_SPAN_CELLS feature voxels of FEATURE_SPACINGS each across the
+# scene's span, whichever is larger. The scene's span is sqrt(size x reach): the bounding box's diagonal times
+# twice the median distance of the points from their median (a LiDAR frame's diagonal is set by a few far
+# returns, its reach by the road round the sensor). Measured (5 feature spacings = the FPFH voxel):
+#   bunny scans and their crops (app.crops): sqrt(size x reach) is 19-64 x 5 spacings: the spacing rules,
+#     every voxel as before (the bunny's figures stay bit for bit)
+#   the simulated scenes (corner, wing, bowl): 13-32 x: the spacing rules
+#   the shared LiDAR street (69k points, spacing 12 mm, 95 m across): 0.29-0.33 m (5 spacings: 6 cm)
+#   the shared Kinect frames (250k points, spacing 4 mm): 3.3-3.5 cm (Open3D's recipe for such rooms: 5 cm)
+#   simulated streets 0.6 m, rooms 10 cm (LiDAR), RGB-D fragments 5 cm
+FEATURE_SPACINGS = 5.0
+SCENE_SPAN_CELLS = 80.0
+SPAN_POINTS = 20_000  # the reach is a median: measured on an even spread of at most this many points
+
+
+# A scan of more points than this is searched on a thinned copy (for_search) and the pose found refined on the
+# whole scan: the setup's work (the surface, the noise floors, the overlap cut, the feature grids) grows with the
+# points, the search's does not (its E uses max_points of them). The bunny's scans (30-40k points), the simulated
+# scenes and the LiDAR frames (70k) are searched whole; a 250k-point Kinect frame or a 300k-point fragment thinned.
+SEARCH_POINTS = 100_000
+
+
+def for_search(scan: Scan, limit: int = SEARCH_POINTS) -> Scan:
+    """``scan`` itself, or thinned to about ``limit`` points when it has more: a range grid keeps every k-th row
+    and column (still a grid), other scans one point (the first, unmoved) per cell of a grid sized so that about
+    ``limit`` cells are occupied. Deterministic; kind, viewpoint, pose and units kept."""
+    from dataclasses import replace
+
+    from .scan import RangeGrid
+
+    n = len(scan.points)
+    if n <= limit:
+        return scan
+    if scan.grid is not None:
+        k = int(np.ceil(np.sqrt(n / limit)))
+        index = scan.grid.index[::k, ::k]
+        keep = index[index >= 0]
+        remap = np.full(n, -1, dtype=np.int64)
+        remap[keep] = np.arange(len(keep))
+        grid = RangeGrid(np.where(index >= 0, remap[np.maximum(index, 0)], -1))
+        return replace(scan, points=scan.points[keep], grid=grid, faces=None)
+    cell = scan.spacing * np.sqrt(n / limit)
+    for _ in range(6):  # a surface's cells grow as the square of their side: a few steps reach the count
+        cells = np.floor((scan.points - scan.points.min(0)) / cell).astype(np.int64)
+        span = cells.max(0) + 1
+        keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # one integer a cell (< 2^63 here)
+        _, first = np.unique(keys, return_index=True)
+        if len(first) <= 1.2 * limit:
+            break
+        cell *= np.sqrt(len(first) / limit)
+    return replace(scan, points=scan.points[np.sort(first)], grid=None, faces=None)
+
+
+def scene_span(scan: Scan) -> float:
+    """sqrt(bounding-box diagonal x reach) in units, reach = twice the median distance of the points from their
+    median (on at most SPAN_POINTS of them, evenly spread)."""
+    pts = scan.points[:: max(1, len(scan.points) // SPAN_POINTS)]
+    reach = 2.0 * float(np.median(np.linalg.norm(pts - np.median(pts, axis=0), axis=1)))
+    return float(np.sqrt(scan.size * reach))
+
+
+def feature_spacing(source: Scan, target: Scan) -> float:
+    """The unit the feature grids are sized in (units): the pair's point spacing, or 1 / (FEATURE_SPACINGS x
+    SCENE_SPAN_CELLS) of the wider scan's span where that is larger (notes above)."""
+    span = max(scene_span(source), scene_span(target)) / (FEATURE_SPACINGS * SCENE_SPAN_CELLS)
+    spacing = pair_spacing(source, target)
+    return spacing if spacing >= span else span
+
+
+def scene_voxel(source: Scan, target: Scan) -> float:
+    """The FPFH voxel of the pair (units): FEATURE_SPACINGS feature spacings (a room ~3-5 cm, a street ~0.3 m)."""
+    return FEATURE_SPACINGS * feature_spacing(source, target)
+
+
 def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: np.random.Generator,
                config: CandidateConfig = CandidateConfig(), frustum: str = "convex") -> Basis:
     """The pair's fixed basis: seeded samples of both scans, cap from spacing and noise floor."""
@@ -260,8 +347,12 @@ def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: 
     floors = [f for f in (normal_floor(source, src, config.normal_neighbours),
                           normal_floor(target, tgt, config.normal_neighbours)) if f > 0]
     angle_floor = float(np.mean(floors)) if floors else 0.0
+    # drawn from a generator of its own, so the draws above (and every score) stay as they were
+    dense = np.random.default_rng([len(source.points), len(target.points), 6])
+    n_dense = min(CONSTRAINT_SAMPLE, len(source.points))
+    constraint_points = source.points[np.sort(dense.choice(len(source.points), n_dense, replace=False))]
     return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
-                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor)
+                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor, constraint_points)
 
 
 # ---- where candidates come from -------------------------------------------------------------------------

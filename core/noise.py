@@ -4,7 +4,9 @@ The paper sets the hybrid's threshold "by estimating the lowest expected error t
 have for two scans in perfect registration" (section 2.3). We measure it on each scan itself:
 split its points at random into two halves, triangulate one half, and evaluate the robust error
 of the other half against it. Both halves carry the scanner's noise and sampling, so this is the
-E of a perfect registration, in the scan's own units, with no knowledge of the scanner.
+E of a perfect registration, in the scan's own units, with no knowledge of the scanner. A single-view scan's
+half is triangulated from its viewpoint; a panorama's or an unstructured cloud's (no one viewpoint in front of
+its points) is taken as local planes fitted to its points, as their surfaces are.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .robust_error import RobustError
-from .scan import Scan
+from .scan import Scan, ScanKind
 from .surface import Surface, normal_angles, pca_normals, triangulate, view_projection
 
 # Above this many points the floor is measured on one patch of this many neighbouring points: the
@@ -106,6 +108,8 @@ def _measure(scan: Scan, drawn: tuple[np.ndarray, np.ndarray], pick: np.ndarray 
         return 0.0
     a, b = points[half], points[~half]
     q = a[pick]
+    if scan.kind is not ScanKind.SINGLE_VIEW:
+        return _measure_planes(q, b)
     axis = b.mean(0) - scan.viewpoint  # the whole half's viewing direction, windowed or not
     radius = WINDOW_SPACINGS * scan.spacing
     windowed = len(b) > WINDOW_MIN_POINTS
@@ -120,6 +124,19 @@ def _measure(scan: Scan, drawn: tuple[np.ndarray, np.ndarray], pick: np.ndarray 
     if not len(faces):
         return 0.0
     return RobustError(q, Surface(b, faces))(np.eye(4))
+
+
+def _measure_planes(q: np.ndarray, b: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> float:
+    """The robust E (core.robust_error: mean of min(d^2, 2 median d^2)) of the (Q, 3) queries against local planes
+    of the other half ``b``: each query's distance to the plane fitted to its k nearest points of ``b``. A panorama
+    or an unstructured cloud has no single viewpoint to triangulate from; a surface of local planes is what its
+    closest points lie on (the paper: "the closest point to a local surface approximation")."""
+    if len(b) < max(k, 3):
+        return 0.0
+    _, idx = cKDTree(b).query(q, min(k, len(b)))
+    n = pca_normals(b, idx)
+    d2 = np.einsum("ij,ij->i", q - b[idx].mean(1), n) ** 2
+    return float(np.mean(np.minimum(d2, 2.0 * np.median(d2))))
 
 
 def _inside_window(b: np.ndarray, faces: np.ndarray, q: np.ndarray, radius: float, viewpoint: np.ndarray,

@@ -19,7 +19,8 @@ class StopReason(StrEnum):
     HOPS_SPENT = "hop budget spent"
     CANCELLED = "cancelled"
     TRUSTED = "a candidate refined below the pair threshold"  # method "global" (core.global_search)
-    TIME_BOUND = "nothing trusted within the time bound"  # method "global": the search's bound ran out
+    WORK_BOUND = "nothing trusted within the search's work"  # method "global": its steps or candidates are spent
+    TIME_BOUND = "nothing trusted within the time bound"  # method "global" with seconds asked for: they are gone
 
 
 @dataclass(frozen=True)
@@ -70,9 +71,16 @@ class GlobalDetails:
     candidates: int
     candidate_sources: dict
     found_by: str = ""
+    constraint: object = None  # core.threshold.Constraint at the pose: what the matched overlap pins
+
+    @property
+    def pinned(self) -> bool:
+        """The matched overlap pins all six degrees of freedom (core.threshold.constraint); True when unmeasured."""
+        return self.constraint is None or self.constraint.pins(self.threshold.min_constraint)
 
     def to_json(self) -> dict:
         return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
+                **({} if self.constraint is None else {"constraint": self.constraint.to_json()}),
                 "within_region": self.within_region, "region": self.region.to_json(), "beyond": self.beyond,
                 "score": self.score, "candidates": self.candidates, "candidate_sources": dict(self.candidate_sources),
                 "found_by": self.found_by}
@@ -131,6 +139,12 @@ class Result:
                     f"{d.misfit:.3g} < {factor:g})")
         elif d.misfit is None:
             text = "too little of the scans overlaps at this pose to judge it"
+        elif not d.pinned and d.misfit < factor:
+            c = d.constraint
+            text = ("where the scans overlap they agree at the noise level, but the overlap does not pin all six "
+                    f"degrees of freedom: it lets the pose slide by {c.free_motion} (the matched point-to-plane "
+                    f"system's weakest / strongest eigenvalue {c.ratio:.3g} < {d.threshold.min_constraint:g})"
+                    if c.matched else "too little of the scans overlaps at this pose to judge what it pins")
         else:
             text = (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
                     f"{d.misfit:.3g}, trusted below {factor:g})")

@@ -89,9 +89,9 @@ def test_when_nothing_is_trusted_the_fallback_takes_exactly_its_steps_and_says_w
     _, none = run(0)
     cfg, ten = run(10)
     assert not none.trusted and not ten.trusted
-    assert none.stop_reason.name == ten.stop_reason.name == "TIME_BOUND"
+    assert none.stop_reason.name == ten.stop_reason.name == "WORK_BOUND"
     assert "before the hybrid could start" in none.stop_text
-    assert "nothing trusted within the search's bound (10 steps" in ten.stop_text
+    assert "its steps are spent (10 steps for the hybrid from the best candidate, 1000 steps" in ten.stop_text
     steps = lambda r: r.iterations.icp + r.iterations.sa  # noqa: E731
     assert steps(ten) - steps(none) == 10  # the same stages, then exactly the bound's steps of the hybrid
     assert "--full-search" in advice(ten, cfg) and "not trusted" in advice(ten, cfg)
@@ -159,7 +159,7 @@ def test_past_the_time_bound_no_stage_starts_and_the_run_says_so(scene):
                  candidates=replace(CandidateConfig(), time_limit=1e-6))  # spent before the first stage
     res = register(corner, bowl, np.eye(4), cfg)
     assert res.stop_reason.name == "TIME_BOUND" and "1e-06 s" in res.stop_text
-    assert set(res.details.candidate_sources.values()) == {"not reached within the time bound"}
+    assert set(res.details.candidate_sources.values()) == {"not reached within the search's bound"}
     assert not res.trusted and res.iterations.icp == res.iterations.sa == 0
     full = Config(method="global", candidates=replace(CandidateConfig(), fallback_steps=None, time_limit=None))
     assert full.candidates.time_limit is None  # --full-search: no bound at all
@@ -168,9 +168,10 @@ def test_past_the_time_bound_no_stage_starts_and_the_run_says_so(scene):
 def test_full_search_lifts_both_bounds_unless_a_time_is_given():
     from rangereg.app.options import Settings, to_config
 
-    assert to_config(Settings()).candidates.time_limit == 2.5
+    default = to_config(Settings()).candidates
+    assert default.time_limit is None and default.search_steps == 1000  # the default bound counts work
     full = to_config(Settings(full_search=True)).candidates
-    assert full.time_limit is None and full.fallback_steps is None
+    assert full.time_limit is None and full.fallback_steps is None and full.search_steps is None
     assert to_config(Settings(full_search=True, time_limit=20)).candidates.time_limit == 20.0
 
 

@@ -17,32 +17,49 @@ pair's fixed basis.
     fallback   (fallback.py) nothing trusted: the paper's hybrid (``--method hybrid``, unchanged) round
                the best refined pose for at most ``CandidateConfig.fallback_steps`` steps; the pose of the
                two with the lower score
-    events     (stream.py) every stage's events in one numbered stream; the bounds raised from it
+    events     (stream.py) every stage's events in one numbered stream, each refinement step charged to
+               the budget
+    budget     (core.search.budget) the search's work: candidates scored (``CandidateConfig.max_candidates``)
+               and steps (``search_steps``: refinement iterations and the hybrid's steps, of them at most
+               ``fallback_steps`` the hybrid's), counted from the end of the setup; seconds only when asked for
+               (``time_limit``). No stage or leg starts once it is spent; a loaded machine ends at the same pose.
+    thinned    a scan of more than core.candidates.SEARCH_POINTS points is searched on a thinned copy
+               (core.candidates.for_search) and the pose found refined on the whole scans (one ICP leg on
+               the converged cut, the whole target's surface made on a thread meanwhile), kept unless it loses
+               the pair threshold's trust
+    sized      the feature grids (FPFH, KISS-Matcher) in feature spacings: the point spacing, or the scene's
+               span over 400 where that is larger (core.candidates.feature_spacing)
+    trust      the pair threshold also asks that the matched overlap pin all six degrees of freedom
+               (core.threshold.constraint); the details say which motion it leaves free
 
-No new stage or leg starts once ``CandidateConfig.time_limit`` seconds have passed. With candidates off
-(``CandidateConfig.enabled=False``) only the guess is a candidate.
+With candidates off (``CandidateConfig.enabled=False``) only the guess is a candidate.
 """
 
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 
+from ..candidates import for_search
 from ..config import Config
+from ..errors import InputError
 from ..events import Cancelled, Listener
+from ..icp import icp
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
 from ..surface import Surface
+from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
 from .refinement import Found, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
 from .stages import Hypotheses, Stage
-from .stream import EventStream, TimeBound
+from .stream import EventStream
 
-__all__ = ["EventStream", "Hypotheses", "Stage", "TimeBound", "kiss_ahead", "refine", "register_global"]
+__all__ = ["EventStream", "Hypotheses", "Stage", "kiss_ahead", "refine", "register_global"]
 
 
 def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
@@ -52,8 +69,15 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     ``config.candidates`` holds its own knobs, ``config.problem`` the stated region (core.region);
     ``surface``: the target's, when triangulated already."""
     config.validate()
-    setup = prepare_setup(source, target, T_init, config, surface)
-    run = EventStream(listener, setup.frame, setup.t0, config.candidates.time_limit)
+    whole = (source, target, surface)
+    source, target = for_search(source), for_search(target)  # thinned when large (core.candidates.SEARCH_POINTS)
+    thinned = source is not whole[0] or target is not whole[1]
+    if thinned and surface is None:  # the whole target's surface, made on a thread while the search runs
+        pool = ThreadPoolExecutor(1, thread_name_prefix="whole-surface")
+        whole = (whole[0], whole[1], pool.submit(Surface.from_scan, whole[1]))
+        pool.shutdown(wait=False)
+    setup = prepare_setup(source, target, T_init, config, surface if target is whole[1] else None)
+    run = EventStream(listener, setup.frame, setup.budget())
     found, local_minima = Found(), 0
     try:
         found, sources = search_stages(setup, run)
@@ -65,8 +89,34 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
             best, stop, local_minima = bounded_hybrid(setup, run, found)
     except Cancelled:
         best, stop, sources = setup.T_guess, Stop(StopReason.CANCELLED), {"guess": 1}
-    return _result(setup, run, best, stop, found.last_cut if best is found.inside else None, sources,
-                   found.source_of(best) or ("guess" if best is setup.T_guess else ""), local_minima)
+    found_by = found.source_of(best) or ("guess" if best is setup.T_guess else "")
+    last_cut = found.last_cut if best is found.inside else None
+    if thinned and stop.reason is not StopReason.CANCELLED:
+        best, last_cut, found_by = _on_the_whole(setup, run, whole, best, last_cut, found_by)
+    return _result(setup, run, best, stop, last_cut, sources, found_by, local_minima)
+
+
+def _on_the_whole(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray, last_cut: Problem | None,
+                  found_by: str) -> tuple[np.ndarray, Problem | None, str]:
+    """The pose the search found on the thinned scans, refined on the whole ones (the converged cut: one ICP leg
+    of the refinement's, not charged to the search's budget); kept unless it loses the pair threshold's trust.
+    Returns the pose, its last cut (None: cut it again) and who found it."""
+    source, target, surface = whole
+    cfg = setup.config
+    surface = surface.result() if isinstance(surface, Future) else surface
+    surface = surface if surface is not None else Surface.from_scan(target)
+    converged = replace(cfg.problem, rotation_uncertainty_deg=cfg.search.resegment_rotation_deg,
+                        translation_uncertainty=cfg.search.resegment_translation * target.size)
+    icp_config = replace(cfg.icp, metric=cfg.candidates.refine_metric, patience=cfg.candidates.refine_patience,
+                         max_iterations=min(cfg.icp.max_iterations, cfg.candidates.refine_iterations))
+    try:
+        p = prepare(source, target, T, converged, surface=surface, seed=cfg.seed)
+    except InputError:  # no overlap cut on the whole scans at this pose: the thinned scans' answer stands
+        return T, last_cut, found_by
+    T_whole = icp(p.error, T, icp_config, lambda T_, E: run.emit("icp", T_, E, charge=False), frame=setup.frame).T
+    if setup.trusted(T) and not setup.trusted(T_whole):
+        return T, last_cut, found_by
+    return T_whole, None, f"{found_by}, refined on the whole scans" if found_by else "refined on the whole scans"
 
 
 def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut: Problem | None, sources: dict,
@@ -82,6 +132,6 @@ def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut:
     trusted = setup.threshold.holds(setup.basis, T, s, misfit)
     details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
                             setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]),
-                            run.n["candidates"], sources, found_by)
+                            run.n["candidates"], sources, found_by, constraint(setup.basis, T))
     return Result(T, last_cut.error(T), run.iterations(), local_minima, run.total(), time.perf_counter() - setup.t0,
                   "global", setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)

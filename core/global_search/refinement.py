@@ -13,11 +13,13 @@ from ..icp import icp
 from ..lock import LockFrame
 from ..problem import Problem, ProblemConfig, prepare
 from ..region import offsets
+from ..result import Stop
 from ..scan import Scan
+from ..search.budget import BudgetSpent
 from ..surface import Surface
 from .setup import Setup
 from .stages import Hypotheses, stages
-from .stream import EventStream, TimeBound
+from .stream import EventStream
 
 
 def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, config: Config,
@@ -58,7 +60,7 @@ class Found:
     inside: np.ndarray | None = None
     beyond: np.ndarray | None = None
     last_cut: Problem | None = None
-    out_of_time: bool = False  # a refinement was cut by the time bound
+    stopped: Stop | None = None  # the search's budget was spent during a refinement (it is given up)
 
     def note(self, T: np.ndarray, source: str) -> None:
         """Pose T (4, 4) was found by ``source``."""
@@ -74,6 +76,9 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
     """Score the hypotheses in one query (events of phase 'candidates'); refine the best ``n`` by score,
     those inside the region first (once each: near-duplicates are skipped), until one is trusted inside."""
     cc, poses = setup.config.candidates, hyp.poses
+    poses = poses[:run.budget.grant("candidates", len(poses))]  # the guess and the cheap first, as they come
+    if not poses:
+        return
     scores = setup.basis.evaluate(np.stack(poses)).score
     run.leg("candidates")
     for T, s in zip(poses, scores):
@@ -83,7 +88,7 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
     done: list[np.ndarray] = []
     trans = cc.distinct_translation * setup.target.size
     for k in order:
-        if len(done) >= n or setup.out_of_time():
+        if len(done) >= n or run.budget.spent() is not None:
             return
         if found.beyond is not None and not inside[k]:
             continue  # a pose beyond the region is trusted already: only one inside can say more
@@ -95,8 +100,8 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         try:
             T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
                              lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
-        except TimeBound:  # the time bound ran out inside this refinement: it is given up, the search ends
-            found.out_of_time = True
+        except BudgetSpent as spent:  # the budget ran out inside this refinement: it is given up, the search ends
+            found.stopped = spent.stop
             return
         found.note(T, hyp.label(k))
         if setup.trusted(T):
@@ -124,8 +129,8 @@ def search_stages(setup: Setup, run: EventStream) -> tuple[Found, dict]:
     notes: stages, verdict). Returns what was found and, per stage, how many poses it gave or why none."""
     found, sources = Found(), {}
     for stage in stages(setup):
-        if found.out_of_time or setup.out_of_time():
-            sources[stage.name] = "not reached within the time bound"
+        if found.stopped is not None or run.budget.spent() is not None or run.budget.left("candidates") == 0:
+            sources[stage.name] = "not reached within the search's bound"
             continue
         if found.beyond is not None and stage.costly:
             sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..candidates import Basis, CandidateConfig, make_basis, pair_spacing
+from ..candidates import Basis, CandidateConfig, feature_spacing, make_basis
 from ..config import Config
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
@@ -18,6 +18,7 @@ from ..noise import noise_floors_ahead
 from ..problem import Problem, check_registrable, prepare
 from ..region import Region
 from ..scan import Scan
+from ..search.budget import Budget
 from ..surface import Surface
 from ..threshold import PairThreshold, pair_threshold
 
@@ -52,9 +53,10 @@ class Setup:
     def score(self, T: np.ndarray) -> float:
         return float(self.basis.evaluate(np.asarray(T)[None]).score[0])
 
-    def out_of_time(self) -> bool:
-        limit = self.config.candidates.time_limit
-        return limit is not None and time.perf_counter() - self.t0 > limit
+    def budget(self, clock=None) -> Budget:
+        """The search's bound on work (and seconds, when asked for), from now on: the setup is not charged."""
+        cc = self.config.candidates
+        return Budget(cc.search_steps, cc.max_candidates, cc.time_limit, **({} if clock is None else {"clock": clock}))
 
 
 def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None:
@@ -65,7 +67,7 @@ def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None
     if not (cc.enabled and cc.kiss_matcher and kiss_available()):
         return None
     pool = ThreadPoolExecutor(1, thread_name_prefix="kiss-matcher")
-    future = pool.submit(kiss_candidates, source, target, pair_spacing(source, target), max(cc.fpfh_voxels))
+    future = pool.submit(kiss_candidates, source, target, feature_spacing(source, target), max(cc.fpfh_voxels))
     pool.shutdown(wait=False)
     return future
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..candidates import FPFH_FINER_BELOW, fpfh_candidates, pair_spacing, rotation_candidates, voxel_cells
+from ..candidates import FPFH_FINER_BELOW, feature_spacing, fpfh_candidates, rotation_candidates, voxel_cells
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from .setup import Setup
 
@@ -49,7 +49,7 @@ def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None) 
     """Feature-matching hypotheses of ``method`` ("fpfh-ransac" at ``voxels`` spacings, or "kiss-matcher"),
     wherever they lie (the region orders them, it drops none)."""
     cc, source, target = setup.config.candidates, setup.source, setup.target
-    spacing = pair_spacing(source, target)
+    spacing = feature_spacing(source, target)
     if method == "fpfh-ransac":
         voxels = voxels or cc.fpfh_voxels
         poses = fpfh_candidates(source, target, spacing, voxels, cc.fpfh_seeds, setup.config.seed)
@@ -101,7 +101,7 @@ def stages(setup: Setup) -> Iterator[Stage]:
 
 def too_few_cells(setup: Setup, voxel: float) -> bool:
     """Whether a grid of ``voxel`` point spacings leaves either scan fewer than FPFH_FINER_BELOW cells."""
-    size = voxel * pair_spacing(setup.source, setup.target)
+    size = voxel * feature_spacing(setup.source, setup.target)
     return min(voxel_cells(setup.source, size), voxel_cells(setup.target, size)) < FPFH_FINER_BELOW
 
 

@@ -125,8 +125,9 @@ def cancelled(state: SearchState) -> Round:
 
 
 def best_round(rounds: list[Round]) -> Round:
-    """Each round is scored on the overlap cut at its own pose; the lowest wins (a cancelled run: the last)."""
-    if rounds[-1].stop.reason is StopReason.CANCELLED:
+    """Each round is scored on the overlap cut at its own pose; the lowest wins (a run cancelled or stopped by its
+    budget: the last, its best pose so far)."""
+    if rounds[-1].stop.reason in (StopReason.CANCELLED, StopReason.WORK_BOUND, StopReason.TIME_BOUND):
         return rounds[-1]
     best = min(rounds, key=lambda r: r.error)
     if len(rounds) > 1:

@@ -20,17 +20,20 @@ from ..problem import Problem, prepare
 from ..result import Iterations, Result
 from ..scan import Scan
 from ..threshold import threshold_for
+from .budget import Budget, BudgetSpent
 from .rounds import Round, best_round, cancelled, polish, search_rounds
 from .state import SearchState
 
 
 def run_method(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config, listener: Listener | None = None,
-               problem: Problem | None = None, frame: LockFrame | None = None) -> Result:
-    """``config.method`` (a paper method) from the guess ``T_init`` (T_target_source); see core.register."""
+               problem: Problem | None = None, frame: LockFrame | None = None, budget: Budget | None = None) -> Result:
+    """``config.method`` (a paper method) from the guess ``T_init`` (T_target_source); see core.register.
+    ``budget``: a bound on its steps (core.search.budget); when it is spent the run returns its best pose so far,
+    stopped by the budget's reason."""
     t0 = time.perf_counter()
     problem = problem or prepare(source, target, T_init, config.problem, seed=config.seed)
     threshold = threshold_for(problem, config)
-    state = SearchState(problem, config, listener, frame)
+    state = SearchState(problem, config, listener, frame, budget)
     # the search region is centred on the pose the problem was cut at: the guess (section 2.1)
     state.start_at(problem.T_init)
     rounds: list[Round] = []
@@ -40,6 +43,8 @@ def run_method(source: Scan, target: Scan, T_init: np.ndarray | None, config: Co
             polish(state, rounds)
     except Cancelled:
         rounds.append(cancelled(state))
+    except BudgetSpent as spent:
+        rounds.append(Round(state.error(state.best_T), state.best_T, spent.stop))
     best = best_round(rounds)
     return Result(best.T, best.error, Iterations(state.n["icp"], state.n["sa"]), state.local_minima,
                   state.evaluations, time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut)

@@ -22,6 +22,7 @@ from ..lock import LockFrame
 from ..problem import Problem
 from ..robust_error import ErrorTerms, RobustError
 from ..transforms import random_perturbation, rotation_angle
+from .budget import Budget
 
 
 class CountedError:
@@ -41,10 +42,12 @@ class CountedError:
 class SearchState:
     """One optimisation: counts iterations and evaluations, emits events, keeps the best pose."""
 
-    def __init__(self, problem: Problem, config: Config, listener: Listener | None, frame: LockFrame | None = None):
+    def __init__(self, problem: Problem, config: Config, listener: Listener | None, frame: LockFrame | None = None,
+                 budget: Budget | None = None):
         """``frame``: the lock bound elsewhere (a stage that runs several searches from one guess);
-        by default ``config.lock`` bound to ``problem``'s guess and overlap centroid."""
-        self.config, self.listener = config, listener
+        by default ``config.lock`` bound to ``problem``'s guess and overlap centroid. ``budget``: the bound on
+        this run's steps (core.search.budget), consulted before each step; None: the method's own stops only."""
+        self.config, self.listener, self.budget = config, listener, budget
         self.rng = np.random.default_rng(config.seed)
         # per phase ("icp", "sa"; a new stage emits its own phase and gets its own key):
         self.n = {"icp": 0, "sa": 0}  # iterations over the run (Result.iterations)
@@ -88,6 +91,8 @@ class SearchState:
     def emit(self, phase: str, T: np.ndarray, E: float, temperature: float | None = None, accepted: bool = True,
              local_minimum: bool = False, count: bool = True) -> None:
         if count:
+            if self.budget is not None:
+                self.budget.take_or_stop("steps")  # the step is not taken past the bound
             self.n[phase] = self.n.get(phase, 0) + 1
             self.in_leg[phase] = self.in_leg.get(phase, 0) + 1
         if E < self.best_E:

@@ -1,0 +1,74 @@
+"""Trust that knows degenerate geometry (core.threshold.constraint): a pose is trusted only where the matched
+overlap pins all six degrees of freedom."""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+from rangereg.core.problem import ProblemConfig
+from rangereg.core.register import Config, register
+from rangereg.core.threshold import MIN_CONSTRAINT, point_to_plane_system
+from rangereg.core.transforms import from_params, invert, pose_error
+
+
+def _planes(normals, n=400, seed=0):
+    """Points on planes through the origin with the given normals, spread over 2 x 2 units, and their normals."""
+    rng = np.random.default_rng(seed)
+    pts, nrm = [], []
+    for nv in np.asarray(normals, dtype=np.float64):
+        u = np.cross(nv, [0.3, 0.5, 0.8])
+        u /= np.linalg.norm(u)
+        v = np.cross(nv, u)
+        a, b = rng.uniform(-1, 1, (2, n))
+        pts.append(a[:, None] * u + b[:, None] * v + nv * rng.uniform(0.5, 1.5))
+        nrm.append(np.tile(nv, (n, 1)))
+    return np.concatenate(pts), np.concatenate(nrm)
+
+
+def test_a_corridor_of_planes_leaves_the_motion_along_it_free_and_a_corner_does_not():
+    q, n = _planes([[0, 0, 1], [0, 1, 0], [0, -1, 0]])  # a road and two walls, all along x
+    c = point_to_plane_system(q, n)
+    assert c.ratio < 1e-9 and not c.pins() and "translation along (+1.00" in c.free_motion.replace("-1.00", "+1.00")
+    q, n = _planes([[0, 0, 1], [0, 1, 0], [1, 0, 0]])
+    corner = point_to_plane_system(q, n)
+    assert corner.pins() and corner.ratio > 10 * MIN_CONSTRAINT
+    scaled = point_to_plane_system(q * 1000.0, n)  # unit-free: millimetres or metres alike
+    assert np.isclose(scaled.ratio, corner.ratio)
+
+
+@cache
+def _pair(name: str):
+    from rangereg.core.scenes_sensor import join, quad
+    from rangereg.core.simulate import Scanner, corner_mesh, look_at, scan_mesh
+
+    L = 1200.0  # mm
+    mesh = (join([quad((0, 0, 0), (L, 0, 0), (L, L, 0), (0, L, 0)), quad((0, 0, 0), (0, 0, L), (L, 0, L), (L, 0, 0))])
+            if name == "fold" else corner_mesh())  # a floor and one wall: nothing pins a motion along their fold
+    rng = np.random.default_rng(0)
+    scanner = Scanner(rows=85, cols=85, fov_deg=(52, 52))
+    a = scan_mesh(*mesh, look_at((600, 1750, 1350), (600, 250, 300)), scanner, rng, "a")
+    b = scan_mesh(*mesh, look_at((750, 1700, 1300), (650, 300, 300)), scanner, rng, "b")
+    return b, a, invert(a.pose) @ b.pose
+
+
+def _slid(name: str):
+    source, target, T = _pair(name)
+    along = target.pose[:3, :3].T @ np.array([60.0, 0.0, 0.0])  # 60 mm along the fold (world x)
+    cfg = Config(method="global", problem=ProblemConfig(rotation_uncertainty_deg=5, translation_uncertainty=100))
+    return register(source, target, from_params(np.r_[along, 0, 0, 0]) @ T, cfg), T, source
+
+
+def test_a_pose_slid_along_a_fold_of_two_planes_is_not_trusted_and_the_reason_is_said():
+    res, T, source = _slid("fold")
+    assert not res.trusted
+    assert "does not pin all six degrees of freedom" in res.trust_text and "translation along" in res.trust_text
+    assert res.details.constraint.ratio < MIN_CONSTRAINT
+    assert res.to_json()["constraint"]["free_motion"].startswith("a translation")
+
+
+def test_a_corner_pins_every_motion_and_is_trusted():
+    res, T, source = _slid("corner")
+    rot, trans = pose_error(res.transform, T, source.centroid)
+    assert res.trusted and rot < 1.0 and trans < 5.0
+    assert res.details.constraint.pins()

@@ -75,7 +75,7 @@ def test_a_loaded_traces_path_on_the_slice_starts_at_its_own_guess_not_the_pages
     st.events = events
     st.run_header = TraceHeader.of(source, target, T_trace, Config())  # as ReplayPanel.load_trace sets it
     assert st.run_start is st.run_header.T_init
-    _, xy, _, _, _ = picture(st)
+    _, xy, *_ = picture(st)
     want = project(problem, T_page, ("tx", "ry"), [T_trace, T_page])
     assert np.allclose(xy, want) and not np.allclose(xy[0], xy[1])
     st.run_header = None  # a page run without a header starts at the page's guess

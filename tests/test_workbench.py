@@ -322,7 +322,7 @@ def test_data_dir_upload_cap_merge_and_exports(data_server, browser):
     page.get_by_role("button", name="Run ICP", exact=True).click()
     assert "below" in wait_finished(page, 60)
     show_tab(page, "Model")
-    page.get_by_role("button", name="Merge", exact=True).click()
+    page.get_by_role("button", name="Fuse this pair", exact=True).click()
     page.get_by_text(re.compile(r"\d+ vertices, \d+ triangles")).first.wait_for(timeout=120_000)
     # a slice of the error surface around the pose, drawn in the page
     show_tab(page, "Landscape")

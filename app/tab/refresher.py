@@ -109,10 +109,10 @@ class Refresher:
         with st.lock:
             if n and running and st.result is None:  # once the run's result is in, its pose is the one shown
                 st.T = st.events[n - 1].T
-            T, E0, threshold = st.T, st.E0, st.threshold
+            T, result = st.T, (st.result if not running else None)
         # the arrays first, the messages then: the batch is held back from the browser only while it is assembled
         path = (trail.segments(), trail.minima()) if moved else None
-        plot = trail.chart(E0, threshold) if plot_due else None
+        plot = tab.run_panel.chart_data(trail, result) if plot_due else None
         with tab.client.atomic():
             if path is not None:
                 scene3d.move_source(tab.nodes, st, T, gizmo=False)

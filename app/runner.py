@@ -48,6 +48,11 @@ class Run:
         with self._cond:
             return self._mode == "paused"
 
+    @property
+    def cancelled(self) -> bool:
+        """Cancel was asked for (the run stops at its next event)."""
+        return self._cancel
+
     def pause(self) -> None:
         self._set("paused")
 

@@ -252,6 +252,7 @@ class LessonPanel:
         self.story = Story()
         self.run = None
         self.h.again.disabled = False
+        self.h.intro.visible = False  # room for the sentence under Next (at 1280 x 720, above the fold)
         self.show()
 
     def again(self) -> None:
@@ -265,7 +266,7 @@ class LessonPanel:
         view = self.view
         self.tab.set_initial(self.lesson.start(st.source, st.target, self.k))  # forgets the lesson: taken back
         self.story, self.run, self.view = Story(), None, view
-        self.h.again.disabled = False
+        self.h.again.disabled, self.h.intro.visible = False, False
         self.h.terrain.disabled = view is None
         if self.h.plot is not None and view is not None:
             self.h.plot.visible = self.figure_folder.visible = True
@@ -359,4 +360,5 @@ class LessonPanel:
         self.story, self.run, self.line, self.view = None, None, "", None
         self.h.next.disabled = self.h.again.disabled = self.h.terrain.disabled = True
         self.h.text.content = ""
+        self.h.intro.visible = True
         self.figure_folder.visible = False

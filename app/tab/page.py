@@ -217,7 +217,8 @@ class Tab:
         with st.lock:
             running, E0, result = st.running, st.E0, st.result
             p = status.progress(trail, st.events, E0, result, running)
-            state = "running" if running and not st.run.paused else ("paused" if running else "idle")
+            state = ("cancelling" if st.run.cancelled else "paused" if st.run.paused else "running") if running \
+                else "idle"
             units = st.target.units if st.target is not None else ""
             pair = f"{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}"
             rows = status.rows(p, pair=pair, units=units, overlap=int(st.problem.used.sum()) if st.problem else 0,

@@ -62,8 +62,8 @@ CHART_TITLE = "log10 E against iteration"
 THRESHOLD_RGB = (200, 30, 30)
 TEMPERATURE_RGB = (110, 110, 110)
 RESULT_RGB = (20, 20, 20)
-CHART_ASPECT = 2.6  # width / height: at 1280 x 720 the tabs and the Lesson's Next stay above the fold (2.0 pushed
-# them below it)
+CHART_ASPECT = 3.2  # width / height: at 1280 x 720 the tabs, the Lesson's Next and its sentence stay above the
+# fold (2.0 pushed the tabs below it)
 
 
 def chart_axes(units: str = "") -> tuple:
@@ -100,7 +100,7 @@ def build(gui: viser.GuiApi, plot: viser.GuiUplotHandle) -> RunHandles:
     resume = gui.add_button("Resume", disabled=True)
     cancel = gui.add_button("Cancel", disabled=True)
     reset = gui.add_button("Reset", hint="back to the initial pose; clear the path")
-    with gui.add_folder(PAPERS_FOLDER, expand_by_default=False):
+    with gui.add_folder(PAPERS_FOLDER):
         gui.add_markdown("ICP, annealing and their hybrid (Luck et al. 2000) search round the initial pose: for "
                          "teaching and for debugging a local minimum. Step and Next phase walk a hybrid run.")
         run.update({label: gui.add_button(label) for label in RUN_BUTTONS if label != GLOBAL_BUTTON})

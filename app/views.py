@@ -219,16 +219,16 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
                                      line=dict(color=f"rgb{PHASE_RGB[phase]}", width=2)))
         fig.add_trace(go.Scatter(x=path_xy[:1, 0], y=path_xy[:1, 1], mode="markers", name="start",
                                  marker=dict(color="white", size=10, line=dict(color="black", width=1))))
+    if current is not None:
+        fig.add_trace(go.Scatter(x=[current[0]], y=[current[1]], mode="markers", name="shown pose",
+                                 marker=dict(symbol="x", color="white", size=12, line=dict(color="black", width=1))))
     if run_minima is not None and len(run_minima):
         fig.add_trace(go.Scatter(x=run_minima[:, 0], y=run_minima[:, 1], mode="markers", name="ICP's local minimum",
                                  marker=dict(symbol="diamond", color=f"rgb{MINIMUM_RGB}", size=11,
                                              line=dict(color="black", width=1))))
-    if current is not None:
-        fig.add_trace(go.Scatter(x=[current[0]], y=[current[1]], mode="markers", name="shown pose",
-                                 marker=dict(symbol="x", color="white", size=12, line=dict(color="black", width=1))))
     fig.update_layout(title=dict(text=title, font=dict(size=12)), margin=dict(l=40, r=10, t=30, b=35),
                       xaxis_title=axis_label(sl.params[0], units), yaxis_title=axis_label(sl.params[1], units),
-                      legend=dict(orientation="h", y=-0.25), height=380)
+                      legend=dict(orientation="h", y=-0.25, bgcolor="#d8d8d8"), height=380)
     return fig
 
 

@@ -153,6 +153,9 @@ def test_the_lesson_at_1280_by_720_keeps_next_in_view_and_its_sentences_quote_th
             assert number in status, (step, number, sentence, status)
         if step == "stuck":
             assert "phase ICP" in status and "local minima 1" in status
+            # the red marker the sentence speaks of is on the Lesson tab's own contour, with its legend entry
+            wait_for(lambda: "ICP's local minimum" in [t.name for t in tab.lesson.h.plot.figure.data], 30,
+                     "the run's minimum on the lesson's contour")
         if step in ("anneal", "lower"):  # paused where annealing's leg ended: its phase and temperature
             assert "phase SA" in status and re.search(r"temperature \d", status), status
         if len(steps) > 10:

@@ -137,10 +137,13 @@ def test_the_lesson_at_1280_by_720_keeps_next_in_view_and_its_sentences_quote_th
         wait_for(lambda: nxt.is_enabled() or "Finished" in status_text(page), 120, "Next")
         if not nxt.is_enabled():
             break
+        before = steps[-1] if steps else "start"
         nxt.click()
-        wait_for(lambda: not nxt.is_enabled() or tab.lesson.story.step != (steps[-1] if steps else "start"), 60)
-        wait_for(lambda: nxt.is_enabled() or "Finished" in status_text(page), 120, "the step's run")
-        time.sleep(0.3)  # the last push of a step: the status and the sentence are written together
+        wait_for(lambda b=before: tab.lesson.story.step != b, 60, "the click")
+        time.sleep(0.3)
+        wait_for(lambda: tab.lesson.run_state() != "running", 120, "the step's run")
+        wait_for(lambda: nxt.is_enabled() or "Finished" in status_text(page), 120, "Next")
+        time.sleep(0.5)  # the last push of a step: the status and the sentence are written together
         step, sentence, status = tab.lesson.story.step, tab.lesson.h.text.content, status_text(page)
         steps.append(step)
         page.screenshot(path=str(ARTIFACTS / f"lesson-1280x720-{len(steps)}.png")) if ARTIFACTS.is_dir() else None

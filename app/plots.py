@@ -1,7 +1,8 @@
 """Pictures for people (matplotlib, headless): the error-surface slice with a run's path on it.
 
 Drawn as the page draws it: log10 E in viridis (app/figures.log_values), ICP legs green, annealing legs magenta
-(app/figures.py), the slice's local minima as open red circles; every mark has its legend entry.
+(app/figures.py), the slice's local minima as white rings, the run's own local minima (where ICP stopped) as red
+diamonds; every mark has its legend entry.
 """
 
 from __future__ import annotations
@@ -14,8 +15,10 @@ from rangereg.core.landscape import Slice
 
 
 def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] | None = None,
-               current: np.ndarray | None = None, title: str = "", units: str = ""):
-    """A matplotlib figure of ``sl``: contours of E, the run (``path_xy`` (K, 2), ``phases`` (K,)), the pose."""
+               current: np.ndarray | None = None, title: str = "", units: str = "",
+               run_minima: np.ndarray | None = None):
+    """A matplotlib figure of ``sl``: contours of E, the run (``path_xy`` (K, 2), ``phases`` (K,)), where it stopped
+    in a local minimum (``run_minima`` (R, 2)), the pose."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -28,8 +31,7 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
     fig.colorbar(cs, ax=ax, label=f"log10 E ({squared_unit(units)})")
     minima = sl.minima()
     if len(minima):
-        ax.plot(minima[:, 0], minima[:, 1], "o", mfc="none", mec=unit_fraction(MINIMUM_RGB), mew=1.8, ms=8,
-                label="minima of the slice")
+        ax.plot(minima[:, 0], minima[:, 1], "o", mfc="none", mec="white", mew=1.8, ms=8, label="minima of the slice")
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
         start = 0
@@ -43,8 +45,11 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
         for phase, name in PHASE_LABEL.items():
             if phase in phases:
                 ax.plot([], [], color=unit_fraction(PHASE_RGB[phase]), label=name)
+    if run_minima is not None and len(run_minima):
+        ax.plot(run_minima[:, 0], run_minima[:, 1], "D", color=unit_fraction(MINIMUM_RGB), mec="k", ms=8,
+                label="ICP's local minimum")
     if current is not None:
-        ax.plot(*current, "x", color="red", ms=10, mew=2, label="shown pose")
+        ax.plot(*current, "x", color="white", ms=10, mew=2, label="shown pose")
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
     ax.set_xlabel(axis_label(sl.params[0], units))
@@ -55,10 +60,25 @@ def slice_axes(sl: Slice, path_xy: np.ndarray | None = None, phases: list[str] |
 
 
 def slice_png(sl: Slice, path: str | Path, path_xy: np.ndarray | None = None, phases: list[str] | None = None,
-              current: np.ndarray | None = None, title: str = "", units: str = "") -> None:
+              current: np.ndarray | None = None, title: str = "", units: str = "",
+              run_minima: np.ndarray | None = None) -> None:
     """Write the contour picture of ``sl`` to ``path`` (see :func:`slice_axes`)."""
     import matplotlib.pyplot as plt
 
-    fig = slice_axes(sl, path_xy, phases, current, title, units)
+    fig = slice_axes(sl, path_xy, phases, current, title, units, run_minima)
     fig.savefig(str(path))
     plt.close(fig)
+
+
+def slice_png_bytes(sl: Slice, path_xy=None, phases=None, current=None, title: str = "", units: str = "",
+                    run_minima: np.ndarray | None = None) -> bytes:
+    """The PNG of :func:`slice_png` in memory (the page's download)."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    fig = slice_axes(sl, path_xy, phases, current, title, units, run_minima)
+    out = io.BytesIO()
+    fig.savefig(out, format="png")
+    plt.close(fig)
+    return out.getvalue()

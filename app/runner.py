@@ -2,6 +2,8 @@
 
 The optimiser calls its listener for every ICP iteration and annealing move (core.events); the
 listener here records the event and, when asked to, blocks (pause, step) or raises ``Cancelled``.
+Next phase stops at a leg's end: after ICP's local minimum, or before recording the first event of the
+next leg (held until the run goes on), so what the page shows when paused is the leg that ended.
 All of that happens on the worker thread, so the server's event loop never waits on a run.
 """
 
@@ -13,7 +15,7 @@ from collections.abc import Callable
 from rangereg.core.events import Cancelled, Event
 from rangereg.core.register import Result
 
-POLL = 0.05  # seconds a paused run sleeps between looks at its controls (Pause/Cancel act within 0.2 s)
+POLL = 0.05  # seconds a paused run sleeps between looks at its controls (a control also wakes it at once)
 
 
 class Run:
@@ -28,7 +30,8 @@ class Run:
         self._cond = threading.Condition()
         self._mode = mode  # run | paused | step | phase
         self._cancel = False
-        self._phase_at_request: tuple[str, int] | None = ("icp", 1)
+        self._phase_at_request: tuple[str, int] | None = None  # the leg "phase" mode runs to its end
+        self._held: Event | None = None  # the first event of the next leg, held while paused at a leg's end
         self._work, self._on_done = work, on_done
         self.thread = threading.Thread(target=self._main, daemon=True, name="rangereg-run")
 
@@ -45,6 +48,11 @@ class Run:
         with self._cond:
             return self._mode == "paused"
 
+    @property
+    def cancelled(self) -> bool:
+        """Cancel was asked for (the run stops at its next event)."""
+        return self._cancel
+
     def pause(self) -> None:
         self._set("paused")
 
@@ -56,13 +64,14 @@ class Run:
         self._set("step")
 
     def next_phase(self) -> None:
-        """Run to the end of the current ICP or SA leg, then pause; paused where a leg ended (ICP's local minimum),
-        run the next leg to its end."""
+        """Run to the end of the current ICP or SA leg, then pause; paused where a leg ended (ICP's local minimum,
+        or the first event of the next leg held back), run the next leg to its end."""
         with self._cond:
             last = self.events[-1] if self.events else None
-            # None: the leg is the one the next event belongs to
-            self._phase_at_request = None if last is not None and last.local_minimum else (
-                (last.phase, last.leg) if last else ("icp", 1))
+            if self._held is not None:  # the held event begins the leg to run
+                self._phase_at_request = (self._held.phase, self._held.leg)
+            else:  # None: the leg is the one the next event belongs to
+                self._phase_at_request = None if last is None or last.local_minimum else (last.phase, last.leg)
             self._mode = "phase"
             self._cond.notify_all()
 
@@ -80,21 +89,27 @@ class Run:
             self._cond.notify_all()
 
     def _listener(self, e: Event) -> None:
-        self.events.append(e)
         with self._cond:
-            if self._mode == "step":
-                self._mode = "paused"
-            elif self._mode == "phase":
+            if self._mode == "phase":
                 if self._phase_at_request is None:
                     self._phase_at_request = (e.phase, e.leg)
-                phase, leg = self._phase_at_request
-                # the leg ended: ICP stopped in a local minimum, or a new leg began
-                if e.local_minimum or (e.phase, e.leg) != (phase, leg):
-                    self._mode = "paused"
-            while self._mode == "paused" and not self._cancel:
-                self._cond.wait(POLL)
-            if self._cancel:
-                raise Cancelled()
+                if (e.phase, e.leg) != self._phase_at_request:
+                    # a new leg begins: the leg asked for ended with the event before, and the page shows it so
+                    # (its phase, E and temperature); this event waits until the run goes on
+                    self._mode, self._held = "paused", e
+                    self._wait()
+                    self._held = None
+            self.events.append(e)
+            if self._mode == "step" or (self._mode == "phase" and e.local_minimum):
+                self._mode = "paused"  # one event through; or ICP's leg ended in its local minimum
+            self._wait()
+
+    def _wait(self) -> None:
+        """Under the condition: block while paused; raise Cancelled once cancelled."""
+        while self._mode == "paused" and not self._cancel:
+            self._cond.wait(POLL)
+        if self._cancel:
+            raise Cancelled()
 
     def _main(self) -> None:
         try:

@@ -193,11 +193,12 @@ def temperature_of(e: Event) -> float:
 
 
 def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None, current: np.ndarray | None,
-                 title: str, units: str = "", minima: np.ndarray | None = None):
+                 title: str, units: str = "", minima: np.ndarray | None = None, run_minima: np.ndarray | None = None):
     """A Plotly contour map of log10 E with the run's path, the current pose and the slice's local minima on it.
 
     path_xy: (K, 2) the run's poses in the slice's axes, phases: (K,) "icp"/"sa"; current: (2,); units:
-    the scans' length unit (axis labels); minima: (M, 2) the slice's local minima (default: ``sl.minima()``).
+    the scans' length unit (axis labels); minima: (M, 2) the slice's local minima (default: ``sl.minima()``),
+    white rings; run_minima: (R, 2) where the run's ICP stopped in a local minimum, red (the page's red).
     """
     import plotly.graph_objects as go
 
@@ -206,7 +207,7 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
                                colorbar=dict(title=f"log10 E ({squared_unit(units)})", thickness=12)))
     if len(minima):
         fig.add_trace(go.Scatter(x=minima[:, 0], y=minima[:, 1], mode="markers", name="minima of the slice",
-                                 marker=dict(symbol="circle-open", color=f"rgb{MINIMUM_RGB}", size=9, line=dict(width=2))))
+                                 marker=dict(symbol="circle-open", color="white", size=9, line=dict(width=2))))
     if path_xy is not None and len(path_xy):
         phases = phases or ["icp"] * len(path_xy)
         for phase, name in PHASE_LABEL.items():
@@ -220,10 +221,14 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
                                  marker=dict(color="white", size=10, line=dict(color="black", width=1))))
     if current is not None:
         fig.add_trace(go.Scatter(x=[current[0]], y=[current[1]], mode="markers", name="shown pose",
-                                 marker=dict(symbol="x", color="red", size=12)))
+                                 marker=dict(symbol="x", color="white", size=12, line=dict(color="black", width=1))))
+    if run_minima is not None and len(run_minima):
+        fig.add_trace(go.Scatter(x=run_minima[:, 0], y=run_minima[:, 1], mode="markers", name="ICP's local minimum",
+                                 marker=dict(symbol="diamond", color=f"rgb{MINIMUM_RGB}", size=11,
+                                             line=dict(color="black", width=1))))
     fig.update_layout(title=dict(text=title, font=dict(size=12)), margin=dict(l=40, r=10, t=30, b=35),
                       xaxis_title=axis_label(sl.params[0], units), yaxis_title=axis_label(sl.params[1], units),
-                      legend=dict(orientation="h", y=-0.25), height=380)
+                      legend=dict(orientation="h", y=-0.25, bgcolor="#d8d8d8"), height=380)
     return fig
 
 

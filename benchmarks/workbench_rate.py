@@ -46,7 +46,7 @@ FRAMES_JS = """(ms) => new Promise(done => {
   requestAnimationFrame(tick);
 })"""
 COUNT_JS = """(ms) => new Promise(done => {
-  const el = [...document.querySelectorAll('p')].find(p => p.innerText.includes('Iterations:'));
+  const el = document.querySelector('.rangereg-status');  // the status block (app/tab/status.py)
   let n = 0; const obs = new MutationObserver(() => n++);
   obs.observe(el.parentElement, {subtree: true, childList: true, characterData: true});
   setTimeout(() => { obs.disconnect(); done(n); }, ms);

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from rangereg.app.figures import fmt, tidy
@@ -65,21 +67,38 @@ def test_a_second_local_minimum_sends_the_story_back_to_stuck_and_a_cold_anneali
     assert not story.ready("finished") and not story.ready("idle")
 
 
-def test_each_step_is_one_sentence_with_its_numbers_in_the_scans_units():
-    run = (leg("icp", 582.8, minimum=True, events=26), leg("sa", 533.2, events=72, T=(582.8, 472.1)),
-           leg("icp", 0.579, number=2))
-    f = Facts(10.57, "mm", (325.0, -15.0), run, finished=True, error=0.579, off=(0.04, 0.54), iterations=(76, 72))
-    assert "325 mm along tx and -15°" in sentence("start", f)
-    assert "E = 582.8 mm² after 26 iterations, above the threshold 10.57 mm²" in sentence("stuck", f)
-    text = sentence("lower", f)
-    assert "72 moves" in text and "from 582.8 to 472.1 mm²" in text and "E = 533.2 mm², below ICP's 582.8" in text
-    text = sentence("below", f)
+def test_each_step_is_one_sentence_quoting_the_statuss_own_numbers():
+    from rangereg.app.tab.status import Progress, rows
+
+    sa_last = Event("sa", 97, 72, 1, np.eye(4), 533.17, 472.05)
+    at_lower = Progress(n_icp=25, n_sa=72, n_min=1, last=sa_last, E=533.17, E_kind="event", temperature=472.05,
+                        temperature_first=582.78, minimum_E=582.78)
+    stuck = Progress(n_icp=25, n_min=1, last=Event("icp", 25, 25, 1, np.eye(4), 582.78, None, True, True), E=582.78,
+                     E_kind="event", minimum_E=582.78)
+    done = Progress(n_icp=76, n_sa=72, n_min=1, E=0.579, E_kind="result", minimum_E=582.78)
+
+    def f(p, **kw):
+        return Facts(10.57, "mm", (362.3, -15.0), p, **kw)
+
+    assert "tx = 362.3 mm and ry = -15°" in sentence("start", f(Progress()))
+    assert "E = 582.8 mm² after 25 ICP iterations, above the threshold 10.57 mm²" in sentence("stuck", f(stuck))
+    text = sentence("lower", f(at_lower))
+    assert "72 annealing moves" in text and "from 582.8 to 472.1 mm²" in text and "E = 533.2 mm²" in text
+    assert "below ICP's minimum at 582.8 mm²" in text
+    text = sentence("below", f(done, finished=True, off=(0.04, 0.54)))
     assert "E = 0.579 mm² is below the threshold 10.57 mm²" in text and "0.04° and 0.54 mm from the truth" in text
+    assert "in 76 ICP and 72 SA iterations" in text
+    # every number of a sentence is written in the status rows of the same Progress
+    for step, p in (("stuck", stuck), ("lower", at_lower), ("below", done)):
+        status = " ".join(rows(p, pair="a → b", units="mm", overlap=1, method="hybrid", state="paused", lock="",
+                               threshold=10.57, threshold_name="Threshold", guess=""))
+        numbers = re.findall(r"-?\d+(?:\.\d+)?(?:e[+-]\d+)?", sentence(step, f(p)).split("**", 2)[2])
+        assert numbers and all(n in status for n in numbers if n not in ("0.04", "0.54")), (step, numbers, status)
     for step, title in (("icp", "1 · ICP runs"), ("stuck", "2 · Stuck above the threshold"),
                         ("anneal", "3 · Annealing roams, temperature falling"), ("lower", "4 · A lower point"),
                         ("icp-again", "5 · ICP again"), ("below", "6 · Below the threshold")):
-        assert sentence(step, f).startswith(f"**{title}.**")
-        assert sentence(step, f).count(". ") <= 2  # a title and one sentence
+        assert sentence(step, f(at_lower)).startswith(f"**{title}.**")
+        assert sentence(step, f(at_lower)).count(". ") <= 2  # a title and one sentence
 
 
 def test_the_page_runs_the_lesson_with_the_settings_the_bench_uses():

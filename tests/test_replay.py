@@ -75,8 +75,18 @@ def test_a_loaded_traces_path_on_the_slice_starts_at_its_own_guess_not_the_pages
     st.events = events
     st.run_header = TraceHeader.of(source, target, T_trace, Config())  # as ReplayPanel.load_trace sets it
     assert st.run_start is st.run_header.T_init
-    _, xy, _, _, _ = picture(st)
+    _, xy, *_ = picture(st)
     want = project(problem, T_page, ("tx", "ry"), [T_trace, T_page])
     assert np.allclose(xy, want) and not np.allclose(xy[0], xy[1])
     st.run_header = None  # a page run without a header starts at the page's guess
     assert picture(st)[1][0] == pytest.approx(project(problem, T_page, ("tx", "ry"), [T_page])[0])
+
+
+def test_auto_speed_plays_any_run_in_a_few_seconds_and_a_chosen_speed_is_kept():
+    from rangereg.app.tab.replay import AUTO, REPLAY_SECONDS, SPEEDS, play_speed
+
+    assert SPEEDS[0] == AUTO  # the default
+    for n in (39, 149, 2000, 20000):
+        assert n / play_speed(AUTO, n) == pytest.approx(REPLAY_SECONDS)  # 39 events at 100/s were over in 0.4 s
+    assert play_speed(AUTO, 3) == 1.0  # a few events: one a second, not a blink
+    assert play_speed("300", 39) == 300.0

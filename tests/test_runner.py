@@ -74,8 +74,13 @@ def test_next_phase_from_annealing_stops_where_the_next_leg_begins():
     run.step()  # the first annealing move
     settle(run, 4)
     run.next_phase()
-    settle(run, 8)
-    assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("icp", 2)]
+    settle(run, 7)
+    time.sleep(0.1)  # the next leg's first event is held: the events end with annealing's last move
+    assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("sa", 1)]
+    run.next_phase()  # the held event begins the leg Next phase runs: ICP's second leg, to the run's end
+    run.join(5)
+    assert [(e.phase, e.leg) for e in run.events[7:]] == [("icp", 2), ("icp", 2)]
+    assert run.result == ("done", len(SCRIPT))
 
 
 def test_next_phase_from_a_local_minimum_runs_the_next_leg_to_its_end():
@@ -83,8 +88,26 @@ def test_next_phase_from_a_local_minimum_runs_the_next_leg_to_its_end():
     run = Run(scripted(), mode="phase").start()
     settle(run, 3)
     run.next_phase()
+    settle(run, 7)
+    time.sleep(0.1)  # the next leg's first event is held: the events end with annealing's last move
+    assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("sa", 1)]
+    run.next_phase()  # the held event begins the leg Next phase runs: ICP's second leg, to the run's end
+    run.join(5)
+    assert [(e.phase, e.leg) for e in run.events[7:]] == [("icp", 2), ("icp", 2)]
+    assert run.result == ("done", len(SCRIPT))
+
+
+def test_a_step_from_a_held_leg_start_lets_that_one_event_through():
+    run = Run(scripted(), mode="phase").start()
+    settle(run, 3)
+    run.next_phase()  # annealing's leg, to where ICP's second begins
+    settle(run, 7)
+    run.step()
     settle(run, 8)
-    assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("icp", 2)]
+    time.sleep(0.1)
+    assert run.paused and len(run.events) == 8 and run.events[-1].phase == "icp"
+    run.cancel()
+    run.join(5)
 
 
 def test_resume_runs_to_the_end_and_reports_the_result():

@@ -259,9 +259,9 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
         server.stop()
 
 
-def test_the_finished_line_advises_in_the_pages_words(scene):
+def test_the_finished_line_leads_with_trust_and_advises_only_when_not_trusted(scene):
     import numpy as np
-    from rangereg.app.tab.run import page_advice
+    from rangereg.app.tab.run import page_advice, result_line
     from rangereg.core.problem import ProblemConfig
     from rangereg.core.region import Region
     from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
@@ -275,10 +275,18 @@ def test_the_finished_line_advises_in_the_pages_words(scene):
         return Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "global", 1.0, Stop(StopReason.TRUSTED),
                       trusted=trusted, details=d)
 
-    assert page_advice(result(True)) == ""
-    assert "Settings" in page_advice(result(True, "found 40 deg beyond")) and "--" not in page_advice(result(False))
+    # trusted, even beyond the stated region (the trust text says so): no advice
+    assert page_advice(result(True)) == "" and page_advice(result(True, "found 40 deg beyond")) == ""
+    assert "Settings" in page_advice(result(False)) and "--" not in page_advice(result(False))
     assert "drag the gizmo" in page_advice(result(False))
-    assert page_advice(Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "hybrid", 1.0, Stop(StopReason.BELOW_THRESHOLD))) == ""
+    hybrid = Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "hybrid", 1.0, Stop(StopReason.BELOW_THRESHOLD))
+    assert page_advice(hybrid) == ""
+    stuck = Result(np.eye(4), 5.0, Iterations(3), 0, 3, 0.1, "hybrid", 1.0, Stop(StopReason.ICP_ABOVE_THRESHOLD))
+    assert page_advice(stuck).startswith("Run global")  # the paper's methods search round the pose only
+    for r, trusted in ((result(True, "found 40 deg beyond"), True), (result(False), False), (stuck, False)):
+        line = result_line(r, "mm", (1.0, 2.0))
+        assert line.startswith(f"<b>Finished: trust {'yes' if trusted else 'no'}</b>")
+        assert ("What to do" in line) is not trusted and "from the truth" in line
 
 
 def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():

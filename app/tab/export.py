@@ -8,8 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 from rangereg.app.figures import SOURCE_RGB, TARGET_RGB
+from rangereg.app.plots import slice_png_bytes
 from rangereg.app.tab.landscape import picture
-from rangereg.app.views import ply_bytes, png_bytes
+from rangereg.app.views import ply_bytes
 from rangereg.core.errors import InputError
 from rangereg.core.transforms import apply
 
@@ -82,13 +83,14 @@ class ExportPanel:
         with st.lock:
             if st.slice is None:
                 raise InputError("compute a slice first")
-            args, units = picture(st), st.target.units
-        self._download("slice.png", png_bytes(*args, units=units))
+            *args, run_minima = picture(st)
+            units = st.target.units
+        self._download("slice.png", slice_png_bytes(*args, units=units, run_minima=run_minima))
 
     def model(self) -> None:
         model = self.state.model
         if model is None:
-            raise InputError("press Merge first")
+            raise InputError("fuse a model first (Model tab: Fuse this pair, or Merge scans)")
         self._download("model.ply", ply_bytes(model.vertices, model.faces))
 
     def recording(self) -> None:

@@ -79,7 +79,8 @@ def build(gui: viser.GuiApi) -> LandscapeHandles:
 
 
 def picture(st: TabState, path: PathOnSlice | None = None, most: int | None = None) -> tuple:
-    """(slice, path (K, 2), phases (K,), current pose (2,), title) for the page's figure and the PNG.
+    """(slice, path (K, 2), phases (K,), current pose (2,), title, the run's local minima (R, 2)) for the page's
+    figure and the PNG.
 
     ``path``: the run's events already projected (else projected here); ``most``: thin the path to this many points.
     """
@@ -89,12 +90,13 @@ def picture(st: TabState, path: PathOnSlice | None = None, most: int | None = No
         path = PathOnSlice(problem, sl, st.run_start, st.events)
         path.update()
     xy = phases = None
+    run_minima = path.xy[path.minimum]
     if path.n:
         keep = path.thinned(most) if most else slice(None)
         xy, phases = path.xy[keep], list(path.phases[keep])
     current = project(problem, sl.T_center, sl.params, [st.T])[0]
     title = f"{st.source.name} → {st.target.name}: log10 E({sl.params[0]}, {sl.params[1]})"
-    return sl, xy, phases, current, title
+    return sl, xy, phases, current, title, run_minima
 
 
 class LandscapePanel:
@@ -208,13 +210,15 @@ class LandscapePanel:
                 if st.slice is not view:
                     return
                 args = picture(st, path, MAX_FIGURE_PATH)
-        fig = slice_figure(*args, units=units)
+        *args, run_minima = args
+        fig = slice_figure(*args, units=units, run_minima=run_minima)
         if self.h.plot is None:
             with self.h.folder:
                 # first in its folder, above the slice's fields: the picture is what a class looks at
                 self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2, order=self.h.param_a.order - 0.5)
         else:
             self.h.plot.figure = fig
+        self.tab.lesson.slice_drawn(view, fig)
 
     def update_terrain(self) -> None:
         """The 3-D terrain of the current slice with the path so far, when shown; gone otherwise."""

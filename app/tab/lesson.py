@@ -5,7 +5,8 @@ truth as a contour and a terrain (the small minima in the larger pit), and click
 
     1 ICP runs                 the run starts in "phase" mode and pauses where ICP's first leg ends
     2 stuck above the threshold  (nothing runs: what the red marker means)
-    3 annealing roams          Next phase: annealing's leg to its end, the temperature falling
+    3 annealing roams          Next phase: annealing's leg to its end, the temperature falling (the run pauses
+                               before ICP's next leg: the page shows annealing's last move, its lower point)
     4 a lower point            (nothing runs: annealing hands a point below ICP's minimum to ICP)
     5 ICP again                Next phase: ICP's next leg to its end; above the threshold -> 2 again
     6 below the threshold      Resume: the run ends (re-cut and refined at the pose found)
@@ -23,7 +24,9 @@ import numpy as np
 import viser
 from rangereg.app.figures import fmt, squared_unit
 from rangereg.app.tab.settings import problem_config
+from rangereg.app.tab.status import Progress
 from rangereg.app.views import temperature_of
+from rangereg.core.errors import InputError
 from rangereg.core.events import Event
 from rangereg.core.problem import prepare
 
@@ -105,9 +108,9 @@ class Story:
         if self.step == "stuck":
             return "anneal", "next"
         if self.step == "anneal":
-            if run == "finished" or last is None or last.phase != "icp":
-                return "gave-up", None  # annealing cooled down without a point below ICP's minimum
-            return "lower", None
+            if run == "finished" or last is None:
+                return "gave-up", None  # annealing cooled down without a point below ICP's minimum: the run ended
+            return "lower", None  # paused where annealing's leg ended: on its lower point, ICP's next leg held
         if self.step == "lower":
             return "icp-again", "next"
         return "below", "resume"  # "below", paused: let the run finish
@@ -115,58 +118,52 @@ class Story:
 
 @dataclass(frozen=True)
 class Facts:
-    """What a sentence may quote: the threshold, the units, the shown start, the run's legs and its outcome."""
+    """What a sentence may quote: the threshold and units as the status shows them, the start's coordinates on the
+    slice (as the contour draws it: tx in the scans' units, ry in degrees), the run as the status shows it
+    (app/tab/status.Progress: the same counts, E and temperatures), whether it is over and how far from the truth
+    it ended (degrees, units; as the Finished line says)."""
 
     threshold: float
     units: str
-    start: tuple[float, float]  # (tx, ry) off the truth, in the scans' units and degrees
-    run_legs: tuple[Leg, ...] = ()
+    start: tuple[float, float]
+    progress: Progress = field(default_factory=Progress)
     finished: bool = False
-    error: float | None = None  # the result's E, once the run is over
-    off: tuple[float, float] | None = None  # the result's distance from the truth (degrees, units)
-    iterations: tuple[int, int] | None = None  # the result's (ICP, SA) iterations
+    off: tuple[float, float] | None = None
 
 
 def sentence(step: str, f: Facts) -> str:
-    """The one sentence of a step (markdown), numbered as in the module's table."""
+    """The one sentence of a step (markdown), numbered as in the module's table; each number is one the status
+    (or, for the start, the contour) shows, written as it writes it."""
     u = squared_unit(f.units)
-    icp = [leg for leg in f.run_legs if leg.phase == "icp"]
-    sa = [leg for leg in f.run_legs if leg.phase == "sa"]
+    p = f.progress
     head = f"**{NUMBERS[step]} · {TITLES[step]}.** "
     if step == "start":
-        return head + (f"The source (orange) lies {fmt(f.start[0])} {f.units} along tx and {fmt(f.start[1])}° "
-                       "about ry from the truth. Click Next: ICP runs from here.")
+        return head + (f"On the slice the source (orange) starts at tx = {fmt(f.start[0])} {f.units} and ry = "
+                       f"{fmt(f.start[1])}° from the truth, the white dot on the contour; Next runs ICP from here.")
     if step == "icp":
         return head + ("Each iteration pairs every source point with the closest point on the target surface and "
                        "moves the scan to fit those pairs: downhill on E, the green path.")
     if step == "stuck":
-        stuck = [leg for leg in icp if leg.minimum]
-        leg = stuck[-1] if stuck else (icp[-1] if icp else None)
-        got = f"E = {fmt(leg.E_best)} {u} after {leg.events} iterations" if leg else "E"
-        return head + (f"ICP has stopped at {got}, above the threshold {fmt(f.threshold)} {u}: a local minimum "
-                       "(the red marker), not the registration.")
+        return head + (f"ICP has stopped at E = {fmt(p.E)} {u} after {p.n_icp} ICP iterations, above the threshold "
+                       f"{fmt(f.threshold)} {u}: a local minimum (the red marker on the path and the contour), not "
+                       "the registration.")
     if step == "anneal":
         return head + ("The simplex also takes uphill moves, fewer as the temperature falls, so it can leave the "
                        "minimum: the magenta path.")
     if step == "lower":
-        leg = sa[-1] if sa else None
-        k = f.run_legs.index(leg) if leg is not None else 0
-        before = [g for g in f.run_legs[:k] if g.phase == "icp"]  # the ICP minimum annealing started from
-        below = before[-1].E_best if before else float("nan")
-        if leg is None:
-            return head + "Annealing found a point lower than ICP's minimum."
-        return head + (f"After {leg.events} moves, the temperature falling from {fmt(leg.T_first)} to "
-                       f"{fmt(leg.T_last)} {u}, annealing found E = {fmt(leg.E_best)} {u}, below ICP's "
-                       f"{fmt(below)} {u}: ICP takes over from there.")
+        if p.last is None or p.last.phase != "sa" or not np.isfinite(p.temperature):
+            return head + "Annealing found a point lower than ICP's minimum: ICP takes over from there."
+        return head + (f"After {p.n_sa} annealing moves, the temperature falling from {fmt(p.temperature_first)} to "
+                       f"{fmt(p.temperature)} {u}, annealing found E = {fmt(p.E)} {u}, below ICP's minimum at "
+                       f"{fmt(p.minimum_E)} {u}: ICP takes over from there.")
     if step == "icp-again":
         return head + "From annealing's point ICP runs downhill again, to the minimum nearest it."
     if step == "below":
-        E = f.error if f.error is not None else (icp[-1].E_best if icp else float("nan"))
         where = (f", {fmt(f.off[0], 2)}° and {fmt(f.off[1], 2)} {f.units} from the truth" if f.off is not None
                  else "")
-        count = f", in {f.iterations[0]} ICP and {f.iterations[1]} SA iterations" if f.iterations else ""
-        return head + (f"E = {fmt(E)} {u} is below the threshold {fmt(f.threshold)} {u}: registered{where}"
-                       f"{count}." + ("" if f.finished else " Click Next to let the run finish."))
+        return head + (f"E = {fmt(p.E)} {u} is below the threshold {fmt(f.threshold)} {u}: registered{where}, in "
+                       f"{p.n_icp} ICP and {p.n_sa} SA iterations." + ("" if f.finished else
+                                                                       " Click Next to let the run finish."))
     if step == "gave-up":
         return head + ("Annealing cooled down without finding a point below ICP's minimum: the run ends above the "
                        "threshold.")
@@ -181,6 +178,8 @@ class LessonHandles:
     next: viser.GuiButtonHandle
     again: viser.GuiButtonHandle
     text: viser.GuiMarkdownHandle
+    terrain: viser.GuiButtonHandle
+    plot: viser.GuiPlotlyHandle | None = None  # the contour with the run's path, made with the lesson's slice
 
 
 def start_label(k: int, start: tuple[float, float], units: str = "mm") -> str:
@@ -188,7 +187,7 @@ def start_label(k: int, start: tuple[float, float], units: str = "mm") -> str:
 
 
 class LessonPanel:
-    """The Lesson tab's controls; the run, the chart, the slice and the terrain are the page's own."""
+    """The Lesson tab's controls, its sentence and its contour; the run, the chart and the terrain are the page's."""
 
     def __init__(self, tab):
         from rangereg.core.scenes import LESSON
@@ -197,26 +196,41 @@ class LessonPanel:
         gui = tab.gui
         labels = [start_label(k, s) for k, s in enumerate(LESSON.starts)]
         self.h = LessonHandles(
-            intro=gui.add_markdown("The paper's Fig. 7 on a ribbed corner: ICP sticks in a local minimum, annealing "
-                                   "frees it, ICP finishes. Open the lesson, then click Next."),
+            intro=gui.add_markdown("The paper's Fig. 7 on a ribbed corner: ICP sticks, annealing frees it, ICP "
+                                   "finishes."),
             start=gui.add_dropdown("Start", labels, initial_value=labels[LESSON.shown],
-                                   hint="the lesson's starts: shift along tx, turn about ry, from the truth"),
+                                   hint="the lesson's starts: the truth shifted along tx and turned about ry, about "
+                                   "the source's centre"),
             open=gui.add_button("Open the lesson", hint="the ribbed corner at this start, with the slice through the "
                                 "truth as contour and terrain"),
             next=gui.add_button("Next", disabled=True),
+            text=gui.add_markdown(""),
             again=gui.add_button("Start again", disabled=True, hint="back to the start, the slice kept"),
-            text=gui.add_markdown(""))
+            terrain=gui.add_button("Look at the terrain", disabled=True,
+                                   hint="the camera on the 3-D terrain alone (Fit view: the scans and the terrain)"))
+        # the contour with the path, under the sentence: the picture the sentences speak of
+        self.figure_folder = gui.add_folder("The slice through the truth: contour and path", visible=False)
         self.story: Story | None = None
         self.k = LESSON.shown
         self.run = None  # the lesson's run (a Run), once started
-        self.line = ""  # the step's sentence, also shown in the status
+        self.line = ""  # the step's sentence
+        self.start_xy: tuple[float, float] = (float("nan"), float("nan"))  # the start on the slice (contour)
+        self.view = None  # the lesson's slice (a SliceView), once computed
         self.h.open.on_click(lambda e: tab.guarded(self.open))
         self.h.next.on_click(lambda e: tab.guarded(self.next))
         self.h.again.on_click(lambda e: tab.guarded(self.again))
+        self.h.terrain.on_click(lambda e: tab.guarded(self.look_at_terrain))
+
+    @property
+    def title(self) -> str:
+        """The step's number and title ('' when no lesson is open): the status's Lesson line."""
+        return f"{NUMBERS[self.story.step]} · {TITLES[self.story.step]}" if self.story is not None else ""
 
     # ---- the clicks ------------------------------------------------------------------------------------------------
     def open(self) -> None:
         """Load the lesson's scene at the chosen start, its run's seed, and the slice through the truth."""
+        from rangereg.core.landscape import project
+
         st, tab = self.state, self.tab
         st.require_idle()
         self.k = int(str(self.h.start.value).split(":")[0])
@@ -229,13 +243,16 @@ class LessonPanel:
         settings = tab.run_panel.settings()
         at_truth = prepare(st.source, st.target, st.T_truth, problem_config(settings), surface=st.surfaces[1],
                            seed=settings.seed)
+        self.start_xy = tuple(float(v) for v in project(at_truth, st.T_truth, self.lesson.params, [st.T_init])[0])
         h = tab.landscape.h
         h.span_a.value, h.span_b.value = (fmt(v) for v in self.lesson.spans)
+        self.view = None
         tab.landscape.compute_at(st.T_truth, self.lesson.params, self.lesson.spans, self.lesson.steps, terrain=True,
                                  problem=at_truth)
         self.story = Story()
         self.run = None
         self.h.again.disabled = False
+        self.h.intro.visible = False  # room for the sentence under Next (at 1280 x 720, above the fold)
         self.show()
 
     def again(self) -> None:
@@ -246,24 +263,40 @@ class LessonPanel:
             st.run.join(2.0)
         if self.story is None:
             return
-        self.tab.set_initial(self.lesson.start(st.source, st.target, self.k))
-        self.tab.update_status()
-        self.story, self.run = Story(), None
+        view = self.view
+        self.tab.set_initial(self.lesson.start(st.source, st.target, self.k))  # forgets the lesson: taken back
+        self.story, self.run, self.view = Story(), None, view
+        self.h.again.disabled, self.h.intro.visible = False, False
+        self.h.terrain.disabled = view is None
+        if self.h.plot is not None and view is not None:
+            self.h.plot.visible = self.figure_folder.visible = True
+            self.tab.landscape.draw()  # the contour without the forgotten run's path
         self.show()
 
     def next(self) -> None:
         st, panel = self.state, self.tab.run_panel
         if self.story is None:
             return
-        action = self.story.advance(self.run_state(), legs(list(st.events)), st.threshold or 0.0)
+        with st.lock:
+            events = list(st.events[:min(self.tab.trail().n, len(st.events))])  # the run as the status shows it
+        action = self.story.advance(self.run_state(), legs(events), st.threshold or 0.0)
         if action == "start":
-            panel.start("hybrid", mode="phase")
+            panel.start("hybrid", mode="phase", lesson=True)
             self.run = st.run
         elif action == "next" and st.running:
             st.run.next_phase()
         elif action == "resume" and st.running:
             st.run.resume()
         self.show()
+
+    def look_at_terrain(self) -> None:
+        """Point the camera at the terrain alone, so that it fills the view."""
+        from rangereg.app.tab import scene3d
+
+        terrain = self.tab.landscape.terrain
+        if terrain is None:
+            raise InputError("no terrain is shown (Landscape: Show as 3-D terrain)")
+        scene3d.fit_camera(self.tab.client, terrain.extent())
 
     # ---- what the page shows ---------------------------------------------------------------------------------------
     def run_state(self) -> str:
@@ -274,40 +307,58 @@ class LessonPanel:
             return "paused" if st.run.paused else "running"
         return "finished"
 
-    def facts(self) -> Facts:
+    def write(self, progress: Progress) -> None:
+        """The step's sentence from the status's own Progress (Tab.update_status calls this as it writes the status)."""
+        if self.story is None:
+            return
         st = self.state
         with st.lock:
-            events, threshold, result, units = list(st.events), st.threshold, st.result, st.target.units
-            T_truth, source = st.T_truth, st.source
-        off = iterations = error = None
+            threshold, units, result, T_truth, source = (st.threshold, st.target.units, st.result, st.T_truth,
+                                                         st.source)
         finished = self.run_state() == "finished" and result is not None
-        if finished:
+        off = None
+        if finished and T_truth is not None and result.transform is not None:
             from rangereg.core.transforms import pose_error
 
-            error, iterations = result.error, (result.iterations.icp, result.iterations.sa)
-            if T_truth is not None:
-                off = pose_error(result.transform, T_truth, source.centroid)
-        return Facts(threshold or 0.0, units, self.lesson.starts[self.k], tuple(legs(events)), finished, error, off,
-                     iterations)
+            off = pose_error(result.transform, T_truth, source.centroid)
+        line = sentence(self.story.step, Facts(threshold or 0.0, units, self.start_xy, progress, finished, off))
+        if line != self.line:
+            self.line = self.h.text.content = line
 
     def show(self) -> None:
-        """The step's sentence and whether Next may be clicked (called on every click and refresher tick)."""
+        """Whether Next may be clicked (every click and refresher tick), and the sentence with the status."""
         if self.story is None:
             return
         run = self.run_state()
-        line = sentence(self.story.step, self.facts())
-        if line != self.line:
-            self.line = self.h.text.content = line
-            self.tab.update_status()  # the status says the step too
         done = self.story.step == "gave-up" or (self.story.step == "below" and run in ("finished", "idle"))
         disabled = done or not self.story.ready(run)
         if self.h.next.disabled != disabled:
             self.h.next.disabled = disabled
+        if not self.line.startswith(f"**{self.title}."):
+            self.tab.update_status()  # a new step: its sentence, and the status's Lesson line
+
+    def slice_drawn(self, view, figure) -> None:
+        """The Landscape panel drew ``figure`` of ``view``: the lesson's own slice is shown here too."""
+        if self.story is None or view.problem is None:
+            return
+        if self.view is None:
+            self.view = view  # the first slice drawn after Open the lesson is the lesson's
+            self.h.terrain.disabled = False
+        if view is not self.view:
+            return
+        if self.h.plot is None:
+            with self.figure_folder:
+                self.h.plot = self.tab.gui.add_plotly(figure, aspect=1.0)
+        else:
+            self.h.plot.figure = figure
+        self.h.plot.visible = self.figure_folder.visible = True
 
     def forget(self) -> None:
-        """Another pair or pose was chosen outside the lesson: the lesson waits to be opened again."""
+        """Another pair, pose or run was chosen outside the lesson: the lesson waits to be opened again."""
         if self.story is None:
             return
-        self.story, self.run, self.line = None, None, ""
-        self.h.next.disabled = self.h.again.disabled = True
+        self.story, self.run, self.line, self.view = None, None, "", None
+        self.h.next.disabled = self.h.again.disabled = self.h.terrain.disabled = True
         self.h.text.content = ""
+        self.h.intro.visible = True
+        self.figure_folder.visible = False

@@ -29,11 +29,14 @@ class ModelHandles:
     campaign: CampaignHandles | None  # None: the workbench has no --data-dir
 
 
+FUSE_PAIR = "Fuse this pair"  # beside "Merge scans" (rangereg merge: register every scan, then fuse)
+
+
 class ModelPanel:
     def __init__(self, tab):
         self.tab, self.state = tab, tab.state
         gui = tab.gui
-        self.h = ModelHandles(gui.add_button("Merge", hint="fuse the two scans at the current pose into one mesh"),
+        self.h = ModelHandles(gui.add_button(FUSE_PAIR, hint="fuse the two scans at the current pose into one mesh"),
                               gui.add_checkbox("Show model", False, disabled=True), self._campaign(gui, tab.wb))
         self.residuals = ResidualsPanel(tab)
         self.h.merge.on_click(lambda e: tab.guarded(self.start))

@@ -14,7 +14,7 @@ import logging
 import numpy as np
 import viser
 from rangereg.app.figures import fmt, legend_html, squared_unit
-from rangereg.app.tab import scene3d
+from rangereg.app.tab import scene3d, status
 from rangereg.app.tab.export import ExportPanel
 from rangereg.app.tab.landscape import LandscapePanel
 from rangereg.app.tab.lesson import LessonPanel
@@ -27,7 +27,7 @@ from rangereg.app.tab.run import RunPanel, build_chart, chart_axes
 from rangereg.app.tab.scans import ScansPanel
 from rangereg.app.tab.settings import problem_config
 from rangereg.app.tab.state import TabState
-from rangereg.app.views import Display, Trail, temperature_of
+from rangereg.app.views import Display, Trail
 from rangereg.core.errors import InputError
 from rangereg.core.frustum import KINDS, frustum_of
 from rangereg.core.problem import prepare, relative_guess
@@ -46,7 +46,7 @@ class Tab:
         self.nodes: scene3d.SceneNodes | None = None
         self.run_drawing = False  # a run moves the scan: the light clouds are drawn
         self._trail: Trail | None = None
-        self.status = self.gui.add_markdown("Loading...")
+        self.status = self.gui.add_html("Loading...")
         self.e_init = self.gui.add_markdown("")
         self.legend = self.gui.add_html(legend_html())
         self.fit = self.gui.add_button("Fit view", hint="frame the scans (and the terrain, when shown)")
@@ -203,50 +203,38 @@ class Tab:
     def clear_run_views(self) -> None:
         with self.client.atomic():
             scene3d.clear_path(self.nodes)
-            self.run_panel.h.plot.data = Trail(self.state.display, []).chart(self.state.E0, self.state.threshold)
+            self.run_panel.h.plot.data = self.run_panel.chart_data(Trail(self.state.display, []))
         if self.landscape.terrain is not None:
             self.landscape.update_terrain()
 
     def update_status(self) -> None:
+        """The status (app/tab/status.py) and the lesson's sentence, from one Progress of the drawn run."""
         st = self.state
         trail = self.trail()
         guess = self.run_panel.guess_line()  # reads the settings' fields: outside the state's lock
         lock = self.run_panel.lock_text()
+        typed = self.run_panel.threshold_typed()
         with st.lock:
-            n = min(trail.n, len(st.events))
-            last = st.events[n - 1] if n else None
             running, E0, result = st.running, st.E0, st.result
-            state = "running" if running and not st.run.paused else ("paused" if running else "idle")
-            n_icp, n_sa, n_min = trail.counts
-            thr = fmt(st.threshold) if st.threshold is not None else "auto"
+            p = status.progress(trail, st.events, E0, result, running)
+            state = ("cancelling" if st.run.cancelled else "paused" if st.run.paused else "running") if running \
+                else "idle"
             units = st.target.units if st.target is not None else ""
-            e_unit = squared_unit(units)
-            if result is not None and not running:  # one final E: the result's, as the Finished line and the export
-                E_line = f"E = {fmt(result.error)} {e_unit} (the result)"
-            elif last is not None:
-                E_line = f"E = {fmt(last.error)} {e_unit}"
-            else:
-                E_line = f"E = {fmt(E0)} {e_unit} (initial)"
-            temp = temperature_of(last) if last is not None else float("nan")
-            if last is not None and last.phase == "sa" and not np.isfinite(temp):
-                T_line = "Temperature: set from the first simplex's spread of E"
-            else:
-                T_line = f"Temperature {fmt(temp)} {e_unit}" if np.isfinite(temp) else "Temperature - (annealing only)"
-            lines = [f"**{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}** "
-                     f"({units}) · overlap {st.problem.used.sum() if st.problem else 0} points",
-                     f"Method **{st.run_method or '-'}** · {state} · phase **{(last.phase.upper() if last else '-')}**"
-                     f" · {f'locked **{lock}**' if lock else 'nothing locked'}",
-                     f"Iterations: ICP {n_icp}, SA {n_sa}"
-                     + (f", candidates {trail.candidates}" if trail.candidates else "") + f" · local minima {n_min}",
-                     E_line, T_line, f"Threshold {thr} {e_unit}", guess]
-            if st.finished_text and not running:
-                lines.append(st.finished_text)
-        if self.lesson.line:
-            lines.append(f"Lesson: {self.lesson.line}")
-        content = "  \n".join(lines)
+            pair = f"{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}"
+            rows = status.rows(p, pair=pair, units=units, overlap=int(st.problem.used.sum()) if st.problem else 0,
+                               method=st.run_method, state=state, lock=lock, threshold=st.threshold,
+                               threshold_name=status.threshold_label(result if not running else None, typed),
+                               guess=guess)
+            more = [st.finished_text] if st.finished_text and not running else []
+        self.lesson.write(p)
+        if self.lesson.title:
+            more.append(f"Lesson: <b>{self.lesson.title}</b>")
+        content = status.page_html(rows, more)
         if self.status.content != content:
             self.status.content = content
-        self.e_init.content = f"Initial E = {fmt(E0)} {e_unit}"
+        e_init = f"Initial E = {fmt(E0)} {squared_unit(units)}"
+        if self.e_init.content != e_init:
+            self.e_init.content = e_init
 
     def close(self) -> None:
         """The browser tab went away: its run and its slice stop."""

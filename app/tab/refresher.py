@@ -35,7 +35,8 @@ class Refresher:
         self.was_running = False
         self.failures = 0
         self.terrain_at = self.plot_at = 0.0
-        self.plotted = self.terrain_drawn = (None, 0)  # (trail, events) last drawn in the chart, on the terrain
+        self.plotted = self.terrain_drawn = self.sliced = (None, 0)  # (trail, events) last drawn in the chart, on the
+        # terrain, on the contour
         self.paused_shown = None  # (run, paused) as Pause / Resume last showed it (None: no run)
         self.thread = threading.Thread(target=self._loop, daemon=True, name="rangereg-refresh")
 
@@ -103,16 +104,22 @@ class Refresher:
         plot_due = (not running or now - self.plot_at >= PLOT_REFRESH) and (self.plotted != (trail, n) or not running)
         terrain_due = (not running or now - self.terrain_at >= TERRAIN_REFRESH) and (
             self.terrain_drawn != (trail, n) or not running)
+        # the contour at its own pace, and once more when a paused run has events it has not drawn (a lesson's step)
+        slice_due = st.slice is not None and self.sliced != (trail, n, running) and (
+            not running or now - tab.landscape.drawn_at > SLICE_REFRESH or st.run.paused)
         if not (moved or plot_due or terrain_due):
             tab.update_status()
+            if slice_due:
+                self.sliced = (trail, n, running)
+                tab.landscape.draw(terrain=not running)
             return
         with st.lock:
             if n and running and st.result is None:  # once the run's result is in, its pose is the one shown
                 st.T = st.events[n - 1].T
-            T, E0, threshold = st.T, st.E0, st.threshold
+            T, result = st.T, (st.result if not running else None)
         # the arrays first, the messages then: the batch is held back from the browser only while it is assembled
         path = (trail.segments(), trail.minima()) if moved else None
-        plot = trail.chart(E0, threshold) if plot_due else None
+        plot = tab.run_panel.chart_data(trail, result) if plot_due else None
         with tab.client.atomic():
             if path is not None:
                 scene3d.move_source(tab.nodes, st, T, gizmo=False)
@@ -125,5 +132,6 @@ class Refresher:
             if terrain_due:
                 self.terrain_at, self.terrain_drawn = now, (trail, n)
             tab.update_status()
-        if st.slice is not None and (not running or now - tab.landscape.drawn_at > SLICE_REFRESH):
+        if slice_due:
+            self.sliced = (trail, n, running)
             tab.landscape.draw(terrain=not running)

@@ -24,7 +24,9 @@ from rangereg.core.errors import InputError
 from rangereg.core.events import Event
 from rangereg.core.trace import NO_HEADER, Trace, parse_trace, read_trace  # noqa: F401  (parse_trace: the page's name)
 
-SPEEDS = ("10", "30", "100", "300", "1000")  # events per second
+AUTO = "auto"  # the speed that plays the whole timeline in about REPLAY_SECONDS, whatever its length
+SPEEDS = (AUTO, "10", "30", "100", "300", "1000")  # events per second
+REPLAY_SECONDS = 6.0  # a replay long enough to follow (a 39-event trace at 100 events a second was over in 0.4 s)
 TICK = 0.1  # seconds between steps of Play
 TRACE_SLACK = 10.0  # a trace fits the scans when E re-evaluated here is within this factor of its own record
 
@@ -61,15 +63,23 @@ def trace_line(trace: Trace, T_init: np.ndarray, units: str = "units") -> str:
     return f"Trace **{trace.name}**: method {h.method}, seed {h.seed}, rangereg {h.version}; {where}."
 
 
+def play_speed(chosen: str, n: int) -> float:
+    """Events a second for Play: as chosen, or (auto) the ``n`` events in about REPLAY_SECONDS, at least one a tick."""
+    if chosen != AUTO:
+        return float(chosen)
+    return max(n / REPLAY_SECONDS, 1.0)
+
+
 class ReplayPanel:
     def __init__(self, tab):
         self.tab, self.state = tab, tab.state
         gui = tab.gui
         with gui.add_folder("Replay"):
-            self.slider = gui.add_slider("Event", 0, 1, 1, 0, disabled=True,
-                                         hint="0: the initial pose; k: the pose after the run's k-th event")
             self.info = gui.add_markdown("No run to replay yet.")
-            self.speed = gui.add_dropdown("Speed (events/s)", SPEEDS, initial_value="100")
+            self.slider = gui.add_slider("Event", 0, 1, 1, 0, disabled=True, visible=False,
+                                         hint="0: the initial pose; k: the pose after the run's k-th event")
+            self.speed = gui.add_dropdown("Speed (events/s)", SPEEDS, initial_value=AUTO,
+                                          hint=f"auto: the whole run in about {REPLAY_SECONDS:g} s")
             self.play = gui.add_button("Play", disabled=True)
             self.pause = gui.add_button("Pause replay", disabled=True)
             self.previous_min = gui.add_button("Previous minimum", disabled=True)
@@ -123,6 +133,7 @@ class ReplayPanel:
 
     def describe(self, k: int) -> None:
         n = len(self.events)
+        self.slider.visible = bool(n)  # no "60 of 149" beside "No run to replay yet"
         if not n:
             self.info.content = "No run to replay yet."
             return
@@ -185,7 +196,7 @@ class ReplayPanel:
         if not self.events:
             raise InputError("no run to replay yet")
         stop = self._playing = threading.Event()
-        speed = float(self.speed.value)
+        speed = play_speed(str(self.speed.value), len(self.events))
         start = 0 if int(self.slider.value) >= len(self.events) else int(self.slider.value)
         self.play.disabled, self.pause.disabled = True, False
         threading.Thread(target=self._play, args=(stop, start, speed), daemon=True, name="rangereg-replay").start()

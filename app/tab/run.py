@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,13 +23,16 @@ from rangereg.app.tab.settings import (
     read_settings,
 )
 from rangereg.app.tab.state import TabState
+from rangereg.app.views import Trail
 from rangereg.core.errors import InputError
 from rangereg.core.frustum import KINDS
 from rangereg.core.register import register
 from rangereg.core.trace import TraceHeader
 
-RUN_BUTTONS = {"Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa", "ICP restarts": "icp-restarts",
-               "Basin hopping": "basin-hopping", "Run global": "global"}
+GLOBAL_BUTTON = "Run global"  # the default method, first: any start, trusted or said not to be
+PAPERS_FOLDER = "The paper's methods"  # ICP, annealing and their hybrid round the initial pose (teaching, debugging)
+RUN_BUTTONS = {GLOBAL_BUTTON: "global", "Run hybrid": "hybrid", "Run ICP": "icp", "Run SA": "sa",
+               "ICP restarts": "icp-restarts", "Basin hopping": "basin-hopping"}
 
 
 @dataclass(eq=False)
@@ -44,8 +48,8 @@ class RunHandles:
     settings: SettingsHandles
 
 
-def _series(label: str, phase: str, size: int) -> uplot.Series:
-    c = hex_colour(PHASE_RGB[phase])
+def _series(label: str, phase: str, size: int, rgb: tuple[int, int, int] | None = None) -> uplot.Series:
+    c = hex_colour(rgb or PHASE_RGB[phase])
     return uplot.Series(label=label, stroke=c, width=0, points=uplot.Series_Points(show=True, size=size, fill=c, stroke=c))
 
 
@@ -57,40 +61,51 @@ CHART_SCALES = {"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=T
 CHART_TITLE = "log10 E against iteration"
 THRESHOLD_RGB = (200, 30, 30)
 TEMPERATURE_RGB = (110, 110, 110)
+RESULT_RGB = (20, 20, 20)
+CHART_ASPECT = 3.2  # width / height: at 1280 x 720 the tabs, the Lesson's Next and its sentence stay above the
+# fold (2.0 pushed the tabs below it)
 
 
 def chart_axes(units: str = "") -> tuple:
     """The chart's axes, labelled in the scans' units: iteration, and log10 of E, the threshold and annealing's
     temperature."""
-    return (uplot.Axis(label="iteration", size=34),
-            uplot.Axis(label=f"log10 E, temperature ({squared_unit(units)})", size=50, space=28))
+    return (uplot.Axis(label="iteration", size=30, labelSize=18),
+            uplot.Axis(label=f"log10 E ({squared_unit(units)})", size=46, space=24, labelSize=18))
 
 
 CHART_AXES = chart_axes()
 
 
 def build_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
-    """E against iteration, coloured by phase, with the threshold and the temperature (Trail.chart's series)."""
+    """E against iteration, coloured by phase, with the threshold, the temperature (points: it has none during ICP,
+    and a line joined its legs across every ICP leg) and the result's level (:meth:`RunPanel.chart_data`)."""
     return gui.add_uplot(
-        data=(np.zeros(1), *(np.ones(1) for _ in PHASE_NAMES), np.ones(1), np.ones(1)),  # no first value may be NaN
+        data=(np.arange(2.0), *(np.ones(2) for _ in PHASE_NAMES), np.ones(2), np.ones(2), np.ones(2)),
         # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
         series=(uplot.Series(label="iteration"), *(_series(PHASE_LABEL[p], p, 5 if p == "icp" else 3)
                                                    for p in PHASE_NAMES),
                 uplot.Series(label="threshold", stroke=hex_colour(THRESHOLD_RGB), width=1.5, dash=(6.0, 4.0),
                              points=uplot.Series_Points(show=False)),
-                uplot.Series(label="temperature", stroke=hex_colour(TEMPERATURE_RGB), width=1.5, dash=(2.0, 3.0),
+                _series("temperature", "", 2, TEMPERATURE_RGB),
+                uplot.Series(label="result", stroke=hex_colour(RESULT_RGB), width=1.0,
                              points=uplot.Series_Points(show=False))),
-        scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=2.0)
+        scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=CHART_ASPECT,
+        legend=uplot.Legend(live=False), padding=(14, 12, 0, 0))
 
 
 def build(gui: viser.GuiApi, plot: viser.GuiUplotHandle) -> RunHandles:
-    run = {label: gui.add_button(label) for label in RUN_BUTTONS}
-    step = gui.add_button("Step", hint="one ICP iteration or one annealing move, then pause")
-    next_phase = gui.add_button("Next phase", hint="run to the end of this ICP or SA leg, then pause")
+    run = {GLOBAL_BUTTON: gui.add_button(GLOBAL_BUTTON, hint="the default method: poses from the initial one and "
+                                         "from the scans' features, each refined and tested by the pair threshold")}
     pause = gui.add_button("Pause", disabled=True)
     resume = gui.add_button("Resume", disabled=True)
     cancel = gui.add_button("Cancel", disabled=True)
     reset = gui.add_button("Reset", hint="back to the initial pose; clear the path")
+    with gui.add_folder(PAPERS_FOLDER):
+        gui.add_markdown("ICP, annealing and their hybrid (Luck et al. 2000) search round the initial pose: for "
+                         "teaching and for debugging a local minimum. Step and Next phase walk a hybrid run.")
+        run.update({label: gui.add_button(label) for label in RUN_BUTTONS if label != GLOBAL_BUTTON})
+        step = gui.add_button("Step", hint="one ICP iteration or one annealing move, then pause")
+        next_phase = gui.add_button("Next phase", hint="run to the end of this ICP or SA leg, then pause")
     lock = gui.add_text(LOCK_LABEL, "", hint="what the search may not move, e.g. rx,ry,tz (a turntable about "
                         "y: rx,rz,tx,ty,tz), rotation, translation, or turntable:px,py,pz,dx,dy,dz (an axis in the "
                         "target's frame, its units); empty: all six free")
@@ -106,17 +121,26 @@ def build(gui: viser.GuiApi, plot: viser.GuiUplotHandle) -> RunHandles:
 
 
 def page_advice(r) -> str:
-    """What the user can do on the page about a global run's result, in the page's words ('' when nothing)."""
-    if r.details is None:
+    """What the user can do on the page about a result that is not trusted ('' when it is)."""
+    if r.below_threshold:
         return ""
-    if r.below_threshold and not r.within_region:
-        return (". If the initial pose may be that far off, say so in Settings (Rotation / Translation "
-                "uncertainty, or No guess)")
-    if not r.below_threshold:
-        return (". Not trusted: state how far off the initial pose may be in Settings (Rotation / Translation "
-                "uncertainty, or No guess), or set a better initial pose (drag the gizmo, or Align from point "
-                "pairs) and run again")
-    return ""
+    if r.details is None:  # the paper's methods search round the initial pose only
+        return ("Run global (any start; it tests the pose it finds), or set a better initial pose (drag the gizmo, "
+                "or Align from point pairs) and run again")
+    return ("state how far off the initial pose may be in Settings (Rotation / Translation uncertainty, or No "
+            "guess), or set a better initial pose (drag the gizmo, or Align from point pairs) and run again")
+
+
+def result_line(r, units: str = "", off: tuple[float, float] | None = None) -> str:
+    """The Finished line (HTML): trust first, then E, why it stopped and the time; the distance from the truth when
+    the scene knows it (``off``: degrees, units); what to do only when the pose is not trusted."""
+    u = squared_unit(units)
+    trusted = r.below_threshold
+    head = f"<b>Finished: trust {'yes' if trusted else 'no'}</b>: {html.escape(tidy(r.trust_text))}"
+    truth = f" · {fmt(off[0], 2)}° and {fmt(off[1], 2)} {html.escape(units)} from the truth" if off else ""
+    body = f"E = {fmt(r.error)} {u} · stopped: {html.escape(tidy(r.stop_text))} · {r.seconds:.2f} s{truth}"
+    advice = page_advice(r)
+    return f"{head}<br>{body}" + (f'<br><b style="color:#b00">What to do:</b> {html.escape(advice)}' if advice else "")
 
 
 class RunPanel:
@@ -169,14 +193,37 @@ class RunPanel:
         h.frustum.value, h.coarse_to_fine.value, h.polish.value, h.lock.value = FRUSTUM, False, False, ""
         h.no_guess.value = False
 
+    def threshold_typed(self) -> bool:
+        """Whether Settings' threshold is a number typed (not auto)."""
+        return str(self.h.settings.numbers["threshold"].value).strip().lower() not in ("", "auto")
+
+    def chart_data(self, trail: Trail, result=None) -> tuple[np.ndarray, ...]:
+        """The chart's series (build_chart): Trail.chart's, then the result's E as a level over every iteration (a
+        global run refines several candidates and may end on one it does not keep: the level shows which leg
+        reached the result). Every series starts with a number (uPlot takes a series' range from its first value);
+        a lone first point draws no line. An empty run gets an x range of [0, 1]."""
+        st = self.state
+        it, *series = trail.chart(st.E0, st.threshold)
+        ok = result is not None and result.error is not None and np.isfinite(result.error) and result.error > 0
+        level = np.full(len(it), np.log10(result.error) if ok else np.nan)
+        if not ok:
+            level[0] = series[0][0]
+        if len(it) < 2:
+            it, series, level = np.r_[it, 1.0], [np.r_[s_, np.nan] for s_ in series], np.r_[level, np.nan]
+            series[-2][-1] = series[-2][0]  # the threshold across the empty chart
+        return it, *series, level
+
     def lock_text(self) -> str:
         """The locked parameters as typed ("" when all six are free)."""
         return self.h.settings.lock.value.strip()
 
-    def start(self, method: str, mode: str = "run") -> None:
+    def start(self, method: str, mode: str = "run", lesson: bool = False) -> None:
+        """Run ``method`` from the initial pose; ``lesson``: the Lesson tab's run (any other run ends the lesson)."""
         st = self.state
         st.require_scans()
         st.require_idle()
+        if not lesson:
+            self.tab.lesson.forget()
         cfg = page_config(self.settings(), method)
         with st.lock:
             source, target, T_init, surface = st.source, st.target, st.T_init, st.problem.surface
@@ -206,12 +253,16 @@ class RunPanel:
                 return  # a newer run, a reset or a new pair took over: this outcome is stale
             st.result = run.result
             if run.failure is not None:
-                st.finished_text = f"**Finished**: the run failed: {run.failure}"
+                st.finished_text = f"<b>Finished: the run failed</b>: {html.escape(str(run.failure))}"
                 return
             r = run.result
             st.T, st.threshold = r.transform, r.threshold
-            st.finished_text = (f"**Finished**: E = {fmt(r.error)}; trust {'yes' if r.below_threshold else 'no'}: "
-                                f"{tidy(r.trust_text)}; stopped: {tidy(r.stop_text)}; {r.seconds:.2f} s{page_advice(r)}")
+            off = None
+            if st.T_truth is not None and r.transform is not None:
+                from rangereg.core.transforms import pose_error
+
+                off = pose_error(r.transform, st.T_truth, st.source.centroid)
+            st.finished_text = result_line(r, st.target.units, off)
 
         self.state.hand(apply)
 

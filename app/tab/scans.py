@@ -61,7 +61,9 @@ class ScansHandles:
 
 
 def build(gui: viser.GuiApi, wb) -> ScansHandles:
-    scene = gui.add_dropdown("Scene", wb.scene_names, initial_value=wb.options.scene)
+    served = wb.options.source is not None  # files were served: no bundled scene is open
+    scene = gui.add_dropdown("Scene", (["-", *wb.scene_names] if served else wb.scene_names),
+                             initial_value="-" if served else wb.options.scene)
     open_scene = gui.add_button("Open scene")
     files = data_choices(wb.data_dir, wb.data_files())
     file_source = file_target = open_files = None

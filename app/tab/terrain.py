@@ -23,7 +23,8 @@ TERRAIN_SIZE = 1.0  # width and depth of the box; its height is HEIGHT
 HEIGHT = 0.5
 LIFT = 0.01  # the path floats this far above the surface, so the surface never hides it
 TICK_OFFSET = 0.1  # the tick values sit this far outside the box, the axis names farther: off the surface
-SLICE_MINIMUM_RGB = (255, 120, 120)  # the slice's own minima on the terrain: the minima's red, lighter
+SLICE_MINIMUM_RGB = (200, 200, 200)  # the slice's own minima on the terrain: grey dots, as the contour's white
+# rings (red is the run's own local minimum alone: the lesson's "red marker")
 MAX_TERRAIN_PATH = 300  # points drawn at most, plus phase ends and minima (the projection keeps every event; see
 # app/views.MAX_PATH_POINTS for what a segment costs a software-rendered page)
 

@@ -175,7 +175,7 @@ class Tab:
         if self.nodes is None:
             return
         with self.state.lock:
-            points = scene3d.shown_extent(self.state)
+            points = scene3d.shown_extent(self.state, self.nodes)
         if self.landscape.terrain is not None:
             points = np.r_[points, self.landscape.terrain.extent()]
         scene3d.fit_camera(self.client, points)

@@ -25,6 +25,7 @@ from rangereg.app.figures import (
     TARGET_RGB,
 )
 from rangereg.app.tab.state import TabState
+from rangereg.app.views import Display
 
 RUN_POINTS = 1500  # while a run moves the scan, each cloud is drawn with at most this many points: software
 # WebGL pays per point, hardly per pixel of a point (bunny pair, 1400 x 900 page, no run: 11-14 frames a second
@@ -85,6 +86,7 @@ class SceneNodes:
     path: viser.LineSegmentsHandle
     minima: viser.PointCloudHandle
     model: viser.MeshHandle | None = None
+    model_corners: np.ndarray | None = None  # (8, 3) page points: the drawn model's box (what Fit view frames)
     shown_lock: threading.Lock = field(default_factory=threading.Lock)  # adds/removes frustums and surfaces (the
     # refresher and callback threads both set what is shown)
 
@@ -102,6 +104,7 @@ class Visibility:
     surfaces: bool
     path: bool
     model: bool
+    gizmo: bool = True  # False while a run holds the scans, the model is shown or point pairs are picked
 
 
 def colours(state: TabState, which: str, overlap: bool) -> np.ndarray:
@@ -196,17 +199,30 @@ def recolour(nodes: SceneNodes, state: TabState, overlap: bool) -> None:
             cloud.light.colors = rgb[cloud.light_index]
 
 
-def show_model(scene, nodes: SceneNodes, state: TabState) -> None:
-    model = state.model
+def model_on_page(vertices: np.ndarray, display: Display | None) -> np.ndarray:
+    """(V, 3) float32 page points of a model's vertices (V, 3). ``display``: the pair's, for a model in the target's
+    frame (the pair fused at the shown pose); None for a model in a frame of its own (a campaign's, in its reference
+    scan's frame and units, which need not be the open pair's): it is drawn the way a pair is, its box centred on the
+    page's origin and its diagonal 1."""
+    v = np.asarray(vertices, np.float64)
+    if display is not None:
+        return display.points(v)
+    lo, hi = v.min(0), v.max(0)
+    return ((v - 0.5 * (lo + hi)) / max(float(np.linalg.norm(hi - lo)), 1e-12)).astype(np.float32)
+
+
+def show_model(scene, nodes: SceneNodes, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Draw the model: ``vertices`` (V, 3) page points (:func:`model_on_page`), ``faces`` (F, 3)."""
     if nodes.model is not None:
         nodes.model.remove()
-    nodes.model = scene.add_mesh_simple("/model", state.display.points(model.vertices), model.faces, color=MODEL_RGB,
-                                        side="double")
+    nodes.model = scene.add_mesh_simple("/model", vertices, faces, color=MODEL_RGB, side="double")
+    nodes.model_corners = _corners(vertices.min(0), vertices.max(0))
 
 
 def apply_visibility(scene, nodes: SceneNodes, show: Visibility, run_drawing: bool) -> None:
     """Which nodes are drawn; ``run_drawing``: a run moves the scan (light clouds, no frustums)."""
     model = show.model and nodes.model is not None
+    nodes.gizmo.visible = show.gizmo and not model
     for cloud in (nodes.source, nodes.target):
         with nodes.shown_lock:
             # frustum wireframes cost a software-rendered page half its frame rate: off while a run draws
@@ -214,6 +230,7 @@ def apply_visibility(scene, nodes: SceneNodes, show: Visibility, run_drawing: bo
             cloud.show_surface(scene, show.surfaces and not model)
         light = run_drawing and cloud.light is not None
         cloud.points.visible = not model and not light
+        cloud.viewpoint.visible = not model
         if cloud.light is not None:
             cloud.light.visible = not model and light
     nodes.path.visible = nodes.minima.visible = show.path
@@ -234,19 +251,23 @@ def draw_path(nodes: SceneNodes, segments: tuple[np.ndarray, np.ndarray], minima
     nodes.minima.points = minima
 
 
-def shown_extent(state: TabState) -> np.ndarray:
-    """(16, 3) page points: the corners of the target's box and of the source's box at the shown pose (what Fit view
-    frames; the frustums reach far beyond the scans and are left out)."""
+def _corners(lo, hi) -> np.ndarray:
+    """(8, 3) the corners of the box from ``lo`` (3,) to ``hi`` (3,)."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], np.float64)
+
+
+def shown_extent(state: TabState, nodes: SceneNodes | None = None) -> np.ndarray:
+    """(K, 3) page points that Fit view frames: the model's box while the model is shown (``nodes``), else the
+    corners of the target's box and of the source's box at the shown pose (the frustums reach far beyond the scans
+    and are left out)."""
+    if nodes is not None and nodes.model is not None and nodes.model.visible and nodes.model_corners is not None:
+        return nodes.model_corners
     d = state.display
-
-    def corners(lo, hi):
-        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-
     tgt, src = state.target.points, state.source.points
     lo_t, hi_t = np.percentile(tgt, 1, axis=0), np.percentile(tgt, 99, axis=0)  # spurious returns left out
     lo_s, hi_s = np.percentile(src, 1, axis=0), np.percentile(src, 99, axis=0)
-    moved = corners(lo_s, hi_s) @ state.T[:3, :3].T + state.T[:3, 3]
-    return np.r_[d.points(corners(lo_t, hi_t)), d.points(moved)].astype(np.float64)
+    moved = _corners(lo_s, hi_s) @ state.T[:3, :3].T + state.T[:3, 3]
+    return np.r_[d.points(_corners(lo_t, hi_t)), d.points(moved)].astype(np.float64)
 
 
 def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:

@@ -241,6 +241,7 @@ class Tab:
                      E_line, T_line, f"Threshold {thr} {e_unit}", guess]
             if st.finished_text and not running:
                 lines.append(st.finished_text)
+        self.pose.show_result(None if running else result)
         if self.lesson.line:
             lines.append(f"Lesson: {self.lesson.line}")
         content = "  \n".join(lines)

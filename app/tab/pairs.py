@@ -23,7 +23,7 @@ from rangereg.core.horn import weighted_horn
 from rangereg.core.transforms import apply
 
 MIN_PAIRS = 3
-PICK_PIXELS = 3.0  # a click this many pixels from a drawn point still picks it, however far the camera is: a point
+PICK_PIXELS = 2.5  # a click this many pixels from a drawn point still picks it, however far the camera is: a point
 # is drawn at least a pixel or two wide, and zoomed out the scan's spacing is less than a pixel
 BALL = 1.5  # the pick's ball: this many point spacings in radius (a size in the scene: it grows as one zooms in,
 # where the label, of fixed pixel size, would hide it otherwise)
@@ -230,11 +230,15 @@ class PairsPanel:
             for node in self.markers:
                 node.remove()
             self.markers = []
-            # the source's picks are children of the moving source node: they move with it
+            # the source's picks are children of the moving source node: they move with it; each drawing has names
+            # of its own (scene3d.pair_root says why)
+            nodes = self.tab.nodes
+            nodes.drawn += 1
             for root, letter, at, rgb in (
-                    ("/source/picks", "S", d.source_local(st.source.points[src]).reshape(-1, 3), SOURCE_PICK_RGB),
-                    ("/target_picks", "T", d.points(st.target.points[p.target_index]).reshape(-1, 3),
-                     TARGET_PICK_RGB)):
+                    (f"{nodes.source.root}/picks{nodes.drawn}", "S",
+                     d.source_local(st.source.points[src]).reshape(-1, 3), SOURCE_PICK_RGB),
+                    (f"{nodes.target.root}_picks{nodes.drawn}", "T",
+                     d.points(st.target.points[p.target_index]).reshape(-1, 3), TARGET_PICK_RGB)):
                 for k, xyz in enumerate(at):
                     self.markers.append(scene.add_icosphere(f"{root}/{k}/ball", radius=radius, color=rgb,
                                                             position=tuple(xyz), cast_shadow=False,

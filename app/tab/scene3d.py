@@ -94,6 +94,7 @@ class SceneNodes:
     minima: viser.PointCloudHandle
     model: viser.MeshHandle | None = None
     model_corners: np.ndarray | None = None  # (8, 3) page points: the drawn model's box (what Fit view frames)
+    drawn: int = 0  # models and pick markers drawn so far: each gets a name of its own (see pair_root)
     shown_lock: threading.Lock = field(default_factory=threading.Lock)  # adds/removes frustums and surfaces (the
     # refresher and callback threads both set what is shown)
 
@@ -132,7 +133,7 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
            overlap: bool) -> CloudNodes:
     d = state.display
     src = which == "source"
-    root, rgb, base = f"/{which}", colours(state, which, overlap), SOURCE_RGB if src else TARGET_RGB
+    root, rgb, base = f"{pair_root(state)}/{which}", colours(state, which, overlap), SOURCE_RGB if src else TARGET_RGB
     to_page = d.source_local if src else d.points
     points = scene.add_point_cloud(f"{root}/points", pts, rgb, point_size=size, precision="float32")
     light = index = None
@@ -162,20 +163,28 @@ def set_lights(scene) -> None:
     scene.add_light_ambient("/ambient", intensity=AMBIENT)
 
 
+def pair_root(state: TabState) -> str:
+    """The scene path every node of the open pair hangs under, new for each pair: viser coalesces a Remove and a
+    Create of one name in one message batch into the Create alone, and a browser that still held the old node kept
+    its pose (a second pair opened on a tab was drawn at the first pair's source pose, off its picks)."""
+    return f"/pair{state.pair}"
+
+
 def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, overlap: bool) -> SceneNodes:
-    """Every node of the pair in ``state`` (call inside ``client.atomic()``)."""
+    """Every node of the pair in ``state`` (call inside ``client.atomic()``), under :func:`pair_root`."""
     d, src, tgt, scene = state.display, state.source, state.target, client.scene
     size = 0.8 * min(src.spacing, tgt.spacing) / d.size
     scene.set_up_direction("+y")
     set_lights(scene)
     wxyz, pos = d.node_pose(state.T)
-    frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
+    root = pair_root(state)
+    frame = scene.add_frame(f"{root}/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)
     source = _cloud(scene, state, "source", d.source_local(src.points), size, frustum_kind, overlap)
-    gizmo = scene.add_transform_controls("/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
+    gizmo = scene.add_transform_controls(f"{root}/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
                                          translation_limits=((-1e6, 1e6),) * 3)
-    path = scene.add_line_segments("/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
-    minima = scene.add_point_cloud("/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
+    path = scene.add_line_segments(f"{root}/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
+    minima = scene.add_point_cloud(f"{root}/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
                                    point_shape="circle")
     eye, look_at = default_view(d, tgt, src, state.T, state.frusta[frustum_kind])
     client.camera.up_direction = (0.0, 1.0, 0.0)
@@ -218,9 +227,11 @@ def model_on_page(vertices: np.ndarray, display: Display | None) -> np.ndarray:
 
 def show_model(scene, nodes: SceneNodes, vertices: np.ndarray, faces: np.ndarray) -> None:
     """Draw the model: ``vertices`` (V, 3) page points (:func:`model_on_page`), ``faces`` (F, 3)."""
+    nodes.drawn += 1  # a new name for each model drawn (see pair_root)
     if nodes.model is not None:
         nodes.model.remove()
-    nodes.model = scene.add_mesh_simple("/model", vertices, faces, color=MODEL_RGB, side="double")
+    nodes.model = scene.add_mesh_simple(f"{nodes.target.root.rsplit('/', 1)[0]}/model{nodes.drawn}", vertices, faces,
+                                        color=MODEL_RGB, side="double")
     nodes.model_corners = _corners(vertices.min(0), vertices.max(0))
 
 

@@ -51,16 +51,18 @@ def residuals(problem, source_points: np.ndarray, T: np.ndarray) -> Residuals:
 
 def summary_text(r: Residuals, unit: str) -> str:
     """The panel's words on ``r``: the median and the cap, the share within it, and the share beyond it said for
-    what it is (far points, most of them outside the overlap, capped by the error), not as a failure rate."""
+    what it is (the part of the source with no partner surface, and the noise's tail), not as a failure rate."""
     beyond = ~r.inliers
-    text = (f"Median distance {fmt(np.median(r.distances))} {unit}; cap √t {fmt(r.cap)} {unit}. "
+    text = (f"Median distance {fmt(np.median(r.distances))} {unit}; cap √t {fmt(r.cap)} {unit} (t = 2 × median d²). "
             f"Within the cap: {r.inliers.mean():.0%} of the source's points. Beyond it: {beyond.mean():.0%}")
     if r.overlap is not None and beyond.any():
         outside = float((beyond & ~r.overlap).sum() / beyond.sum())
-        text += f", {outside:.0%} of them outside the overlap cut"
-    return text + (": points where the scans do not overlap lie far from the target's surface on a right pose too; "
-                   "the robust error caps their weight (they do not pull the pose). Judge by the points within the "
-                   "overlap and the run's trust line.")
+        text += f", {outside:.0%} of them outside the overlap cut, where the target has no surface to match"
+    # Gaussian noise at a cap of twice the median d^2: P(chi2_1 > 2 x 0.455) = 0.34 for distances along the normal,
+    # P(chi2_3 > 2 x 2.366) = 0.19 in three dimensions: a fifth to a third of matching points lie beyond it
+    return text + (" (on a right pose too: where the scans do not overlap, and the noise's tail, a fifth to a third "
+                   "of matching points at a cap of twice the median). The robust error caps their weight; the run's "
+                   "trust line says whether the pose is right.")
 
 
 def colour_map(values: np.ndarray, top: float) -> np.ndarray:

@@ -1,14 +1,16 @@
 """Point-pair coarse alignment (Pose tab): click a source point, then its partner on the target.
 
 A click in the scene gives a ray (viser's scene click event, page coordinates); the scan point
-taken is the nearest to the camera among those within reach of the ray: three point spacings, or
-PICK_PIXELS on the screen where the scan is drawn smaller than that. Three or more pairs give a
-pose by Horn's closed form (core.horn.weighted_horn), which becomes the initial guess.
+taken is the one drawn under the click (within its drawn half width, or PICK_PIXELS where the scan is
+drawn smaller than that; in a hole between points, within three spacings), on the surface nearest the
+camera, nearest the ray. Three or more pairs give a pose by Horn's closed form
+(core.horn.weighted_horn), which becomes the initial guess. The gizmo is hidden while picking: it sits
+on the source's middle and takes the clicks there.
 
 Each pick is marked by its label ("S1", "T1": source or target, and the pair's number), centred on the
 picked point and drawn over the scans (no depth test), and a small ball of the pick's colour round it.
-A marker drawn as a depth-tested square was half hidden by the scan's own points wherever the surface
-leans away from the screen, and what showed of it sat 15-45 px beside the click (bunny, zoomed in).
+A depth-tested marker is half hidden by the scan's own points wherever the surface leans away from the
+screen, and what shows of it sits beside the click (15-45 px on the bunny zoomed in).
 """
 
 from __future__ import annotations

@@ -10,10 +10,12 @@ TARGET_RGB = (60, 120, 220)
 SOURCE_RGB = (240, 140, 30)
 TARGET_OVERLAP_RGB = (120, 230, 255)
 SOURCE_OVERLAP_RGB = (255, 225, 60)
-# the path's legs: ICP green, annealing magenta, the global pipeline's candidate poses orange
-PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200), "candidates": (245, 150, 20)}
+# the path's legs: ICP green, annealing magenta, the global pipeline's candidate poses dark teal (not orange: that is
+# the source's; every two colours of the legend are >= 25 apart in CIE76 Delta E, tests/test_views.py)
+PHASE_RGB = {"icp": (30, 170, 70), "sa": (210, 50, 200), "candidates": (0, 110, 110)}
 MINIMUM_RGB = (230, 30, 30)
 MODEL_RGB = (200, 200, 190)
+FRUSTUM_FADE = 0.55  # a frustum's lines are its scan's colour this far toward white: context, not content
 SOURCE_PICK_RGB = (255, 60, 0)  # picked point pairs: darker than the scans they sit on
 TARGET_PICK_RGB = (0, 40, 160)
 PHASE_LABEL = {"icp": "ICP", "sa": "SA", "candidates": "candidates"}
@@ -88,11 +90,34 @@ LEGEND = (("source", SOURCE_RGB), ("target", TARGET_RGB), ("source overlap", SOU
           ("candidates", PHASE_RGB["candidates"]), ("local minimum", MINIMUM_RGB))
 
 
+RESIDUAL_STOPS = ((68, 1, 84), (59, 82, 139), (33, 145, 140), (94, 201, 98), (253, 231, 37))  # viridis, 0 to 1
+
+
+def residual_legend(unit: str) -> tuple:
+    """The legend while the source is coloured by its distance to the target (viridis: near dark purple, far
+    yellow): the source's two colours give way to the scale, the rest stay."""
+    scale = (f"source: distance to the target, 0 → 2√t ({unit})", RESIDUAL_STOPS)
+    return (scale, *(e for e in LEGEND if e[0] not in ("source", "source overlap")))
+
+
+def faded(rgb: tuple[int, int, int], fade: float = FRUSTUM_FADE) -> tuple[int, int, int]:
+    """``rgb`` moved ``fade`` of the way toward white."""
+    return tuple(int(round(c + fade * (255 - c))) for c in rgb)
+
+
+def _swatch(rgb) -> str:
+    """A CSS background: one colour, or a left-to-right gradient through several (a colour scale)."""
+    if isinstance(rgb[0], int):
+        return hex_colour(rgb)
+    return "linear-gradient(to right, " + ", ".join(hex_colour(c) for c in rgb) + ")"
+
+
 def legend_html(entries=LEGEND) -> str:
-    """One line of coloured swatches and their names (the page's and the recording's legend)."""
+    """One line of coloured swatches and their names (the page's and the recording's legend); an entry's colour may
+    be a tuple of colours, drawn as a scale."""
     items = "".join(f'<span style="white-space:nowrap;margin-right:10px"><span style="display:inline-block;'
-                    f'width:10px;height:10px;border-radius:2px;margin-right:4px;background:{hex_colour(rgb)}">'
-                    f'</span>{name}</span>' for name, rgb in entries)
+                    f'width:{10 if isinstance(rgb[0], int) else 40}px;height:10px;border-radius:2px;margin-right:4px;'
+                    f'background:{_swatch(rgb)}"></span>{name}</span>' for name, rgb in entries)
     return f'<div class="rangereg-legend" style="font-size:12px;line-height:1.6">{items}</div>'
 
 

@@ -5,7 +5,15 @@ One self-contained HTML file: viser's own built client (shipped in the viser whe
 ``window.__VISER_EMBED_DATA__``, the format of viser's ``.viser`` files). The recording holds the
 scans, their frustums, the moving scan over time, the path growing as it moves (ICP green, SA
 magenta) and, when a slice was computed, the landscape as a 3-D height field with the path on it; a line of text
-follows the run (event k of n, its iteration, phase, E and temperature), beside a legend of the colours.
+follows the run (event k of n, its iteration, phase, E and temperature), beside a legend of the colours, and the
+chart of log10 E against iteration grows beside the scans as the run plays.
+
+The page's E chart is a viser GUI element (uPlot), and a recording holds scene messages only: viser marks every
+GUI message ``include_in_scene_serialization=False`` (``_CreateGuiComponentMessage`` in viser/_messages.py, the
+filter ``ViserServer.get_scene_serializer`` applies). So the recording draws the same series (app.views.Trail.chart:
+ICP, SA and candidates by phase, the threshold) as line segments in a plane of the scene facing the opening camera,
+with its axis values as labels. The opening camera frames the scans and the chart from outside both frustums
+(app.tab.scene3d.default_view, the page's own).
 
 viser records a scene through a server, so a throwaway one is started on a free loopback port for
 the few seconds it takes (it serves nobody: no browser is pointed at it).
@@ -21,8 +29,18 @@ from pathlib import Path
 
 import numpy as np
 from rangereg.app.access import free_port
-from rangereg.app.figures import LEGEND, MINIMUM_RGB, PHASE_LABEL, PHASE_TABLE, SOURCE_RGB, TARGET_RGB, fmt, squared_unit
-from rangereg.app.tab.scene3d import set_lights
+from rangereg.app.figures import (
+    LEGEND,
+    MINIMUM_RGB,
+    PHASE_LABEL,
+    PHASE_TABLE,
+    SOURCE_RGB,
+    TARGET_RGB,
+    faded,
+    fmt,
+    squared_unit,
+)
+from rangereg.app.tab.scene3d import FRUSTUM_THICKNESS, default_view, set_lights
 from rangereg.app.views import Display, Trail, temperature_of
 from rangereg.core.errors import InputError
 
@@ -30,11 +48,14 @@ MAX_POINTS = 20000  # per scan in the recording: the file stays a few MB
 FRAMES = 150  # poses the recording steps through (evenly over the run's events)
 SECONDS = 10.0  # how long the recording plays
 HOLD = 1.0  # seconds the start pose is held before the scan moves
-CAMERA_AT, CAMERA_LOOK_AT = (0.7, 1.3, 2.6), (0.7, 0.0, 0.0)  # both the scans and the terrain in view
+CHART_SIZE = (0.8, 0.45)  # page units (the target's size is 1): the chart's width and height
+CHART_GAP = 0.15  # page units between the scans' box and the chart, on the camera's right
+CHART_AXES_RGB = (110, 110, 110)
+THRESHOLD_RGB = (200, 0, 0)
 LEGEND_AT = (-0.95, 0.75, 0.0)  # page units: the legend's first entry, above and left of the scans; the next below
 LEGEND_STEP = 0.075
 INFO_AT = (-0.95, 0.95, 0.0)  # the line that follows the run, above the legend
-RECORDED_LEGEND = ("source", "target", "ICP", "annealing (SA)", "local minimum")
+RECORDED_LEGEND = ("source", "target", "ICP", "annealing (SA)", "candidates", "local minimum")
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,6 +70,8 @@ class RunToRecord:
     events: list
     slice_view: object | None = None  # app.tab.state.SliceView
     units: str = ""
+    E0: float = float("nan")  # E at the start (the chart's first point; NaN: the first event's)
+    threshold: float | None = None  # the run's threshold (the chart's red line; None: not drawn)
 
 
 def client_html() -> str:
@@ -89,8 +112,8 @@ def _draw_pair(scene, run: RunToRecord):
                           precision="float32")
     for which, f, to_page, rgb in (("source", run.frustums[0], d.source_local, SOURCE_RGB),
                                    ("target", run.frustums[1], d.points, TARGET_RGB)):
-        scene.add_line_segments(f"/{which}/frustum", to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3), rgb,
-                                thickness=1.5, thickness_units="screen")
+        scene.add_line_segments(f"/{which}/frustum", to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
+                                faded(rgb), thickness=FRUSTUM_THICKNESS, thickness_units="screen")
     return frame, size
 
 
@@ -125,6 +148,75 @@ def _part(scene, name: str, points: np.ndarray, phase: np.ndarray) -> None:
                             thickness=3.0, thickness_units="screen")
 
 
+@dataclass(frozen=True, eq=False)
+class Chart:
+    """The E chart in the scene: ``xy`` (K, 2) chart coordinates in [0, 1]^2 of the start and each event (iteration,
+    log10 E), ``phase`` (K,) rows of PHASE_TABLE, the threshold's height (None: none), the plane it is drawn in
+    (``origin`` (3,) its lower-left corner, ``right``, ``up`` (3,) unit axes, page units) and its axis values."""
+
+    xy: np.ndarray
+    phase: np.ndarray
+    threshold_y: float | None
+    origin: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    iterations: float
+    log_range: tuple[float, float]
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """(K, 3) page points of chart coordinates (K, 2)."""
+        w, h = CHART_SIZE
+        return (self.origin + xy[:, :1] * w * self.right + xy[:, 1:] * h * self.up).astype(np.float32)
+
+    def corners(self) -> np.ndarray:
+        return self.at(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]))
+
+
+def chart_of(run: RunToRecord, trail: Trail, eye: np.ndarray, look_at: np.ndarray, extent: np.ndarray) -> Chart:
+    """The chart of ``trail`` (its events taken in), placed on the camera's right of the scans' page ``extent``
+    (K, 3), in the plane facing the camera at ``eye`` looking at ``look_at``."""
+    E0 = run.E0 if np.isfinite(run.E0) else float(trail.error[0])
+    it = np.maximum.accumulate(np.r_[0.0, trail.iteration])
+    err = np.r_[E0, trail.error].astype(float)
+    positive = err[err > 0]
+    floor = positive.min() if len(positive) else 1.0
+    logs = np.log10(np.maximum(err, floor))
+    thr = np.log10(run.threshold) if run.threshold is not None and run.threshold > 0 else None
+    lo, hi = min(logs.min(), thr if thr is not None else np.inf), max(logs.max(), thr if thr is not None else -np.inf)
+    if hi - lo < 1e-9:
+        lo, hi = lo - 0.5, hi + 0.5
+    xy = np.c_[it / max(it[-1], 1.0), (logs - lo) / (hi - lo)]
+    way = np.asarray(eye, float) - np.asarray(look_at, float)
+    way /= np.linalg.norm(way)
+    right = np.cross([0.0, 1.0, 0.0], way)
+    right /= np.linalg.norm(right)
+    up = np.cross(way, right)
+    rel = extent - np.asarray(look_at, float)
+    origin = np.asarray(look_at, float) + ((rel @ right).max() + CHART_GAP) * right - 0.5 * CHART_SIZE[1] * up
+    return Chart(xy, np.r_[0, trail.phase].astype(np.int8), None if thr is None else (thr - lo) / (hi - lo), origin,
+                 right, up, float(it[-1]), (float(lo), float(hi)))
+
+
+def _draw_chart_frame(scene, chart: Chart, units: str) -> None:
+    """The chart's axes, its threshold line and its axis values (the series grows in :func:`record`)."""
+    box = chart.at(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])).reshape(2, 2, 3)
+    scene.add_line_segments("/chart/axes", box, CHART_AXES_RGB, thickness=1.0, thickness_units="screen")
+    if chart.threshold_y is not None:
+        dashes = np.linspace(0.0, 1.0, 41)
+        ends = np.c_[dashes[:-1:2], dashes[1::2]]
+        pts = chart.at(np.c_[ends.reshape(-1), np.full(ends.size, chart.threshold_y)]).reshape(-1, 2, 3)
+        scene.add_line_segments("/chart/threshold", pts, THRESHOLD_RGB, thickness=1.5, thickness_units="screen")
+    lo, hi = chart.log_range
+    for name, xy, text, anchor in (
+            ("title", (0.0, 1.08), f"log10 E ({squared_unit(units)}) against iteration", "bottom-left"),
+            ("y_hi", (-0.02, 1.0), f"{hi:.2g}", "center-right"), ("y_lo", (-0.02, 0.0), f"{lo:.2g}", "center-right"),
+            ("x_lo", (0.0, -0.04), "0", "top-center"), ("x_hi", (1.0, -0.04), f"{chart.iterations:.0f}", "top-center")):
+        scene.add_label(f"/chart/{name}", text, position=tuple(chart.at(np.array([xy]))[0]), anchor=anchor)
+    if chart.threshold_y is not None:
+        scene.add_label("/chart/threshold_name", "threshold", position=tuple(chart.at(np.array([[1.0, chart.threshold_y]]))[0]),
+                        anchor="center-left")
+
+
 def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hold: float = HOLD) -> bytes:
     """The recording (.viser bytes): the pair, then the scan moving along the run with its path growing."""
     import viser
@@ -151,10 +243,22 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
             on_terrain = on_surface(run.slice_view.slice, path.xy)
         _legend(scene)
         info = scene.add_label("/info", event_line(run, 0), position=INFO_AT, anchor="center-left")
+        # the opening view: the scans (and the terrain) framed from outside the frustums; the chart on its right,
+        # then the view widened to take it in too
+        from rangereg.app.tab.scene3d import pair_extent
+
+        extent = pair_extent(run.display, run.target, run.source, run.T_start)
+        terrain_box = terrain.extent() if terrain is not None else None
+        eye, look_at = default_view(run.display, run.target, run.source, run.T_start, run.frustums, terrain_box)
+        chart = chart_of(run, trail, eye, look_at, extent if terrain_box is None else np.r_[extent, terrain_box])
+        eye, look_at = default_view(run.display, run.target, run.source, run.T_start, run.frustums,
+                                    chart.corners() if terrain_box is None else np.r_[terrain_box, chart.corners()])
+        _draw_chart_frame(scene, chart, run.units)
         recorder = server.get_scene_serializer()
         # recorded after the snapshot: the camera messages are then part of the file
-        server.initial_camera.look_at = CAMERA_LOOK_AT if terrain is not None else (0.0, 0.0, 0.0)
-        server.initial_camera.position = CAMERA_AT if terrain is not None else (0.0, 0.4, 1.8)
+        server.initial_camera.up = (0.0, 1.0, 0.0)
+        server.initial_camera.position = tuple(eye)
+        server.initial_camera.look_at = tuple(look_at)
         recorder.insert_sleep(hold)
         steps = np.unique(np.linspace(0, len(pos) - 1, min(frames, len(pos))).astype(int))
         last = 0
@@ -164,6 +268,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
             info.text = event_line(run, int(k))
             keep = np.unique(np.r_[np.linspace(last, k, min(k - last + 1, 40)).astype(int), k])
             _part(scene, f"/path/part{i}", pos[keep], phase[keep])
+            _part(scene, f"/chart/series/part{i}", chart.at(chart.xy[keep]), phase[keep])
             mins = np.flatnonzero(minimum[last + 1:k + 1]) + last + 1
             if len(mins):
                 scene.add_point_cloud(f"/minima/part{i}", pos[mins], MINIMUM_RGB, point_size=4 * size,

@@ -71,3 +71,28 @@ def test_the_recording_plays_from_disk_and_the_scan_moves(tmp_path):
         wait_for(has_moved, 12.0, what="the scan")  # the start is held 4 s; the run plays in 4 s
         browser.close()
     assert schemes <= {"file", "data", "blob"}  # nothing from a server or the network
+
+
+def test_the_opening_camera_is_outside_both_frustums_and_the_chart_beside_the_scans():
+    from rangereg.app.recording import CHART_SIZE, chart_of
+    from rangereg.app.tab.scene3d import _inside_frusta, default_view, pair_extent
+    from rangereg.app.views import Trail
+
+    run = corner_run()
+    d = run.display
+    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums)
+    assert not _inside_frusta(eye, d, run.T_start, run.frustums)
+    trail = Trail(d, run.events)
+    trail.update()
+    extent = pair_extent(d, run.target, run.source, run.T_start)
+    chart = chart_of(run, trail, eye, look_at, extent)
+    assert len(chart.xy) == len(run.events) + 1 and np.all((chart.xy >= 0) & (chart.xy <= 1))
+    assert chart.xy[0, 0] == 0 and chart.xy[-1, 0] == 1  # from the start to the last iteration
+    # the chart lies on the camera's right of every corner of the scans' box, and faces the camera
+    way = (eye - look_at) / np.linalg.norm(eye - look_at)
+    assert abs(chart.right @ way) < 1e-9 and abs(chart.up @ way) < 1e-9
+    assert ((chart.corners() - look_at) @ chart.right).min() > ((extent - look_at) @ chart.right).max()
+    assert np.isclose(np.ptp(chart.corners() @ chart.right), CHART_SIZE[0])
+    # widened to take the chart in, the camera is still outside the frustums
+    eye2, _ = default_view(d, run.target, run.source, run.T_start, run.frustums, chart.corners())
+    assert not _inside_frusta(eye2, d, run.T_start, run.frustums)

@@ -241,7 +241,7 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
     from tests.conftest import ASSETS
 
     source, target = (load_scan(ASSETS / "corner" / f"scan{k}.ply") for k in (2, 1))
-    state = SimpleNamespace(display=Display(target, source), residual_rgb=None, source=source, target=target,
+    state = SimpleNamespace(pair=0, display=Display(target, source), residual_rgb=None, source=source, target=target,
                             problem=None, frusta={"convex": (frustum_of(source, "convex"), frustum_of(target, "convex"))},
                             surfaces=(Surface.from_scan(source), Surface.from_scan(target)))
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)

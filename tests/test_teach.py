@@ -90,7 +90,7 @@ def test_three_point_pairs_align_the_corner_within_two_degrees(bench, browser):
     assert len(tab.pairs.pairs) == 3
     assert angle_deg(tab.pairs.pairs.align(st.source.points, st.target.points), st.T_truth) < 2.0
     wait_for(lambda: "pair 3: source" in page.locator("body").inner_text(), what="the pair list")
-    assert sorted(m.text for m in tab.pairs.markers if hasattr(m, "text")) == ["1", "1", "2", "2", "3", "3"]
+    assert sorted(m.text for m in tab.pairs.markers if hasattr(m, "text")) == ["S1", "S2", "S3", "T1", "T2", "T3"]
     page.get_by_role("button", name="Align from pairs", exact=True).click()
     wait_for(lambda: angle_deg(st.T_init, st.T_truth) < 2.0, what="the initial pose")
     wait_for(lambda: "Aligned from 3 pairs" in page.locator("body").inner_text(), what="the pairs cleared")
@@ -110,11 +110,11 @@ def test_after_a_run_the_source_is_coloured_by_residual_with_its_histogram(bench
     wait_finished(page)
     show_tab(page, "Model")
     page.get_by_label("Colour by residual", exact=True).check()
-    wait_for(lambda: "Distance to the target surface" in page.locator("body").inner_text(), what="the histogram")
+    wait_for(lambda: "by distance to the target surface" in page.locator("body").inner_text(), what="the histogram")
     body = page.locator("body").inner_text()
     units = tab.state.target.units
-    assert "inliers (d < √t)" in body and "outliers" in body and "cap √t" in body
-    assert f"distance ({units})" in body
+    assert "within the cap (d < √t)" in body and "beyond the cap" in body and "cap √t" in body
+    assert f"distance to the target surface ({units})" in body
     colours = tab.nodes.source.points.colors
     assert len(np.unique(colours, axis=0)) > 20 and not np.all(colours == SOURCE_RGB)
     r = tab.model.residuals.current

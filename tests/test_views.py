@@ -228,3 +228,18 @@ def test_the_recording_says_the_event_iteration_phase_E_and_temperature_and_show
     _legend(scene)
     assert scene.labels == list(RECORDED_LEGEND)
     assert scene.colours == [rgb for name, rgb in LEGEND if name in RECORDED_LEGEND]
+
+
+def test_every_two_colours_of_the_legend_are_told_apart():
+    from rangereg.app.figures import LEGEND
+
+    def lab(rgb):  # CIE L*a*b* of an sRGB triple (D65)
+        c = np.asarray(rgb, float) / 255
+        c = np.where(c > 0.04045, ((c + 0.055) / 1.055) ** 2.4, c / 12.92)
+        xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]]) @ c
+        f = np.cbrt(xyz / np.array([0.9505, 1.0, 1.089]))
+        return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+    for i, (a, ra) in enumerate(LEGEND):
+        for b, rb in LEGEND[i + 1:]:
+            assert np.linalg.norm(lab(ra) - lab(rb)) > 25, (a, b)  # CIE76 Delta E: ~2 is just noticeable

@@ -107,7 +107,7 @@ class ExportPanel:
             if not st.events:
                 raise InputError("no run yet: nothing to record")
             run = RunToRecord(st.source, st.target, st.display, st.frusta[kind], st.run_start, list(st.events),
-                              st.slice, st.target.units)
+                              st.slice, st.target.units, E0=st.E0, threshold=st.threshold)
         self.h.recording.disabled = True
 
         def work() -> None:

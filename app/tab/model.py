@@ -147,10 +147,9 @@ class ModelPanel:
         self._unlock()
         self.h.campaign.progress.content = report
         if self.state.model is res.model and self.tab.nodes is not None:
-            scene3d.show_model(self.tab.client.scene, self.tab.nodes, self.state)
-            self.h.show.disabled = False
-            self.h.show.value = True
-            self.tab.apply_visibility()
+            # the campaign's model is in its reference scan's frame and units, not the open pair's: its own place
+            self._draw(res.model, own_frame=True)
+            self.tab.fit_view()
         placed = sum(res.placed)
         self.tab.notify("Campaign", f"{placed} of {len(res.poses)} scans placed", error=placed < len(res.poses))
 
@@ -158,11 +157,17 @@ class ModelPanel:
         self.h.merge.disabled = self.state.running or self.state.campaign_busy
         if self.state.model is not model:
             return
-        scene3d.show_model(self.tab.client.scene, self.tab.nodes, self.state)
+        self._draw(model, own_frame=False)  # the pair fused in the target's frame: drawn where the scans are
+        self.tab.notify("Model", f"{len(model.vertices)} vertices, {len(model.faces)} triangles", error=False)
+
+    def _draw(self, model, own_frame: bool) -> None:
+        """Draw ``model`` (core.fuse's) and show it; ``own_frame``: a campaign's model (:func:`scene3d.model_on_page`)."""
+        vertices = scene3d.model_on_page(model.vertices, None if own_frame else self.state.display)
+        with self.tab.client.atomic():
+            scene3d.show_model(self.tab.client.scene, self.tab.nodes, vertices, model.faces)
         self.h.show.disabled = False
         self.h.show.value = True
         self.tab.apply_visibility()
-        self.tab.notify("Model", f"{len(model.vertices)} vertices, {len(model.faces)} triangles", error=False)
 
     def forget(self) -> None:
         """A new pair: no model yet."""

@@ -175,7 +175,7 @@ class Tab:
         if self.nodes is None:
             return
         with self.state.lock:
-            points = scene3d.shown_extent(self.state)
+            points = scene3d.shown_extent(self.state, self.nodes)
         if self.landscape.terrain is not None:
             points = np.r_[points, self.landscape.terrain.extent()]
         scene3d.fit_camera(self.client, points)
@@ -226,6 +226,7 @@ class Tab:
                                threshold_name=status.threshold_label(result if not running else None, typed),
                                guess=guess)
             more = [st.finished_text] if st.finished_text and not running else []
+        self.pose.show_result(None if running else result)
         self.lesson.write(p)
         if self.lesson.title:
             more.append(f"Lesson: <b>{self.lesson.title}</b>")

@@ -1,8 +1,16 @@
 """Point-pair coarse alignment (Pose tab): click a source point, then its partner on the target.
 
 A click in the scene gives a ray (viser's scene click event, page coordinates); the scan point
-taken is the nearest to the camera among those within reach of the ray. Three or more pairs give a
-pose by Horn's closed form (core.horn.weighted_horn), which becomes the initial guess.
+taken is the one drawn under the click (within its drawn half width, or PICK_PIXELS where the scan is
+drawn smaller than that; in a hole between points, within three spacings), on the surface nearest the
+camera, nearest the ray. Three or more pairs give a pose by Horn's closed form
+(core.horn.weighted_horn), which becomes the initial guess. The gizmo is hidden while picking: it sits
+on the source's middle and takes the clicks there.
+
+Each pick is marked by its label ("S1", "T1": source or target, and the pair's number), centred on the
+picked point and drawn over the scans (no depth test), and a small ball of the pick's colour round it.
+A depth-tested marker is half hidden by the scan's own points wherever the surface leans away from the
+screen, and what shows of it sits beside the click (15-45 px on the bunny zoomed in).
 """
 
 from __future__ import annotations
@@ -17,13 +25,20 @@ from rangereg.core.horn import weighted_horn
 from rangereg.core.transforms import apply
 
 MIN_PAIRS = 3
+PICK_PIXELS = 2.5  # a click this many pixels from a drawn point still picks it, however far the camera is: a point
+# is drawn at least a pixel or two wide, and zoomed out the scan's spacing is less than a pixel
+BALL = 1.5  # the pick's ball: this many point spacings in radius (a size in the scene: it grows as one zooms in,
+# where the label, of fixed pixel size, would hide it otherwise)
 
 
-def nearest_to_ray(points: np.ndarray, origin, direction, reach: float, band: float) -> int | None:
-    """Index of the point (N, 3) a click ray picks, or None when none lies within ``reach`` of it.
+def nearest_to_ray(points: np.ndarray, origin, direction, reach: float, depth: float, per_distance: float = 0.0,
+                   cover: float = 0.0) -> int | None:
+    """Index of the point (N, 3) a click ray picks, or None when none lies within reach of it.
 
-    Of the points in front of the ray's origin within ``band`` of the ray (beyond the closest one's
-    distance), the one nearest the camera: a click lands on the visible surface, not one behind it.
+    First the points drawn under the click: within ``cover`` of the ray (a drawn point's half width, page units)
+    or ``per_distance`` times their distance along it (PICK_PIXELS on the screen at that depth); in a hole between
+    them, the points within ``reach``. Of those, the surface nearest the camera (within ``depth`` of the nearest
+    along the ray: a click lands on the visible surface, not one behind it), and on it the point nearest the ray.
     """
     o = np.asarray(origin, np.float64)
     d = np.asarray(direction, np.float64)
@@ -31,12 +46,13 @@ def nearest_to_ray(points: np.ndarray, origin, direction, reach: float, band: fl
     rel = np.asarray(points, np.float64) - o
     along = rel @ d
     perp = np.linalg.norm(rel - along[:, None] * d, axis=1)
-    perp[along <= 0] = np.inf
-    best = float(np.min(perp)) if len(perp) else np.inf
-    if not np.isfinite(best) or best > reach:
+    ahead = along > 0
+    under = np.flatnonzero(ahead & (perp <= np.maximum(cover, per_distance * along)))
+    within = under if len(under) else np.flatnonzero(ahead & (perp <= np.maximum(reach, per_distance * along)))
+    if not len(within):
         return None
-    near = np.flatnonzero(perp <= best + band)
-    return int(near[np.argmin(along[near])])
+    front = within[along[within] <= along[within].min() + depth]
+    return int(front[np.argmin(perp[front])])
 
 
 @dataclass
@@ -108,6 +124,7 @@ class PairsPanel:
         self.pairs = PointPairs()
         self.markers: list = []
         self.h.picking.on_update(lambda e: tab.guarded(self._picking))
+        self.picking = False
         self.h.remove.on_click(lambda e: tab.guarded(self._remove))
         self.h.clear.on_click(lambda e: tab.guarded(self.forget))
         self.h.align.on_click(lambda e: tab.guarded(self.align))
@@ -115,11 +132,21 @@ class PairsPanel:
 
     def _picking(self) -> None:
         scene = self.tab.client.scene
-        if self.h.picking.value and self._callback is None:
+        self.picking = bool(self.h.picking.value)
+        if self.picking and self._callback is None:
             self._callback = scene.on_click()(lambda e: self.tab.guarded(self.clicked, e.ray_origin, e.ray_direction))
-        elif not self.h.picking.value and self._callback is not None:
+        elif not self.picking and self._callback is not None:
             scene.remove_click_callback(self._callback)
             self._callback = None
+        self.tab.apply_visibility()  # no gizmo while picking: it sits where the source's points are clicked
+
+    def _per_distance(self) -> float:
+        """PICK_PIXELS as a reach per unit of distance from the camera (0 before the browser reports its camera)."""
+        cam = self.tab.client.camera
+        try:
+            return PICK_PIXELS * 2.0 * float(np.tan(float(cam.fov) / 2)) / max(int(cam.image_height), 1)
+        except (AssertionError, AttributeError, TypeError, ValueError):
+            return 0.0
 
     def page_points(self, which: str) -> np.ndarray:
         """(N, 3) the source (at the shown pose) or the target, in page coordinates."""
@@ -136,8 +163,11 @@ class PairsPanel:
         spacing = (st.source if which == "source" else st.target).spacing
         with st.lock:
             pts = self.page_points(which)
+        # a scan's points have point_size 0.8 spacing (scene3d.draw_pair), which viser draws 2 x point_size wide (a
+        # point of size 0.1 at 3 units: 26 px, where 0.1 of scene would be 13 px): a click on one is within 0.8 of it
         index = nearest_to_ray(pts, origin, direction, reach=3.0 * spacing / st.display.size,
-                               band=0.75 * spacing / st.display.size)
+                               depth=3.0 * spacing / st.display.size, per_distance=self._per_distance(),
+                               cover=0.8 * spacing / st.display.size)
         if index is None:
             self.tab.notify("No point there", f"the click missed the {which}; click on its points", error=False)
             return None
@@ -193,24 +223,38 @@ class PairsPanel:
         self._markers()
 
     def _markers(self) -> None:
-        """The picks as points, each numbered like its pair in the list (a pending source pick: its pair's number)."""
+        """Each pick as its label ("S1", "T1") centred on the point, over the scans, and a ball of its colour."""
         st, p, scene = self.state, self.pairs, self.tab.client.scene
         d = st.display
         src = p.source_index + ([p.pending] if p.pending is not None else [])
-        size = 6.0 * min(st.source.spacing, st.target.spacing) / d.size
+        radius = BALL * min(st.source.spacing, st.target.spacing) / d.size
         with self.tab.client.atomic():
             for node in self.markers:
                 node.remove()
             self.markers = []
-            if not src:
-                return
-            at_source = d.source_local(st.source.points[src]).reshape(-1, 3)
-            at_target = d.points(st.target.points[p.target_index]).reshape(-1, 3)
-            self.markers.append(scene.add_point_cloud("/source/picks", at_source, SOURCE_PICK_RGB, point_size=size,
-                                                      precision="float32"))
-            self.markers.append(scene.add_point_cloud("/target_picks", at_target, TARGET_PICK_RGB, point_size=size,
-                                                      precision="float32"))
-            for k, xyz in enumerate(at_source):
-                self.markers.append(scene.add_label(f"/source/pick_numbers/{k}", str(k + 1), position=tuple(xyz)))
-            for k, xyz in enumerate(at_target):
-                self.markers.append(scene.add_label(f"/target_pick_numbers/{k}", str(k + 1), position=tuple(xyz)))
+            # the source's picks are children of the moving source node: they move with it; each drawing has names
+            # of its own (scene3d.pair_root says why)
+            nodes = self.tab.nodes
+            nodes.drawn += 1
+            for root, letter, at, rgb in (
+                    (f"{nodes.source.root}/picks{nodes.drawn}", "S",
+                     d.source_local(st.source.points[src]).reshape(-1, 3), SOURCE_PICK_RGB),
+                    (f"{nodes.target.root}_picks{nodes.drawn}", "T",
+                     d.points(st.target.points[p.target_index]).reshape(-1, 3), TARGET_PICK_RGB)):
+                for k, xyz in enumerate(at):
+                    self.markers.append(scene.add_icosphere(f"{root}/{k}/ball", radius=radius, color=rgb,
+                                                            position=tuple(xyz), cast_shadow=False,
+                                                            receive_shadow=False))
+                    self.markers.append(scene.add_label(f"{root}/{k}/label", f"{letter}{k + 1}", position=tuple(xyz),
+                                                        anchor="center-center", depth_test=False))
+
+    def marker_positions(self) -> dict[str, np.ndarray]:
+        """{"S1": (3,), "T1": ...}: where each pick's label is, in page coordinates (the source's at the shown pose)."""
+        st, p = self.state, self.pairs
+        src = p.source_index + ([p.pending] if p.pending is not None else [])
+        out = {}
+        for k, xyz in enumerate(self.page_points("source")[src] if src else []):
+            out[f"S{k + 1}"] = xyz
+        for k, xyz in enumerate(st.display.points(st.target.points[p.target_index]) if p.target_index else []):
+            out[f"T{k + 1}"] = xyz
+        return out

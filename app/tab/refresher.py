@@ -86,7 +86,7 @@ class Refresher:
             self.push(running)
         if self.was_running and not running:
             tab.run_panel.set_controls(running=False)
-            tab.nodes.gizmo.visible = True
+            tab.apply_visibility()  # the gizmo comes back unless the model is shown or points are being picked
             scene3d.move_source(tab.nodes, st, st.T)
             tab.update_status()
             tab.model.residuals.refresh()

@@ -170,8 +170,10 @@ class ScansPanel:
 
     def visibility(self, model: bool) -> Visibility:
         s = self.h.show
+        # the gizmo sits on the source's middle, where point pairs are clicked, and would take those clicks
+        gizmo = not (self.state.running or self.tab.run_drawing or self.tab.pairs.picking)
         return Visibility(bool(s.frustums.value), bool(s.overlap.value), bool(s.surfaces.value), bool(s.path.value),
-                          model)
+                          model, gizmo)
 
     def open_files(self) -> None:
         self.tab.load_pair(self.wb.load_data_file(self.h.file_source.value),

@@ -23,8 +23,10 @@ from rangereg.app.figures import (
     SOURCE_RGB,
     TARGET_OVERLAP_RGB,
     TARGET_RGB,
+    faded,
 )
 from rangereg.app.tab.state import TabState
+from rangereg.app.views import Display
 
 RUN_POINTS = 1500  # while a run moves the scan, each cloud is drawn with at most this many points: software
 # WebGL pays per point, hardly per pixel of a point (bunny pair, 1400 x 900 page, no run: 11-14 frames a second
@@ -39,6 +41,12 @@ MARKER = 0.02  # page units (the target's size is 1): the local minima's markers
 # spacing made them vanish on the bunny and blot the corner)
 VIEW_DIRECTION = (0.55, 0.45, 1.0)  # Fit view looks from here (normalised) when the camera has no direction yet
 FIT_MARGIN = 1.1  # Fit view leaves this much room round what it frames
+FRUSTUM_THICKNESS = 1.0  # screen pixels, in a pale version of the scan's colour (figures.faded): a frustum is
+# context, the scans are content; drawn 1.5 px in the scan's own colour, the bunny's two frustums (hundreds of
+# lines each, reaching far beyond the scans) were most of what the default view showed
+DEFAULT_FOV, DEFAULT_ASPECT = np.radians(50.0), 1.1  # the opening camera's (viser's default vertical field of view;
+# the canvas beside the docked panel: 1116 x 1000 px at a 1600 x 1000 page)
+VIEW_ELEVATION = np.radians(20.0)  # the opening view looks down on the scans this much
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
 
@@ -61,8 +69,8 @@ class CloudNodes:
 
     def show_frustum(self, scene, shown: bool) -> None:
         if shown and self.frustum is None:
-            self.frustum = scene.add_line_segments(f"{self.root}/frustum", self.frustum_segments, self.colour,
-                                                   thickness=1.5, thickness_units="screen")
+            self.frustum = scene.add_line_segments(f"{self.root}/frustum", self.frustum_segments, faded(self.colour),
+                                                   thickness=FRUSTUM_THICKNESS, thickness_units="screen")
         elif not shown and self.frustum is not None:
             self.frustum.remove()
             self.frustum = None
@@ -85,6 +93,8 @@ class SceneNodes:
     path: viser.LineSegmentsHandle
     minima: viser.PointCloudHandle
     model: viser.MeshHandle | None = None
+    model_corners: np.ndarray | None = None  # (8, 3) page points: the drawn model's box (what Fit view frames)
+    drawn: int = 0  # models and pick markers drawn so far: each gets a name of its own (see pair_root)
     shown_lock: threading.Lock = field(default_factory=threading.Lock)  # adds/removes frustums and surfaces (the
     # refresher and callback threads both set what is shown)
 
@@ -102,6 +112,7 @@ class Visibility:
     surfaces: bool
     path: bool
     model: bool
+    gizmo: bool = True  # False while a run holds the scans, the model is shown or point pairs are picked
 
 
 def colours(state: TabState, which: str, overlap: bool) -> np.ndarray:
@@ -122,7 +133,7 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
            overlap: bool) -> CloudNodes:
     d = state.display
     src = which == "source"
-    root, rgb, base = f"/{which}", colours(state, which, overlap), SOURCE_RGB if src else TARGET_RGB
+    root, rgb, base = f"{pair_root(state)}/{which}", colours(state, which, overlap), SOURCE_RGB if src else TARGET_RGB
     to_page = d.source_local if src else d.points
     points = scene.add_point_cloud(f"{root}/points", pts, rgb, point_size=size, precision="float32")
     light = index = None
@@ -152,27 +163,33 @@ def set_lights(scene) -> None:
     scene.add_light_ambient("/ambient", intensity=AMBIENT)
 
 
+def pair_root(state: TabState) -> str:
+    """The scene path every node of the open pair hangs under, new for each pair: viser coalesces a Remove and a
+    Create of one name in one message batch into the Create alone, and a browser that still held the old node kept
+    its pose (a second pair opened on a tab was drawn at the first pair's source pose, off its picks)."""
+    return f"/pair{state.pair}"
+
+
 def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, overlap: bool) -> SceneNodes:
-    """Every node of the pair in ``state`` (call inside ``client.atomic()``)."""
+    """Every node of the pair in ``state`` (call inside ``client.atomic()``), under :func:`pair_root`."""
     d, src, tgt, scene = state.display, state.source, state.target, client.scene
     size = 0.8 * min(src.spacing, tgt.spacing) / d.size
     scene.set_up_direction("+y")
     set_lights(scene)
     wxyz, pos = d.node_pose(state.T)
-    frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
+    root = pair_root(state)
+    frame = scene.add_frame(f"{root}/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)
     source = _cloud(scene, state, "source", d.source_local(src.points), size, frustum_kind, overlap)
-    gizmo = scene.add_transform_controls("/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
+    gizmo = scene.add_transform_controls(f"{root}/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
                                          translation_limits=((-1e6, 1e6),) * 3)
-    path = scene.add_line_segments("/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
-    minima = scene.add_point_cloud("/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
+    path = scene.add_line_segments(f"{root}/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
+    minima = scene.add_point_cloud(f"{root}/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
                                    point_shape="circle")
-    # look from behind the target's sensor, so both scans and their frustums are in view
-    eye = d.points(tgt.viewpoint).astype(np.float64)
-    eye = 1.5 * eye / max(np.linalg.norm(eye), 1e-9) + np.array([0.0, 0.3, 0.0])
+    eye, look_at = default_view(d, tgt, src, state.T, state.frusta[frustum_kind])
     client.camera.up_direction = (0.0, 1.0, 0.0)
     client.camera.position = tuple(eye)
-    client.camera.look_at = (0.0, 0.0, 0.0)
+    client.camera.look_at = tuple(look_at)
     return SceneNodes(frame, source, target, gizmo, path, minima)
 
 
@@ -196,17 +213,32 @@ def recolour(nodes: SceneNodes, state: TabState, overlap: bool) -> None:
             cloud.light.colors = rgb[cloud.light_index]
 
 
-def show_model(scene, nodes: SceneNodes, state: TabState) -> None:
-    model = state.model
+def model_on_page(vertices: np.ndarray, display: Display | None) -> np.ndarray:
+    """(V, 3) float32 page points of a model's vertices (V, 3). ``display``: the pair's, for a model in the target's
+    frame (the pair fused at the shown pose); None for a model in a frame of its own (a campaign's, in its reference
+    scan's frame and units, which need not be the open pair's): it is drawn the way a pair is, its box centred on the
+    page's origin and its diagonal 1."""
+    v = np.asarray(vertices, np.float64)
+    if display is not None:
+        return display.points(v)
+    lo, hi = v.min(0), v.max(0)
+    return ((v - 0.5 * (lo + hi)) / max(float(np.linalg.norm(hi - lo)), 1e-12)).astype(np.float32)
+
+
+def show_model(scene, nodes: SceneNodes, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Draw the model: ``vertices`` (V, 3) page points (:func:`model_on_page`), ``faces`` (F, 3)."""
+    nodes.drawn += 1  # a new name for each model drawn (see pair_root)
     if nodes.model is not None:
         nodes.model.remove()
-    nodes.model = scene.add_mesh_simple("/model", state.display.points(model.vertices), model.faces, color=MODEL_RGB,
-                                        side="double")
+    nodes.model = scene.add_mesh_simple(f"{nodes.target.root.rsplit('/', 1)[0]}/model{nodes.drawn}", vertices, faces,
+                                        color=MODEL_RGB, side="double")
+    nodes.model_corners = _corners(vertices.min(0), vertices.max(0))
 
 
 def apply_visibility(scene, nodes: SceneNodes, show: Visibility, run_drawing: bool) -> None:
     """Which nodes are drawn; ``run_drawing``: a run moves the scan (light clouds, no frustums)."""
     model = show.model and nodes.model is not None
+    nodes.gizmo.visible = show.gizmo and not model
     for cloud in (nodes.source, nodes.target):
         with nodes.shown_lock:
             # frustum wireframes cost a software-rendered page half its frame rate: off while a run draws
@@ -214,6 +246,7 @@ def apply_visibility(scene, nodes: SceneNodes, show: Visibility, run_drawing: bo
             cloud.show_surface(scene, show.surfaces and not model)
         light = run_drawing and cloud.light is not None
         cloud.points.visible = not model and not light
+        cloud.viewpoint.visible = not model
         if cloud.light is not None:
             cloud.light.visible = not model and light
     nodes.path.visible = nodes.minima.visible = show.path
@@ -234,34 +267,34 @@ def draw_path(nodes: SceneNodes, segments: tuple[np.ndarray, np.ndarray], minima
     nodes.minima.points = minima
 
 
-def shown_extent(state: TabState) -> np.ndarray:
-    """(16, 3) page points: the corners of the target's box and of the source's box at the shown pose (what Fit view
-    frames; the frustums reach far beyond the scans and are left out)."""
-    d = state.display
+def _corners(lo, hi) -> np.ndarray:
+    """(8, 3) the corners of the box from ``lo`` (3,) to ``hi`` (3,)."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], np.float64)
 
-    def corners(lo, hi):
-        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
-    tgt, src = state.target.points, state.source.points
+def shown_extent(state: TabState, nodes: SceneNodes | None = None) -> np.ndarray:
+    """(K, 3) page points that Fit view frames: the model's box while the model is shown (``nodes``), else
+    :func:`pair_extent` at the shown pose."""
+    if nodes is not None and nodes.model is not None and nodes.model.visible and nodes.model_corners is not None:
+        return nodes.model_corners
+    return pair_extent(state.display, state.target, state.source, state.T)
+
+
+def pair_extent(d: Display, target, source, T: np.ndarray) -> np.ndarray:
+    """(16, 3) page points: the corners of the target's box and of the source's box at pose ``T`` (the frustums reach
+    far beyond the scans and are left out)."""
+    tgt, src = target.points, source.points
     lo_t, hi_t = np.percentile(tgt, 1, axis=0), np.percentile(tgt, 99, axis=0)  # spurious returns left out
     lo_s, hi_s = np.percentile(src, 1, axis=0), np.percentile(src, 99, axis=0)
-    moved = corners(lo_s, hi_s) @ state.T[:3, :3].T + state.T[:3, 3]
-    return np.r_[d.points(corners(lo_t, hi_t)), d.points(moved)].astype(np.float64)
+    moved = _corners(lo_s, hi_s) @ T[:3, :3].T + T[:3, 3]
+    return np.r_[d.points(_corners(lo_t, hi_t)), d.points(moved)].astype(np.float64)
 
 
-def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:
-    """Point the camera at (K, 3) page points so that all fit the view, looking the way it looks now: the nearest
-    distance at which every point lies inside both the vertical and the horizontal field of view."""
-    cam = client.camera
+def fit_distance(points: np.ndarray, way: np.ndarray, fov: float, aspect: float) -> tuple[np.ndarray, float]:
+    """(centre (3,), distance): looking along -``way`` (3,) (unit, from the eye's side), the nearest distance from the
+    centre of the (K, 3) ``points``' box at which all lie inside the vertical field of view ``fov`` (radians) and the
+    horizontal one (``aspect`` times wider), with FIT_MARGIN to spare."""
     centre = 0.5 * (points.min(0) + points.max(0))
-    try:  # the camera as the browser last reported it
-        way = np.asarray(cam.position, np.float64) - np.asarray(cam.look_at, np.float64)
-        fov, aspect = float(cam.fov), float(cam.aspect)  # fov: vertical, radians
-    except (AssertionError, ZeroDivisionError):  # nothing reported yet
-        way, fov, aspect = np.zeros(3), np.radians(50.0), 1.0
-    if not np.linalg.norm(way) > 1e-9:
-        way = np.asarray(VIEW_DIRECTION, np.float64)
-    way = way / np.linalg.norm(way)
     up = np.array([0.0, 1.0, 0.0])
     right = np.cross(up, way)
     if np.linalg.norm(right) < 1e-9:  # looking straight down or up
@@ -272,10 +305,59 @@ def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:
     x, y, toward = np.abs(rel @ right), np.abs(rel @ up), rel @ way
     tan_v = np.tan(fov / 2) / FIT_MARGIN
     tan_h = tan_v * aspect
-    distance = float(np.max(toward + np.maximum(x / tan_h, y / tan_v)))
-    distance = max(distance, 1e-3)
-    cam.position = tuple(centre + distance * way)  # first: a new position moves the look-at point along with it
-    cam.look_at = tuple(centre)
+    return centre, max(float(np.max(toward + np.maximum(x / tan_h, y / tan_v))), 1e-3)
+
+
+def default_view(d: Display, target, source, T: np.ndarray, frusta, extra: np.ndarray | None = None,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(eye, look_at) page points of the opening view: the scans framed (and the (K, 3) page points ``extra``), from
+    outside both drawn frustums (``frusta``: (source's, target's)), looking down VIEW_ELEVATION and from as near the
+    target sensor's side (where its scanned surface faces) as that allows."""
+    points = pair_extent(d, target, source, T)
+    if extra is not None:
+        points = np.r_[points, extra]
+    sensor = d.points(target.viewpoint).astype(np.float64) - 0.5 * (points.min(0) + points.max(0))
+    sensor[1] = 0.0
+    sensor = sensor / np.linalg.norm(sensor) if np.linalg.norm(sensor) > 1e-9 else np.array([0.0, 0.0, 1.0])
+    best = None
+    for turn in np.radians([35, -35, 55, -55, 75, -75, 95, -95, 20, -20, 0, 120, -120, 150, -150, 180]):
+        c, s_ = np.cos(turn), np.sin(turn)
+        flat = np.array([c * sensor[0] + s_ * sensor[2], 0.0, -s_ * sensor[0] + c * sensor[2]])
+        way = np.cos(VIEW_ELEVATION) * flat + np.array([0.0, np.sin(VIEW_ELEVATION), 0.0])
+        centre, distance = fit_distance(points, way, DEFAULT_FOV, DEFAULT_ASPECT)
+        eye = centre + distance * way
+        if not _inside_frusta(eye, d, T, frusta):
+            return eye, centre
+        best = best or (eye, centre)
+    return best  # inside a frustum from every side (a panorama's): the first of them
+
+
+def _inside_frusta(eye: np.ndarray, d: Display, T: np.ndarray, frusta) -> bool:
+    """Whether the page point ``eye`` (3,) lies in the drawn part (up to ``far``) of the source's or target's
+    frustum."""
+    in_target = eye * d.size + d.centre
+    in_source = (in_target - T[:3, 3]) @ T[:3, :3]  # T^-1: the source's frame
+    for f, p in zip(frusta, (in_source, in_target)):
+        _, depth = f.project(p[None])
+        if 0 < depth[0] <= f.far and bool(f.contains(p[None])[0]):
+            return True
+    return False
+
+
+def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:
+    """Point the camera at (K, 3) page points so that all fit the view, looking the way it looks now: the nearest
+    distance at which every point lies inside both the vertical and the horizontal field of view."""
+    cam = client.camera
+    try:  # the camera as the browser last reported it
+        way = np.asarray(cam.position, np.float64) - np.asarray(cam.look_at, np.float64)
+        fov, aspect = float(cam.fov), float(cam.aspect)  # fov: vertical, radians
+    except (AssertionError, ZeroDivisionError):  # nothing reported yet
+        way, fov, aspect = np.zeros(3), DEFAULT_FOV, 1.0
+    if not np.linalg.norm(way) > 1e-9:
+        way = np.asarray(VIEW_DIRECTION, np.float64)
+    centre, distance = fit_distance(points, way / np.linalg.norm(way), fov, aspect)
+    cam.position = tuple(centre + distance * way / np.linalg.norm(way))  # first: a new position moves the look-at
+    cam.look_at = tuple(centre)  # point along with it
 
 
 def clear_path(nodes: SceneNodes) -> None:

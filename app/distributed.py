@@ -128,8 +128,8 @@ class Progress:
     """``done / total`` with elapsed time and an ETA, one line at most every ``every`` seconds (and the
     last). A later map of the same work (a merge's second round of pairs) continues it: :meth:`extend`
     adds its tasks to the total and names it, so done, total and the ETA count every round. The ETA and
-    :meth:`rate` are the median task time: the first tasks of a process also build what later ones reuse
-    (a merge's scans), which a mean would spread over every task left."""
+    :meth:`rate` leave the first 3 tasks out: the first tasks of a process build what later ones reuse
+    (a merge's scans), and alone say nothing of the rest."""
 
     def __init__(self, total: int, label: str, write: Callable[[str], None] | None, every: float = 2.0):
         self.total, self.label, self.write, self.every = total, label, write, every
@@ -159,11 +159,9 @@ class Progress:
         self.write(f"{self.label} {self.done}/{self.total}, {_clock(now - self.t0)} elapsed, {tail}")
 
     def rate(self) -> float:
-        """Seconds per task so far, the median (0 before the first)."""
-        if not self.durations:
-            return 0.0
-        ordered = sorted(self.durations)
-        return ordered[len(ordered) // 2]
+        """Seconds per task so far, the mean less the first 3 tasks (0 before a task past them)."""
+        steady = self.durations[3:]
+        return sum(steady) / len(steady) if steady else 0.0
 
 
 def _clock(seconds: float) -> str:

@@ -69,7 +69,7 @@ def join_tasks(c: _Campaign, g: Graph, used: list[tuple[int, int]]) -> list[Pair
         by_cue = set()
         for u in inside:
             if any(untried(c, key(u, m), Start.NO_GUESS) for m in placed):  # the cue's features only when needed
-                best = sorted(placed, key=lambda m: (-c.cue.score(u, m), m))[:c.mc.join_partners]
+                best = c.cue.rank(u, among=placed)[:c.mc.join_partners]
                 by_cue |= {key(u, m) for m in best}
         order = ([(p, Start.NO_GUESS) for p in by_ring] + [(p, Start.ROUGH_POSES) for p in rough]
                  + [(p, Start.NO_GUESS) for p in sorted(by_cue, key=lambda p: (-c.cue.score(*p), p))])

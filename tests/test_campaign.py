@@ -142,6 +142,12 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     assert len(closing) == 1 and closing[0]["status"] == "used" and closing[0]["trusted"]
     assert rep["graph"]["used"] + rep["graph"]["rejected"] == rep["graph"]["pairs"]
     assert all(rep["placed"]) and all(r["cycle_residual"]["rotation_deg"] < 2.0 for r in rep["scan_reports"])
+    assert all(r["status"] == "placed" for r in rep["scan_reports"])
+    assert all((p["rejection"] is None) == (p["status"] == "used") for p in rep["pairs"])
+    # the ring round the table closes: its closing pair missed the chain by little, and by less once optimised
+    ring = rep["rings"][0]
+    assert len(ring["scans"]) >= 3 and ring["closing_residual"]["rotation_deg"] < 2.0
+    assert ring["after"]["rotation_deg"] <= ring["closing_residual"]["rotation_deg"] + 1e-9
     assert rep["model"]["triangles"] > 0
     assert rep["workers"] == 1 and rep["threads_per_worker"] is None  # serial: the libraries' own threads
 

@@ -62,7 +62,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from rangereg.app.distributed import TaskRunner, stderr_lines  # noqa: E402
-from rangereg.core.merge import MergeConfig, clear_geometry_cache, merge  # noqa: E402
+from rangereg.core.merge import MergeConfig, PairStatus, clear_geometry_cache, merge  # noqa: E402
 from rangereg.core.simulate import Scanner  # noqa: E402
 from rangereg.core.transforms import invert, pose_error  # noqa: E402
 from rangereg.core.turntable import (  # noqa: E402
@@ -285,7 +285,7 @@ def main() -> int:
     first = rows["equal", 1][0][0]
     same = all(np.array_equal(x, y) for runs in rows.values() for r, *_ in runs for x, y in zip(first.poses, r.poses))
     print(f"\npairs: {len(first.pairs)} registered, {len(first.used)} used, "
-          f"{sum(p.status == 'rejected' for p in first.pairs)} rejected by the pose graph")
+          f"{sum(p.status is PairStatus.REJECTED for p in first.pairs)} rejected by the pose graph")
     loads = [x for runs in rows.values() for *_, x, _ in runs]
     print(f"medians of {a.repeat} interleaved runs each (load average after the runs {min(loads):.1f}-{max(loads):.1f}):")
     med = lambda t, w, f: float(np.median([f(*r) for r in rows[t, w]]))  # noqa: E731

@@ -45,9 +45,10 @@ def labels(n: int, pairs) -> list[int]:
     return components(n, [p.key if isinstance(p, Candidate) else tuple(p[:2]) for p in pairs])
 
 
-def choose(overlaps: list[Candidate], n: int, mode: str, mc: MergeConfig) -> list[Candidate]:
+def choose(overlaps: list[Candidate], n: int, mode: str, mc: MergeConfig, long: bool = True) -> list[Candidate]:
     """Candidate pairs from measured overlaps: "overlap" every pair above min_overlap; "init" each scan's
-    max_partners best (both ways, or either where that leaves separate groups); "chain" as given above
+    max_partners best (both ways, or either where that leaves separate groups; ``long``: half of them
+    long links, :func:`partners`, else all by the largest overlap); "chain" as given above
     min_overlap_any. A scan left with none keeps its best above min_overlap_any."""
     floor = mc.min_overlap_any if mode == "chain" else mc.min_overlap
     chosen = [c for c in overlaps if c.overlap >= floor]
@@ -55,8 +56,7 @@ def choose(overlaps: list[Candidate], n: int, mode: str, mc: MergeConfig) -> lis
         # a pair both of whose scans count the other among their best partners (the union where that
         # leaves separate groups): a scan seen from behind can look overlapping near its silhouette
         # (12-stop turntable: 48 % "overlap" at 180 degrees, ranked 4th by the far scan alone)
-        best = {k: {c.key for c in sorted((c for c in chosen if k in c.key), key=lambda c: -c.overlap)[:mc.max_partners]}
-                for k in range(n)}
+        best = {k: partners(chosen, k, mc, long) for k in range(n)}
         mutual = [c for c in chosen if c.key in best[c.i] and c.key in best[c.j]]
         either = [c for c in chosen if c.key in best[c.i] or c.key in best[c.j]]
         chosen = mutual if len(set(labels(n, mutual))) == 1 else either
@@ -87,6 +87,17 @@ def _looks(c: _Campaign, poses: list, ks: list[int]) -> tuple[np.ndarray, np.nda
     sensor = np.array([poses[k][:3, :3] @ c.scans[k].viewpoint + poses[k][:3, 3] for k in ks])
     look = centre - sensor
     return look / np.maximum(np.linalg.norm(look, axis=1, keepdims=True), 1e-12), centre
+
+
+def partners(chosen: list[Candidate], k: int, mc: MergeConfig, long: bool = True) -> set[tuple[int, int]]:
+    """Scan k's best partners (keys): half its max_partners by the largest overlap, the others the pairs
+    that overlap least while still by long_overlap (long links: where the scans stand close, as 500 stops
+    of a turntable do, the best by overlap are all within 2 stops and the graph drifts along them)."""
+    mine = sorted((c for c in chosen if k in c.key), key=lambda c: (-c.overlap, c.key))
+    near = mine[:(mc.max_partners + 1) // 2 if long else mc.max_partners]
+    far = [c for c in mine[len(near):] if c.overlap >= mc.long_overlap][::-1][:mc.max_partners - len(near)]
+    rest = [c for c in mine[len(near):] if c not in far][:mc.max_partners - len(near) - len(far)]
+    return {c.key for c in near + far + rest}
 
 
 def likeliest(c: _Campaign, poses: list, partners: int, among: list[int] | None = None,

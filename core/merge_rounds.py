@@ -62,7 +62,8 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
         if (i, j) in c.pairs and c.tried[i, j] == 1 and f >= c.mc.min_overlap:
             tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start=Start.GRAPH_POSE))
     fresh = [Candidate(i, j, f) for (i, j), f in over.items() if (i, j) not in c.pairs]
-    for x in choose(fresh + [Candidate(i, j, 1.0) for i, j in used], c.n, "init", c.mc):
+    # the best by overlap (no long links: those were round 1's, and the used pairs count as the best)
+    for x in choose(fresh + [Candidate(i, j, 1.0) for i, j in used], c.n, "init", c.mc, long=False):
         if x.key not in c.pairs and x.key in over:
             tasks.append(PairTask(x.i, x.j, invert(P[x.i]) @ P[x.j], found, None, start=Start.GRAPH_POSE))
     c.skipped |= {p for p, f in over.items() if p not in c.pairs and f < c.mc.min_overlap}

@@ -9,7 +9,7 @@ first scan's frame when its group is the largest, else in the largest group's fi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -17,8 +17,9 @@ from .merge_pairs import labels
 from .merge_result import PairResult, Rejection
 from .posegraph import Edge, Graph, Tolerance, information_matrix, solve
 
-if TYPE_CHECKING:
-    from .merge import _Campaign
+# core.merge's campaign state and knobs, by name only: core.merge imports this module
+_Campaign = Any
+
 
 
 @dataclass(frozen=True)

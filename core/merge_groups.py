@@ -18,7 +18,7 @@ not placed only when every one of them was tried and said why.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 from .merge_pairs import key, labels
 from .merge_result import Start
@@ -26,8 +26,9 @@ from .merge_tasks import PairTask
 from .posegraph import Graph
 from .turntable import arc_ends
 
-if TYPE_CHECKING:
-    from .merge import _Campaign
+# core.merge's campaign state and knobs, by name only: core.merge imports this module
+_Campaign = Any
+
 
 
 def groups(c: _Campaign, g: Graph, used: list[tuple[int, int]]) -> list[list[int]]:

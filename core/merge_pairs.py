@@ -9,7 +9,7 @@ pair up to ``all_pairs_up_to`` scans, else each scan's likeliest neighbours by t
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -19,8 +19,10 @@ from .merge_tasks import PairTask, overlap_task
 from .posegraph import components
 from .region import Region
 
-if TYPE_CHECKING:
-    from .merge import MergeConfig, _Campaign
+# core.merge's campaign state and knobs, by name only: core.merge imports this module
+_Campaign = Any
+MergeConfig = Any
+
 
 
 @dataclass(frozen=True)

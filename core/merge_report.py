@@ -4,15 +4,18 @@ and why not, and the loops the final graph closes with their closing residuals."
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from . import merge_graph
 from .merge_result import PairResult, PairStatus, Rejection, Ring, ScanReport, ScanStatus
 from .posegraph import Graph, residual
 
 if TYPE_CHECKING:
-    from .merge import _Campaign
     from .merge_graph import Screened
+
+# core.merge's campaign state and knobs, by name only: core.merge imports this module
+_Campaign = Any
+
 
 
 def pair_statuses(c: _Campaign, g: Graph, screened: Screened) -> list[PairResult]:

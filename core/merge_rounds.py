@@ -13,7 +13,7 @@ match: it could not be trusted).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,8 +26,11 @@ from .posegraph import Graph
 from .transforms import invert
 
 if TYPE_CHECKING:
-    from .merge import _Campaign
     from .merge_graph import Screened
+
+# core.merge's campaign state and knobs, by name only: core.merge imports this module
+_Campaign = Any
+
 
 
 def near_pairs(c: _Campaign, g: Graph, used: set) -> list[tuple[int, int]]:

@@ -127,13 +127,15 @@ def cluster_pays(seconds_left: float, cores: int | None = None, load: float | No
 class Progress:
     """``done / total`` with elapsed time and an ETA, one line at most every ``every`` seconds (and the
     last). A later map of the same work (a merge's second round of pairs) continues it: :meth:`extend`
-    adds its tasks to the total and names it, so done, total and the ETA count every round."""
+    adds its tasks to the total and names it, so done, total and the ETA count every round. The ETA and
+    :meth:`rate` leave the first 3 tasks out: the first tasks of a process build what later ones reuse
+    (a merge's scans), and alone say nothing of the rest."""
 
     def __init__(self, total: int, label: str, write: Callable[[str], None] | None, every: float = 2.0):
         self.total, self.label, self.write, self.every = total, label, write, every
         self.done = 0
         self.t0 = time.perf_counter()
-        self.busy = 0.0  # seconds spent inside maps of this work (the ETA's rate; not the time between rounds)
+        self.durations: list[float] = []  # per task, inside maps of this work (not the time between rounds)
         self._since = self.t0
         self._last = -1e9
 
@@ -142,23 +144,24 @@ class Progress:
         self.label = label
         self._since = time.perf_counter()
 
-    def step(self) -> None:
-        self.done += 1
+    def step(self, count: int = 1) -> None:
+        """``count`` more tasks done (a cluster's batch: they share the wait)."""
+        self.done += count
         now = time.perf_counter()
-        self.busy += now - self._since
+        self.durations.extend([(now - self._since) / count] * count)
         self._since = now
         if self.write is None:
             return
         if self.done < self.total and now - self._last < self.every:
             return
         self._last = now
-        eta = self.busy / self.done * (self.total - self.done)
-        tail = f"ETA {_clock(eta)}" if self.done < self.total else "done"
+        tail = f"ETA {_clock(self.rate() * (self.total - self.done))}" if self.done < self.total else "done"
         self.write(f"{self.label} {self.done}/{self.total}, {_clock(now - self.t0)} elapsed, {tail}")
 
     def rate(self) -> float:
-        """Seconds per task so far (0 before the first)."""
-        return self.busy / self.done if self.done else 0.0
+        """Seconds per task so far, the mean less the first 3 tasks (0 before a task past them)."""
+        steady = self.durations[3:]
+        return sum(steady) / len(steady) if steady else 0.0
 
 
 def _clock(seconds: float) -> str:
@@ -261,11 +264,14 @@ class TaskRunner:
             self.cluster.close()
         self.client = self.cluster = None
 
-    def map(self, fn: Callable, items: Sequence[Any], shared: Any = None, label: str | None = None) -> list:
+    def map(self, fn: Callable, items: Sequence[Any], shared: Any = None, label: str | None = None,
+            done: Callable[[int], None] | None = None) -> list:
         """``[fn(shared, item) ...]`` (or ``fn(item)`` when ``shared`` is None), in the order of ``items``.
-        ``label`` names the work in progress lines; a later map of the same ``fn`` continues its count."""
+        ``label`` names the work in progress lines; a later map of the same ``fn`` continues its count.
+        ``done(count)``: called as tasks finish with this map's count so far (the caller then renders
+        the progress: this runner writes no count lines of its own for the map)."""
         items = list(items)
-        bar = self._bar(fn, items, label)
+        bar = self._bar(fn, items, label, quiet=done is not None)
         one = (lambda item: fn(item)) if shared is None else (lambda item: fn(shared, item))
         if self.client is None and (self.serial or len(items) < 2):  # one task: a cluster would only add its start
             out = []
@@ -273,23 +279,27 @@ class TaskRunner:
                 for k, item in enumerate(items):
                     out.append(one(item))
                     bar.step()
-                    if self.auto and self._pays(bar.rate() * (len(items) - k - 1), len(items) - k - 1):
-                        return out + self._on_cluster(fn, items[k + 1:], shared, bar)
+                    if done is not None:
+                        done(k + 1)
+                    if self.auto and self._pays(bar.rate() * (len(items) - k - 1), len(items) - k - 1, k + 1):
+                        return out + self._on_cluster(fn, items[k + 1:], shared, bar, done, k + 1)
             return out
-        return self._on_cluster(fn, items, shared, bar)
+        return self._on_cluster(fn, items, shared, bar, done)
 
-    def _bar(self, fn: Callable, items: list, label: str | None) -> Progress:
+    def _bar(self, fn: Callable, items: list, label: str | None, quiet: bool = False) -> Progress:
         key = getattr(fn, "__name__", "task").removesuffix("_task") + "s"
         label = label or key
         if key in self.bars:
             self.bars[key].extend(len(items), label)
         else:
             self.bars[key] = Progress(len(items), label, self.say)
+        self.bars[key].write = None if quiet else self.say
         return self.bars[key]
 
-    def _pays(self, seconds_left: float, left: int) -> bool:
-        """workers=None: start the local cluster now (and say why) when the work left pays for it."""
-        if left < 2:
+    def _pays(self, seconds_left: float, left: int, done: int = 3) -> bool:
+        """workers=None: start the local cluster now (and say why) when the work left pays for it. Not
+        before 3 tasks are done: the first of a process builds what the later reuse."""
+        if left < 2 or done < 3:
             return False
         pays, why = cluster_pays(seconds_left)
         if pays or seconds_left >= self._most_left:  # the plain loop's reason: its closest call
@@ -300,7 +310,8 @@ class TaskRunner:
             self.say(f"starting {self.choice}")
         return pays
 
-    def _on_cluster(self, fn: Callable, items: list, shared: Any, bar: Progress) -> list:
+    def _on_cluster(self, fn: Callable, items: list, shared: Any, bar: Progress,
+                    done: Callable[[int], None] | None = None, before: int = 0) -> list:
         from distributed import as_completed
 
         self.start()
@@ -317,11 +328,15 @@ class TaskRunner:
         from distributed.comm.core import CommClosedError
 
         try:
+            finished = before
             for fut in as_completed(futures):
                 if fut.status == "error":
                     fut.result()  # raises the task's own exception (an InputError stays one)
-                for _ in range(len(batches[futures.index(fut)])):
-                    bar.step()
+                count = len(batches[futures.index(fut)])
+                bar.step(count)
+                finished += count
+                if done is not None:
+                    done(finished)
             return [r for part in self.client.gather(futures) for r in part]
         # the cluster, not the input: one line (app.cli); a lost scheduler cancels the futures
         except (KilledWorker, CommClosedError, CancelledError) as exc:

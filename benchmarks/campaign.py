@@ -7,6 +7,8 @@
     python benchmarks/campaign.py --scans 36 --workers 4 --pairs overlap
     python benchmarks/campaign.py --write DIR          # only write the campaign (PLY + .conf) into DIR
     python benchmarks/campaign.py --smallest           # 6 scans, ICP pairs, one run each: it runs
+    python benchmarks/campaign.py --scale 100 500      # campaigns of 100 and 500 stops, rough poses and none
+    python benchmarks/campaign.py --uncalibrated       # 15 stops, every pose the identity, and no poses
 
 --families (the rules, fixed before any result was looked at): the 24-stop campaign of seed 0; starts
 "frame" (each true pose turned 15 degrees about its scan frame's origin, the sensor, on a seeded
@@ -20,6 +22,15 @@ scan is right within 2 degrees and 2 mm of the truth relative to the first (benc
 written as files and merged by ``rangereg merge ... --init --rotation-uncertainty 15 --json`` in
 this process (its defaults: the plain loop until a cluster pays); the report's seconds (files read to
 model written), the whole command's, and whether every scan is right. Target: <= 60 s on 2 cores.
+
+--scale N...: turntables of N stops (seed 0, a 40 x 40 range image: 0.6-0.8k points a scan, so that 500
+stops stay minutes), from the "frame" starts (15 degrees about the sensor, 10 % of the size) and from no
+poses; per campaign the merge's seconds, registrations, overlaps measured, right / wrong / not placed,
+and the progress estimates checked against the time the tasks then took (core.merge_progress.Forecast).
+
+--uncalibrated (the proxy for a turntable nobody calibrated, as the dragon's 15 stops): the default
+24-stop scanner at 15 stops, every initial pose the identity (told 15 degrees, the default), and no
+poses at all; right within 2 degrees and 2 mm.
 
 The speed-up comparison (no mode flag):
 
@@ -51,7 +62,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from rangereg.app.distributed import TaskRunner, stderr_lines  # noqa: E402
-from rangereg.core.merge import MergeConfig, clear_geometry_cache, merge  # noqa: E402
+from rangereg.core.merge import MergeConfig, PairStatus, clear_geometry_cache, merge  # noqa: E402
 from rangereg.core.simulate import Scanner  # noqa: E402
 from rangereg.core.transforms import invert, pose_error  # noqa: E402
 from rangereg.core.turntable import (  # noqa: E402
@@ -136,6 +147,64 @@ def large(a) -> int:
     return 0 if right == 10 and rep["seconds"] <= 60 else 1
 
 
+SCALE = Scanner(rows=40, cols=40, fov_deg=(24.0, 24.0), noise=0.3, outliers=0.02, jitter=0.35)
+
+
+def _one(camp, scans, initial, rotation_deg: float | None, workers, label: str) -> tuple:
+    """One merge scored: (row text, Outcome, MergeResult)."""
+    from benchmarks.campaign_runs import load, ours
+
+    mine, res = ours(scans, [s.pose for s in camp.scans], initial, rotation_deg or 15.0, seed=camp.seed,
+                     workers=workers)
+    fc = "; ".join(f"{f.step} r{f.round}: {f.left} tasks est {f.estimated:.1f} s, took {f.measured:.1f} s"
+                   for f in res.forecasts if f.left >= 20) or "no long map"
+    rings = f"largest loop {len(res.rings[0].order)} scans, closing residual {res.rings[0].residual[0]:.3f} deg / " \
+            f"{res.rings[0].residual[1]:.3f} mm, after {res.rings[0].after[0]:.3f} deg" if res.rings else "no loop"
+    row = (f"{label}: {mine.right}/{len(scans)} right, {mine.wrong} wrong, {mine.unplaced} not placed; "
+           f"{mine.seconds:.1f} s (pairwise {res.pair_seconds:.1f}, overlaps {res.overlap_seconds:.1f}); "
+           f"{res.registrations} registrations in {res.rounds} rounds, {res.skipped} pairs skipped by overlap; "
+           f"worst {mine.worst()}; {rings}; forecasts: {fc}; {load()}")
+    return row, mine, res
+
+
+def scale(a) -> int:
+    from benchmarks.campaign_runs import load
+
+    print(f"{load()} before")
+    times = {}
+    ok = True
+    for n in a.scale:
+        camp = make_campaign(a.seed, TurntableConfig(scans=n, scanner=SCALE))
+        truth = [s.pose for s in camp.scans]
+        starts = {"frame": rough_poses(truth, "frame", OFFSET_DEG, SHIFT_SHARE * camp.size, a.seed)}
+        if not a.rough_only:
+            starts["no poses"] = None
+        for name, initial in starts.items():
+            row, mine, _ = _one(camp, camp.scans, initial, OFFSET_DEG, a.run_workers, f"{n} stops, {name}")
+            times[n, name] = mine.seconds
+            ok &= mine.wrong == 0
+            print(row, flush=True)
+    base = min(a.scale)
+    for (n, name), t in sorted(times.items()):
+        if n != base and (base, name) in times:
+            print(f"{name}: {n} stops / {base} stops = {t / times[base, name]:.2f} x the time "
+                  f"({n / base:.0f} x the scans)")
+    return 0 if ok else 1
+
+
+def uncalibrated(a) -> int:
+    from benchmarks.campaign_runs import load
+
+    camp = make_campaign(a.seed, TurntableConfig(scans=15))
+    print(f"{camp!r}; {load()} before")
+    ok = True
+    for name, initial in (("identity poses, told 15 deg", [np.eye(4)] * 15), ("no poses", None)):
+        row, mine, _ = _one(camp, camp.scans, initial, OFFSET_DEG, a.run_workers, f"15 stops, {name}")
+        ok &= mine.right == 15
+        print(row, flush=True)
+    return 0 if ok else 1
+
+
 def run(camp, initial, workers: int, threads: int | None, pairs: str, quiet: bool, config=None) -> tuple:
     """One merge: (MergeResult, end-to-end seconds, cluster start seconds, CPU seconds of the merge in
     (this process, each worker)); CPU time, unlike wall time, barely depends on the machine's load."""
@@ -175,7 +244,14 @@ def main() -> int:
     p.add_argument("--large", action="store_true", help="10 scans of ~40k points from rough poses, timed")
     p.add_argument("--run-workers", type=int, default=None, help="--families / --large: as merge --workers "
                    "(default: merge's own choice)")
+    p.add_argument("--scale", type=int, nargs="+", help="campaigns of these many stops (module notes)")
+    p.add_argument("--rough-only", action="store_true", help="--scale: only the rough starts")
+    p.add_argument("--uncalibrated", action="store_true", help="15 stops from identity poses and from none")
     a = p.parse_args()
+    if a.scale:
+        return scale(a)
+    if a.uncalibrated:
+        return uncalibrated(a)
     if a.families:
         return families(a)
     if a.large:
@@ -209,7 +285,7 @@ def main() -> int:
     first = rows["equal", 1][0][0]
     same = all(np.array_equal(x, y) for runs in rows.values() for r, *_ in runs for x, y in zip(first.poses, r.poses))
     print(f"\npairs: {len(first.pairs)} registered, {len(first.used)} used, "
-          f"{sum(p.status == 'rejected' for p in first.pairs)} rejected by the pose graph")
+          f"{sum(p.status is PairStatus.REJECTED for p in first.pairs)} rejected by the pose graph")
     loads = [x for runs in rows.values() for *_, x, _ in runs]
     print(f"medians of {a.repeat} interleaved runs each (load average after the runs {min(loads):.1f}-{max(loads):.1f}):")
     med = lambda t, w, f: float(np.median([f(*r) for r in rows[t, w]]))  # noqa: E731

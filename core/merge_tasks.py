@@ -19,8 +19,10 @@ import numpy as np
 from .errors import InputError
 from .frustum import frustum_of, visible_from
 from .fuse import sample_quality
+from .merge_result import Start
 from .quiet import quiet_open3d
 from .register import Config, register
+from .result import Stop
 from .scan import Scan
 from .surface import Surface
 from .transforms import apply, from_params, invert, pose_error
@@ -47,13 +49,15 @@ class PairTask:
     """Register scan j onto scan i from T0 (T_i_j guess) in the stated region (rotation_deg about the
     guess; translation in units, None: unstated); ``attempt`` numbers the registrations of this pair."""
 
+
     i: int
     j: int
     T0: np.ndarray
     rotation_deg: float
     translation: float | None
     attempt: int = 0
-    start: str = "rough poses"  # what the guess is, for the report: "rough poses", "no guess", "graph pose"
+    start: Start = Start.ROUGH_POSES  # what the guess is, for the report
+    fallback_steps: int | None = None  # the hybrid's steps when no candidate is trusted (None: the config's)
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,7 +66,8 @@ class PairOutcome:
     its pose before the polish, which moves it by hundredths of a degree; trusted: the pair threshold's verdict;
     misfit: its measure (None: too little overlap to judge); within_region: inside the stated region;
     share: the smaller share of either scan lying within the polish gate of the other at T; stop: why
-    the search stopped; seconds: the task's wall time."""
+    the search stopped (the core's Stop; None: the registration refused the pair, ``failure`` says
+    why); seconds: the task's wall time."""
 
     T: np.ndarray
     error: float
@@ -70,8 +75,9 @@ class PairOutcome:
     misfit: float | None
     within_region: bool | None
     share: float
-    stop: str
+    stop: Stop | None
     seconds: float
+    failure: str = ""
 
 
 def verdict(res) -> tuple[bool, float | None, bool | None]:
@@ -202,11 +208,13 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     problem = replace(shared.config.problem, rotation_uncertainty_deg=task.rotation_deg,
                       translation_uncertainty=task.translation)
     config = replace(shared.config, method="global", seed=seed, problem=problem)
+    if task.fallback_steps is not None:
+        config = replace(config, candidates=replace(config.candidates, fallback_steps=task.fallback_steps))
     try:
         res = register(source, target, task.T0, config)
     except InputError as exc:  # e.g. no overlap at the guess or at a candidate: a pair that did not register
-        return PairOutcome(task.T0, float("inf"), False, None, None, 0.0, f"not registered: {exc}",
-                           time.perf_counter() - t0)
+        return PairOutcome(task.T0, float("inf"), False, None, None, 0.0, None, time.perf_counter() - t0,
+                           failure=str(exc))
     trusted, misfit, within = verdict(res)
     T = res.transform
     if trusted:
@@ -218,7 +226,7 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
         if rot < 1.0 and move < 2 * spacing:  # a polish only polishes: one that wanders is not taken
             T = P
     return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
-                       res.stop_text, time.perf_counter() - t0)
+                       res.stop, time.perf_counter() - t0)
 
 
 def polish(points: np.ndarray, target: Scan, surface: Surface, normals: np.ndarray, T: np.ndarray,

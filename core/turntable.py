@@ -212,3 +212,42 @@ def write_campaign(out: str | Path, seed: int = 0, config: TurntableConfig | Non
     write_conf(out / "init" / "perturbed.conf", names, camp.perturbed)
     write_conf(out / "init" / "chain.conf", names, camp.chain)
     return camp
+
+
+def shared_axis(rotations: list[np.ndarray], min_turn_deg: float = 10.0,
+                tolerance_deg: float = 20.0) -> np.ndarray | None:
+    """The unit axis (in the rotations' frame) about which the relative rotations ``R_k R_0^T`` of a
+    group of scans all turn, as a turntable's do; None when they do not share one, or turn by less than
+    ``min_turn_deg`` (too little to tell). ``tolerance_deg``: how far a turn's axis may lean off the
+    shared one (the simulated turntable's sensor elevation jitters by +-4 deg, which leans the relative
+    rotation of two stops 24 deg apart by up to ~18 deg)."""
+    if len(rotations) < 2:
+        return None
+    vecs = np.array([Rotation.from_matrix(R @ rotations[0].T).as_rotvec() for R in rotations[1:]])
+    turn = np.degrees(np.linalg.norm(vecs, axis=1))
+    big = vecs[turn >= min_turn_deg]
+    if len(big) == 0:
+        return None
+    w, v = np.linalg.eigh(big.T @ big)
+    axis = v[:, -1]
+    lean = np.degrees(np.arccos(np.clip(np.abs(big @ axis) / np.linalg.norm(big, axis=1), 0.0, 1.0)))
+    return axis if bool(np.all(lean <= tolerance_deg)) else None
+
+
+def arc_ends(rotations: list[np.ndarray]) -> tuple[int, int] | None:
+    """The indices of the two scans at the ends of the arc a group of turntable scans covers (either side
+    of the largest gap between their angles about the shared axis): where a group missing its
+    neighbours meets the rest of the ring. One scan: itself twice; None when they share no axis."""
+    if len(rotations) == 1:
+        return 0, 0
+    axis = shared_axis(rotations)
+    if axis is None:
+        return None
+    angle = np.array([0.0] + [float(Rotation.from_matrix(R @ rotations[0].T).as_rotvec() @ axis)
+                              for R in rotations[1:]])
+    angle = np.degrees(angle) % 360.0
+    order = np.argsort(angle, kind="stable")
+    ring = angle[order]
+    gaps = np.diff(np.r_[ring, ring[0] + 360.0])
+    g = int(np.argmax(gaps))
+    return int(order[g]), int(order[(g + 1) % len(order)])

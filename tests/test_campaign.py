@@ -16,6 +16,7 @@ from rangereg.app.access import free_port
 from rangereg.core.errors import InputError
 from rangereg.core.io import load_conf, load_scan
 from rangereg.core.merge import merge
+from rangereg.core.merge_progress import Step
 from rangereg.core.simulate import Scanner
 from rangereg.core.transforms import pose_error
 from rangereg.core.turntable import TurntableConfig, make_campaign, write_campaign
@@ -141,6 +142,12 @@ def test_a_small_campaign_merges_within_a_degree_and_half_a_percent(serial, fold
     assert len(closing) == 1 and closing[0]["status"] == "used" and closing[0]["trusted"]
     assert rep["graph"]["used"] + rep["graph"]["rejected"] == rep["graph"]["pairs"]
     assert all(rep["placed"]) and all(r["cycle_residual"]["rotation_deg"] < 2.0 for r in rep["scan_reports"])
+    assert all(r["status"] == "placed" for r in rep["scan_reports"])
+    assert all((p["rejection"] is None) == (p["status"] == "used") for p in rep["pairs"])
+    # the ring round the table closes: its closing pair missed the chain by little, and by less once optimised
+    ring = rep["rings"][0]
+    assert len(ring["scans"]) >= 3 and ring["closing_residual"]["rotation_deg"] < 2.0
+    assert ring["after"]["rotation_deg"] <= ring["closing_residual"]["rotation_deg"] + 1e-9
     assert rep["model"]["triangles"] > 0
     assert rep["workers"] == 1 and rep["threads_per_worker"] is None  # serial: the libraries' own threads
 
@@ -165,9 +172,9 @@ def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
     from rangereg.app.distributed import TaskRunner
 
     scans, initial, rep = serial  # the serial run kept the libraries' threads (all cores)
-    lines = []
+    lines, events = [], []
     with TaskRunner(2, progress=lines.append) as runner:
-        res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
+        res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map, progress=events.append)
         # by default a local cluster shares the cores out: each of the 2 workers gets cores // 2 threads,
         # for Open3D (set in the worker) and for OpenMP/BLAS (in its environment before it started)
         each = max(1, (os.cpu_count() or 1) // 2)
@@ -178,7 +185,7 @@ def test_serial_and_local_cluster_give_bitwise_equal_poses(serial):
         assert runner.map(_open3d_threads, range(4)) == [each] * 4  # what the tasks themselves see
     assert any(f"2 workers on a local cluster, {each} thread(s) each" in line for line in lines)
     assert any("dashboard http://127.0.0.1:" in line for line in lines)
-    assert any(line.startswith(f"pairs, round 1 {len(scans)}/{len(scans)}") for line in lines)
+    assert any(e.step is Step.PAIRS and e.round == 1 and e.done == e.total == len(scans) for e in events)
     for T, ref in zip(res.poses, rep["poses"]):
         assert np.array_equal(T, np.array(ref))  # JSON floats round-trip exactly
 
@@ -189,18 +196,21 @@ def test_one_thread_per_task_stream_reaches_the_tasks_and_leaves_the_poses_uncha
 
     scans, initial, rep = serial
     before = o3d.utility.get_max_threads()
-    lines = []
-    with TaskRunner(1, threads=1, progress=lines.append) as runner:
+    events = []
+    with TaskRunner(1, threads=1) as runner:
         assert runner.threading()["this process"]["open3d"] == 1
         assert runner.map(_open3d_threads, range(3)) == [1, 1, 1]
-        res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map)
+        res = merge(scans, initial, pairs="chain", build_model=False, map_tasks=runner.map, progress=events.append)
     assert o3d.utility.get_max_threads() == before  # the limit holds for the tasks only
     # one progress count over every round: the second round's pairs add to the first's total
     n1 = len(scans)
     total = rep["graph"]["registrations"]
-    assert any(line.startswith(f"pairs, round 1 {n1}/{n1}") for line in lines)
-    last = [line for line in lines if line.startswith("pairs, round")][-1]
-    assert last.startswith(f"pairs, round {rep['graph']['rounds']} {total}/{total}") and last.endswith("done")
+    counts = [e for e in events if e.step is Step.PAIRS and not e.note]
+    assert any(e.round == 1 and e.done == e.total == n1 for e in counts)
+    last = counts[-1]
+    assert (last.round, last.done, last.total, last.estimate) == (rep["graph"]["rounds"], total, total, None)
+    assert str(last).startswith(f"pairs, round {last.round} {total}/{total}") and str(last).endswith("done")
+    assert all(0 <= e.done <= e.total and e.elapsed >= 0 for e in events)
     # each closest point and ray is computed alone: the thread count does not change a bit of the result
     for T, ref in zip(res.poses, rep["poses"]):
         assert np.array_equal(T, np.array(ref))

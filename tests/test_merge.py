@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from rangereg.core.fuse import double_layer_fraction, fuse
 from rangereg.core.merge import merge
+from rangereg.core.result import Stop, StopReason
 from rangereg.core.surface import Surface
 from rangereg.core.transforms import apply, invert, pose_error
 
@@ -153,6 +154,9 @@ def test_a_scan_no_trusted_pair_reaches_is_reported_not_placed(tmp_path):
     assert out.exists()  # the model of the placed scans
 
 
+SCRIPTED = Stop(StopReason.TRUSTED, "scripted")
+
+
 class _Scripted:
     """A task map whose pair registrations are scripted (the rounds, the graph and the report are the
     merge's own): ``answer(i, j, attempt, T0) -> (T_i_j, trusted)``; overlaps and shares are 0.5."""
@@ -160,7 +164,7 @@ class _Scripted:
     def __init__(self, answer):
         self.answer, self.asked = answer, []
 
-    def __call__(self, fn, items, shared, label=None):
+    def __call__(self, fn, items, shared, label=None, done=None):
         from rangereg.core.merge_tasks import PairOutcome, pair_task
 
         if fn is not pair_task:
@@ -170,7 +174,7 @@ class _Scripted:
             self.asked.append((t.i, t.j, t.attempt, t.start))
             T, trusted = self.answer(t.i, t.j, t.attempt, t.T0)
             out.append(PairOutcome(T, 1e-3 if trusted else 1.0, trusted, 0.5 if trusted else 9.0, True, 0.5,
-                                   "scripted", 0.0))
+                                   SCRIPTED, 0.0))
         return out
 
 
@@ -231,7 +235,7 @@ def test_a_trusted_pair_whose_misfit_is_far_above_the_others_is_not_used():
     truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
     twin = from_params(np.r_[0, 0, 0, 0, 0, np.radians(120.0)])
 
-    def run(fn, items, shared, label=None):
+    def run(fn, items, shared, label=None, done=None):
         if fn is not pair_task:
             return [0.5 for _ in items]
         out = []
@@ -240,7 +244,7 @@ def test_a_trusted_pair_whose_misfit_is_far_above_the_others_is_not_used():
                 T, trusted, misfit = (truth(t.i, t.j) @ twin, True, 3.0) if t.i == 2 else (t.T0, False, 9.0)
             else:
                 T, trusted, misfit = truth(t.i, t.j), True, 0.5
-            out.append(PairOutcome(T, 1e-3, trusted, misfit, True, 0.5, "scripted", 0.0))
+            out.append(PairOutcome(T, 1e-3, trusted, misfit, True, 0.5, SCRIPTED, 0.0))
         return out
 
     res = merge(scans, None, build_model=False, map_tasks=run)
@@ -259,13 +263,13 @@ def test_when_no_pair_overlaps_under_the_rough_poses_the_scans_are_reached_with_
         T[0, 3] = 1e6 * k  # rough poses that put every scan far from every other: no pair overlaps
     asked = []
 
-    def run(fn, items, shared, label=None):
+    def run(fn, items, shared, label=None, done=None):
         if fn is feature_task:
             return [fn(shared, k) for k in items]
         if fn is not pair_task:
             return [0.0 for _ in items]
         asked.extend(t.start for t in items)
-        return [PairOutcome(truth(t.i, t.j), 1e-3, True, 0.5, True, 0.5, "scripted", 0.0) for t in items]
+        return [PairOutcome(truth(t.i, t.j), 1e-3, True, 0.5, True, 0.5, SCRIPTED, 0.0) for t in items]
 
     res = merge(scans, far, build_model=False, map_tasks=run)
     assert asked and set(asked) == {"no guess"} and all(res.placed)
@@ -274,18 +278,21 @@ def test_when_no_pair_overlaps_under_the_rough_poses_the_scans_are_reached_with_
 
 
 def test_candidate_pairs_per_mode():
-    from rangereg.core.merge import MergeConfig, choose
+    from rangereg.core.merge import MergeConfig
+    from rangereg.core.merge_pairs import Candidate, choose
 
     n = 12  # a ring: overlap falls with the distance round the ring
     ring = lambda i, j: min((j - i) % n, (i - j) % n)  # noqa: E731
-    overlaps = [(i, j, max(0.0, 0.9 - 0.12 * ring(i, j))) for i in range(n) for j in range(i + 1, n)]
+    overlaps = [Candidate(i, j, max(0.0, 0.9 - 0.12 * ring(i, j))) for i in range(n) for j in range(i + 1, n)]
     mc = MergeConfig()
     every = choose(overlaps, n, "overlap", mc)
-    assert {c[:2] for c in every} == {(i, j) for i, j, f in overlaps if f >= 0.25}
+    assert {c.key for c in every} == {c.key for c in overlaps if c.overlap >= 0.25}
     best = choose(overlaps, n, "init", mc)
-    assert {c[:2] for c in best} == {(i, j) for i, j, _ in overlaps if ring(i, j) <= mc.max_partners // 2}
-    chain = [(i, i + 1, 0.8) for i in range(n - 1)] + [(0, n - 1, 0.02)]
-    assert [c[:2] for c in choose(chain, n, "chain", mc)] == [(i, i + 1) for i in range(n - 1)]
+    # half the partners the nearest (1 stop either way), half the longest links still overlapping by
+    # long_overlap (3 stops: 54 %; 4 stops: 42 %)
+    assert {c.key for c in best} == {c.key for c in overlaps if ring(c.i, c.j) in (1, 3)}
+    chain = [Candidate(i, i + 1, 0.8) for i in range(n - 1)] + [Candidate(0, n - 1, 0.02)]
+    assert [c.key for c in choose(chain, n, "chain", mc)] == [(i, i + 1) for i in range(n - 1)]
 
 
 def test_a_scan_whose_rough_pose_is_far_beyond_the_stated_uncertainty_is_found_with_no_guess(tmp_path):

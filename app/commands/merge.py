@@ -36,18 +36,20 @@ def _poses_for(conf: dict[str, np.ndarray], scans, what: str) -> list[np.ndarray
 
 
 class DelayedLines:
-    """A progress sink for stderr that holds its lines until the inputs have passed every check (the
-    registrations have started: a line containing ``release``) and the run has taken ``delay``
-    seconds, so that bad input prints one line, the error."""
+    """A progress sink for stderr (core.merge's :class:`MergeProgress` events, and the task runner's own
+    lines) that holds its lines until the inputs have passed every check (the first pair registrations
+    have started) and the run has taken ``delay`` seconds, so that bad input prints one line, the error."""
 
-    def __init__(self, delay: float = PROGRESS_DELAY, release: str = "registering", stream=None):
-        self.t0, self.delay, self.release, self.stream = time.perf_counter(), delay, release, stream or sys.stderr
+    def __init__(self, delay: float = PROGRESS_DELAY, stream=None):
+        self.t0, self.delay, self.stream = time.perf_counter(), delay, stream or sys.stderr
         self.held: list[str] = []
         self.released = False
 
-    def __call__(self, line: str) -> None:
-        self.held.append(f"  {line}\n")
-        self.released = self.released or self.release in line
+    def __call__(self, event) -> None:
+        from rangereg.core.merge_progress import MergeProgress, Step
+
+        self.held.append(f"  {event}\n")
+        self.released = self.released or (isinstance(event, MergeProgress) and event.step is Step.PAIRS)
         if self.released and time.perf_counter() - self.t0 >= self.delay:
             self.stream.write("".join(self.held))
             self.stream.flush()
@@ -144,6 +146,7 @@ def _write_placed_e57(path, scans, res, initial) -> None:
 def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, as_e57: bool = False) -> dict:
     """Everything the merge found, as one JSON-ready dict (``--json`` prints it)."""
     from rangereg.core.fuse import double_layer_fraction
+    from rangereg.core.merge_result import PairStatus
     from rangereg.core.transforms import invert, pose_error
 
     names = [s.name for s in scans]
@@ -155,17 +158,23 @@ def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, 
         "reference": names[res.reference],  # the poses are in its frame: the first scan's unless its group is not the largest
         "placed": res.placed,
         "poses": [None if T is None else np.asarray(T).tolist() for T in res.poses],
-        "scan_reports": [{"name": r.name, "placed": r.placed, "trusted_pairs": [names[k] for k in r.trusted],
+        "scan_reports": [{"name": r.name, "placed": r.placed, "status": str(r.status),
+                          "trusted_pairs": [names[k] for k in r.trusted],
                           "cycle_residual": _residual(r.cycle),
                           # placed through a cycle of used pairs that closes; False: by a bridge no cycle checks
                           "checked": r.placed and r.cycle is not None, "why": r.why} for r in res.scans],
         "pairs": [{"target": names[p.i], "source": names[p.j], "error": p.error, "trusted": p.trusted,
-                   "misfit": p.misfit, "within_region": p.within_region, "overlap": p.overlap, "status": p.status,
-                   "reason": p.reason, "cycle_residual": _residual(p.cycle), "round": p.round, "start": p.start,
-                   "earlier": p.earlier, "stop_reason": p.stop, "seconds": p.seconds} for p in res.pairs],
+                   "misfit": p.misfit, "within_region": p.within_region, "overlap": p.overlap, "status": str(p.status),
+                   "rejection": None if p.rejection is None else str(p.rejection), "reason": p.reason,
+                   "cycle_residual": _residual(p.cycle), "round": p.round, "start": str(p.start),
+                   "earlier": p.earlier, "stop_reason": p.stop_text, "seconds": p.seconds} for p in res.pairs],
         "graph": {"mode": res.mode, "pairs": len(res.pairs), "used": len(res.used),
-                  "rejected": sum(p.status == "rejected" for p in res.pairs), "rounds": res.rounds,
-                  "registrations": res.registrations},
+                  "rejected": sum(p.status is PairStatus.REJECTED for p in res.pairs), "rounds": res.rounds,
+                  "registrations": res.registrations, "skipped": res.skipped},
+        # the loops the graph closed, longest first: the scans round each, its closing pair, the residual
+        # by which that pair missed the loop's other pairs before the graph optimised the loop, and after
+        "rings": [{"scans": [names[k] for k in r.order], "closing_pair": [names[r.closing[0]], names[r.closing[1]]],
+                   "closing_residual": _residual(r.residual), "after": _residual(r.after)} for r in res.rings],
         "stated": {"no_guess": not have, "rotation_deg": rot, "translation": trans,
                    "pair_rotation_deg": min(180.0, 2 * rot), "pair_translation": None if trans is None else 2 * trans},
         "runner": runner.choice,
@@ -209,6 +218,12 @@ def print_report(report: dict, res, scans) -> None:
           f"{res.pair_seconds:.1f} s pairwise, {res.seconds:.1f} s in all")
     print(f"start: {where}; first round: {g['mode']}")
     print(f"ran on: {report['runner']}")
+    if report["rings"]:
+        r = report["rings"][0]
+        more = f" ({len(report['rings']) - 1} more loops)" if len(report["rings"]) > 1 else ""
+        print(f"largest loop: {len(r['scans'])} scans closed by {r['closing_pair'][1]} -> {r['closing_pair'][0]}, "
+              f"closing residual {_cycle_text(r['closing_residual'], units)[6:]}, after the graph "
+              f"{_cycle_text(r['after'], units)[6:]}{more}")
     print("pairs (source -> target):")
     for p in report["pairs"]:
         trust = "trusted" if p["trusted"] else "untrusted"

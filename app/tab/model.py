@@ -107,9 +107,14 @@ class ModelPanel:
             pair = st.pair
         c.merge.disabled = self.h.merge.disabled = True
         lines: list[str] = []
+        counts: list = []  # the merge's pair-registration events (core.merge_progress)
 
-        def say(line: str) -> None:  # from the worker: the newest lines, shown by the refresher
-            lines.append(line)
+        def say(event) -> None:  # from the worker: the newest lines, shown by the refresher
+            from rangereg.core.merge_progress import MergeProgress, Step
+
+            if isinstance(event, MergeProgress) and event.step is Step.PAIRS and not event.note:
+                counts.append(event)
+            lines.append(str(event))
             text = "  \n".join(lines[-6:])
             self.state.hand(lambda st: None, lambda: setattr(c.progress, "content", text))
 
@@ -132,8 +137,7 @@ class ModelPanel:
                 if st.pair == pair and st.display is not None:
                     st.model = res.model
 
-            counted = [line for line in lines if line.startswith("pairs")]
-            report = campaign_text(res) + (f"  \n{counted[-1]}" if counted else "")
+            report = campaign_text(res) + (f"  \n{counts[-1]}" if counts else "")
             self.state.hand(apply, lambda: self._campaign_done(res, report))
 
         threading.Thread(target=work, daemon=True, name="rangereg-campaign").start()

@@ -1,0 +1,181 @@
+"""Each step of a merge on its own (core.merge_*): pairs, graph, rounds, groups, report, progress. The
+campaign is a small simulated turntable; pair registrations are written into the state by hand, so each
+step is checked against what it must do with them, not against the registration engine."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from rangereg.core import merge_graph, merge_groups, merge_pairs, merge_report, merge_rounds
+from rangereg.core.merge import MergeConfig, _Campaign, serial_map
+from rangereg.core.merge_progress import Counter, MergeProgress, Step
+from rangereg.core.merge_result import PairResult, PairStatus, Rejection, ScanStatus, Start
+from rangereg.core.register import Config
+from rangereg.core.result import Stop, StopReason
+from rangereg.core.transforms import from_params, invert
+from rangereg.core.turntable import arc_ends, make_campaign, shared_axis
+
+from tests.test_campaign import SMALL
+
+TRUSTED = Stop(StopReason.TRUSTED)
+BOUND = Stop(StopReason.TIME_BOUND)
+
+
+@pytest.fixture(scope="module")
+def camp():
+    return make_campaign(3, SMALL)
+
+
+def _campaign(camp, initial=None, **settings) -> _Campaign:
+    scans = [replace(s, guess=None) for s in camp.scans]
+    have = initial is not None
+    return _Campaign(scans, initial if have else [np.eye(4)] * len(scans), have, Config(method="global"),
+                     MergeConfig(**settings), lambda _e: None, serial_map)
+
+
+def _truth(camp, i, j):
+    return invert(camp.scans[i].pose) @ camp.scans[j].pose
+
+
+def _pair(c, camp, i, j, trusted=True, misfit=0.5, error=1e-3, T=None, stop=TRUSTED, failure="",
+          start=Start.ROUGH_POSES):
+    c.pairs[i, j] = PairResult(i, j, _truth(camp, i, j) if T is None else T, error, 0.5, trusted, misfit, True, 0.1,
+                               1, start, stop=stop if not failure else None, failure=failure)
+    c.tried[i, j] = c.tried.get((i, j), 0) + 1
+
+
+# ---- pairs ----
+
+def test_the_likeliest_partners_are_the_turntable_neighbours_and_identity_poses_tell_nothing(camp):
+    truth = [s.pose for s in camp.scans]
+    c = _campaign(camp, truth)
+    assert merge_pairs.informative(c, truth)
+    n = len(truth)
+    near = merge_pairs.likeliest(c, truth, 2)
+    ring = lambda i, j: min((j - i) % n, (i - j) % n)  # noqa: E731
+    assert near and all(ring(i, j) == 1 for i, j in near)  # 45 deg apart: each scan's 2 nearest are its neighbours
+    assert len(merge_pairs.likeliest(c, truth, n)) == n * (n - 1) // 2  # no more scans than partners: every pair
+    ident = [np.eye(4)] * n
+    c2 = _campaign(camp, ident)
+    assert not merge_pairs.informative(c2, ident)
+    assert c2.mode == "features"  # identity poses: the pairs are the cue's, not the poses'
+
+
+def test_typed_candidates_are_chosen_by_overlap():
+    from rangereg.core.merge_pairs import Candidate, choose
+
+    picks = choose([Candidate(0, 1, 0.9), Candidate(1, 2, 0.1), Candidate(0, 2, 0.3)], 3, "overlap", MergeConfig())
+    assert [p.key for p in picks] == [(0, 1), (0, 2)]
+    # a scan left with none keeps its best above min_overlap_any
+    picks = choose([Candidate(0, 1, 0.9), Candidate(1, 2, 0.1), Candidate(0, 2, 0.01)], 3, "overlap", MergeConfig())
+    assert [p.key for p in picks] == [(0, 1), (1, 2)]
+
+
+# ---- graph ----
+
+def test_the_graph_step_says_why_each_pair_is_not_usable(camp):
+    c = _campaign(camp)
+    for i in range(4):
+        _pair(c, camp, i, i + 1)
+    _pair(c, camp, 0, 2, misfit=6.0)  # trusted, 12 x the typical misfit
+    _pair(c, camp, 5, 6, trusted=False, misfit=9.0, stop=BOUND)
+    _pair(c, camp, 6, 7, trusted=False, misfit=None, failure="nothing overlaps at the guess")
+    s = merge_graph.screen(c)
+    assert sorted(s.usable) == [(i, i + 1) for i in range(4)]
+    assert s.why[0, 2][0] is Rejection.OUTLIER and "misfit far above" in s.why[0, 2][1]
+    assert s.why[5, 6][0] is Rejection.NOT_TRUSTED and s.why[6, 7][0] is Rejection.NOT_REGISTERED
+    assert "nothing overlaps" in s.why[6, 7][1]
+    g, _ = merge_graph.build(c)
+    assert g.placed[:5] == [True] * 5 and not any(g.placed[5:])
+
+
+# ---- rounds ----
+
+def test_the_next_round_registers_again_from_the_graph_and_measures_only_near_pairs(camp):
+    c = _campaign(camp)
+    twin = from_params(np.r_[0, 0, 0, 0, 0, np.radians(120.0)])
+    for i in range(7):
+        _pair(c, camp, i, i + 1)
+    _pair(c, camp, 0, 7)
+    _pair(c, camp, 2, 4, T=_truth(camp, 2, 4) @ twin, trusted=False, misfit=8.0, stop=BOUND)  # wrong, not trusted
+    g, screened = c.graph()
+    assert all(g.placed)
+    near = merge_rounds.near_pairs(c, g, {screened.usable[k] for k in g.kept})
+    assert (2, 4) in near and all(merge_rounds.close(c, g.poses, i, j) for i, j in near)
+    tasks = merge_rounds.next_tasks(c, g, screened)
+    again = [t for t in tasks if (t.i, t.j) == (2, 4)]
+    assert len(again) == 1 and again[0].start is Start.GRAPH_POSE and again[0].attempt == 1
+    assert np.allclose(again[0].T0, _truth(camp, 2, 4), atol=1e-6)  # from the graph's pose, not its own
+    # pairs that match too little under the poses found are not registered
+    assert all(c.shares[t.i, t.j] >= c.mc.min_overlap for t in tasks)
+
+
+# ---- groups ----
+
+def test_a_turntable_arc_has_its_ends_where_its_gap_is():
+    R = [from_params(np.r_[0, 0, 0, 0, 0, np.radians(a)])[:3, :3] for a in (0, 30, 60, 90, 300, 330)]
+    assert shared_axis(R) is not None
+    assert set(arc_ends(R)) == {3, 4}  # 90 and 300 deg: either side of the gap
+    assert arc_ends(R[:1]) == (0, 0)
+    tilted = [from_params(np.r_[0, 0, 0, np.radians(a), np.radians(a), 0])[:3, :3] for a in (0, 40)]
+    assert shared_axis(tilted + [from_params(np.r_[0, 0, 0, 0, 0, np.radians(90)])[:3, :3]]) is None
+
+
+def test_a_group_apart_is_tried_first_by_the_ends_of_the_rings_arcs(camp):
+    # scans 0-3 joined among themselves, 4-7 among themselves, nothing between: a ring missing two links
+    c = _campaign(camp)
+    for i in (0, 1, 2, 4, 5, 6):
+        _pair(c, camp, i, i + 1)
+    g, screened = c.graph()
+    assert sum(g.placed) == 4
+    used = sorted(screened.usable[k] for k in g.kept)
+    (inside,) = merge_groups.groups(c, g, used)
+    placed = [k for k in range(8) if g.placed[k]]
+    ends = merge_groups.ring_pairs(c, g, inside, placed)
+    assert {(3, 4), (0, 7)} <= set(ends)  # the two missing links are among the ends' pairs
+    tasks = merge_groups.join_tasks(c, g, used)
+    assert tasks and all(t.start is Start.NO_GUESS for t in tasks)
+    assert {(t.i, t.j) for t in tasks} <= set(ends) and len(tasks) == c.mc.reach_partners
+
+
+# ---- report ----
+
+def test_the_report_gives_typed_statuses_and_the_rings_closing_residual(camp):
+    c = _campaign(camp)
+    for i in range(7):
+        _pair(c, camp, i, i + 1)
+    _pair(c, camp, 0, 7)
+    _pair(c, camp, 3, 5, trusted=False, misfit=7.0, stop=BOUND)
+    g, screened = merge_graph.build(c)
+    pairs = merge_report.pair_statuses(c, g, screened)
+    by = {p.key: p for p in pairs}
+    assert by[3, 5].status is PairStatus.REJECTED and by[3, 5].rejection is Rejection.NOT_TRUSTED
+    assert all(by[i, i + 1].status is PairStatus.USED and by[i, i + 1].rejection is None for i in range(7))
+    scans = merge_report.scan_reports(c, g, pairs)
+    assert all(s.status is ScanStatus.PLACED for s in scans)
+    (ring,) = merge_report.rings(c, g, screened)
+    assert sorted(ring.order) == list(range(8)) and ring.residual[0] < 1e-6 and ring.after[0] < 1e-6
+
+
+# ---- progress ----
+
+def test_progress_counts_every_round_and_estimates_from_the_median_task():
+    events: list[MergeProgress] = []
+    counter = Counter(Step.PAIRS, events.append, t0=0.0, every=0.0)
+    done = counter.begin(10, 1)
+    counter.durations = [5.0]  # a first task that built the scans' geometry
+    counter.done = 1
+    done(1)
+    counter.durations += [0.1] * 4
+    counter.done = 5
+    assert counter.estimate() == pytest.approx(0.1 * 5)  # the first tasks (that built the geometry) left out
+    for k in range(6, 11):
+        done(k)
+    assert events[-1].done == events[-1].total == 10 and events[-1].finished and events[-1].estimate is None
+    more = counter.begin(4, 2)
+    more(4)
+    assert (events[-1].round, events[-1].done, events[-1].total) == (2, 14, 14)
+    assert str(events[-1]).startswith("pairs, round 2 14/14") and str(events[-1]).endswith("done")
+    assert counter.forecasts and counter.forecasts[0].left < 10

@@ -218,12 +218,13 @@ class Leg:
 
 def legs(events: Sequence[Event]) -> list[Leg]:
     """``events`` (in the order they came) grouped into the run's legs, in order: consecutive events of one
-    phase and leg number. A leg's marker before its first step (``phase_iteration`` 0) is left out."""
+    phase and leg number. The markers are not steps: before a leg's first step (``phase_iteration`` 0), and
+    where ICP stopped in a local minimum (``local_minimum``, the leg's last pose again: the leg's flag)."""
     out: list[Leg] = []
     group: list[Event] = []
 
     def close() -> None:
-        steps = [e for e in group if e.phase_iteration > 0]
+        steps = [e for e in group if e.phase_iteration > 0 and not e.local_minimum]
         out.append(Leg(group[0].phase, group[0].leg, np.array([e.iteration for e in steps], dtype=np.int64),
                        np.array([e.error for e in steps], dtype=np.float64),
                        np.array([np.nan if e.temperature is None else e.temperature for e in steps], dtype=np.float64),
@@ -308,8 +309,22 @@ def _pair(source, target, init, viewpoint_source, viewpoint_target, options: dic
     if says_nothing(T_init, src, tgt, settings):  # nothing said about the pose: any pose (the global method)
         settings = replace(settings, no_guess=True)
     config = _python_names(to_config, settings)
+    _engine_ready(config)
     return _Pair(src, tgt, T_init if T_init is not None else relative_guess(src, tgt), config,
                  target.surface if isinstance(target, Prepared) else None)
+
+
+def _engine_ready(config) -> None:
+    """Import what the search needs and start KISS-Matcher's process (when it will be asked) before the run
+    starts, as the CLI does: the global method's time bound counts seconds from the run's start, and
+    Open3D's first import takes 1-2 s."""
+    if config.method == "global" and config.candidates.enabled and config.candidates.kiss_matcher:
+        from rangereg.core import kiss_matcher_candidates
+
+        kiss_matcher_candidates.start()
+    import open3d  # noqa: F401
+
+    import rangereg.core.global_search  # noqa: F401
 
 
 def _settings(options: dict) -> Settings:

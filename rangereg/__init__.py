@@ -17,6 +17,15 @@ scenes' data. Nothing else lands at site-packages' top level.
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import os
+
+# Python started in the repository's folder finds this folder before an installed copy (the script's folder or
+# the working directory comes first on sys.path); the subpackages then lie beside it (core/, app/, assets/),
+# where a non-editable install has no finder to look (an editable one maps them itself).
+_CHECKOUT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if importlib.util.find_spec("rangereg.core") is None and os.path.isfile(os.path.join(_CHECKOUT, "core", "__init__.py")):
+    __path__.append(_CHECKOUT)
 
 # Loaded on first use, so that ``rangereg.app.cli`` (whose signal handlers go in before numpy loads) and
 # ``rangereg.core`` import nothing more for being inside this package.

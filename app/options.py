@@ -209,6 +209,19 @@ def to_config(s: Settings):
     return cfg
 
 
+def has_guess(init, source, target) -> bool:
+    """Whether the user gave a guess: an initial transform ``init`` (any value but None), or rough poses stored
+    with both scans (``Scan.guess``)."""
+    return init is not None or (source.guess is not None and target.guess is not None)
+
+
+def says_nothing(init, source, target, s: Settings) -> bool:
+    """No guess at all: no initial transform, no rough poses stored with both scans and no uncertainty stated.
+    The global method then searches every rotation and translation (core.region); ``register`` on the
+    command line and ``rangereg.register`` both ask this."""
+    return not has_guess(init, source, target) and s.rotation_uncertainty is None and s.translation_uncertainty is None
+
+
 def parse_lock(value, label: str = "--lock"):
     """``--lock`` as a core ``Lock``: text (``rx,ry,tz``: those parameters locked; ``rotation`` or
     ``translation``: three at once; ``turntable:px,py,pz,dx,dy,dz``: rotation about that line in the

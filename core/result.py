@@ -108,6 +108,16 @@ class Result:
     details: GlobalDetails | None = None
 
     @property
+    def T_target_source(self) -> np.ndarray:
+        """(4, 4) the pose found: maps the source's points into the target's frame (``transform``)."""
+        return self.transform
+
+    @property
+    def found_by(self) -> str:
+        """Method "global": the stage whose refined pose this is ("guess", "rotation samples", ...); else ''."""
+        return "" if self.details is None else self.details.found_by
+
+    @property
     def stop_reason(self) -> StopReason:
         return self.stop.reason
 
@@ -152,8 +162,13 @@ class Result:
 
     def __repr__(self) -> str:
         it = self.iterations
-        return (f"Result({self.method}: E={self.error:.4g}, iterations icp={it.icp} sa={it.sa}, "
-                f"local_minima={self.local_minima}, {self.seconds:.2f} s, stopped: {self.stop_text})")
+        found = f", found by {self.found_by}" if self.found_by else ""
+        region = {None: "", True: ", within the stated region", False: ", beyond the stated region"}[self.within_region]
+        steps = f"icp={it.icp} sa={it.sa}" + (f" candidates={it.candidates}" if it.candidates else "")
+        rows = np.array2string(self.transform, precision=6, suppress_small=True, prefix="  T_target_source=")
+        return (f"Result({self.method}: trusted {'yes' if self.below_threshold else 'no'}, E={self.error:.4g} "
+                f"(threshold {self.threshold:.4g}){found}{region}, iterations {steps}, local_minima={self.local_minima}, "
+                f"{self.seconds:.2f} s, stopped: {self.stop_text},\n  T_target_source={rows})")
 
     def to_json(self) -> dict:
         return {"transform": self.transform.tolist(), "error": self.error, "iterations": self.iterations.to_json(),

@@ -34,11 +34,6 @@ def config(a: Namespace, **overrides):
     return to_config(Settings.from_mapping(vars(a), **overrides))
 
 
-def has_guess(a: Namespace, source, target) -> bool:
-    """Whether the user gave a guess: ``--init``, or rough poses stored with both scans."""
-    return a.init is not None or (source.guess is not None and target.guess is not None)
-
-
 def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     """(source, target, T_init (4, 4) T_target_source): ``--init`` if given, else the scans' stored guesses."""
     from rangereg.core.io import load_scan

@@ -17,6 +17,7 @@ import time
 from argparse import Namespace
 
 from rangereg.app.commands import pair
+from rangereg.app.options import Settings, says_nothing
 from rangereg.app.outputs import TraceFile, check_distinct, check_output, library_prints_to_stderr, strict_json, write_outputs
 from rangereg.core.errors import InputError
 
@@ -78,7 +79,7 @@ def _register(a: Namespace):
     import rangereg.core.global_search  # noqa: F401
     t0 = time.perf_counter()
     source, target, T_init = pair.load(a)
-    if not pair.has_guess(a, source, target) and a.rotation_uncertainty is None and a.translation_uncertainty is None:
+    if says_nothing(a.init, source, target, Settings.from_mapping(vars(a))):
         cfg = pair.config(a, no_guess=True)  # nothing said about the pose: any pose (the global method)
     # progress is for someone watching a terminal: a log or a pipe gets the result and at most one error line
     progress = Progress(not a.json and sys.stderr.isatty())

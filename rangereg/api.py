@@ -39,10 +39,11 @@ import numpy as np
 from rangereg.app.options import Settings, parse_init, says_nothing, to_config
 from rangereg.core.errors import InputError
 from rangereg.core.events import Cancelled, Event, Listener
-from rangereg.core.scan import Scan, clean_points
+from rangereg.core.scan import Origin, Scan, clean_points
 
 if TYPE_CHECKING:
     from rangereg.core.config import Config
+    from rangereg.core.merge_progress import MergeProgress
     from rangereg.core.merge import MergeResult
     from rangereg.core.result import Result
     from rangereg.core.surface import Surface
@@ -243,7 +244,7 @@ def legs(events: Sequence[Event]) -> list[Leg]:
 def merge(scans: Iterable, init=None, *, rotation_uncertainty: float | None = None,
           translation_uncertainty: float | None = None, seed: int = 0, pairs: str | None = None,
           workers: int | None = 1, scheduler: str | None = None, threads: int | None = None,
-          progress: Callable[[str], None] | None = None, build_model: bool = True) -> MergeResult:
+          progress: Callable[["MergeProgress"], None] | None = None, build_model: bool = True) -> MergeResult:
     """Register a campaign of scans and fuse them, as ``rangereg merge`` does.
 
     scans: two or more, each as :func:`as_scan` takes it (a path to an E57 without ``#K`` brings all its
@@ -253,7 +254,7 @@ def merge(scans: Iterable, init=None, *, rotation_uncertainty: float | None = No
     translation_uncertainty: how far off each initial pose may be; pairs: round 1's pairs ("init", "overlap",
     "chain", "all", "features"); workers: 1 a plain loop here, N a local Dask cluster, None: the CLI's
     choice; scheduler: an existing Dask cluster (tcp://HOST:PORT); threads: per task stream; progress:
-    called with each progress line; build_model: fuse the placed scans into one mesh.
+    called with each progress event (core.merge_progress.MergeProgress; str() of it is the CLI's line); build_model: fuse the placed scans into one mesh.
 
     Returns a :class:`rangereg.core.merge.MergeResult`: ``poses`` (T_reference_scan, None for a scan not
     placed), ``placed``, ``scans`` (each one's report), ``pairs``, ``model`` (the fused mesh). Raises InputError."""
@@ -391,32 +392,27 @@ def _scan(data, viewpoint, name: str | None, units: str | None, what: str) -> Sc
     if isinstance(data, (str, os.PathLike)):
         from rangereg.core.io import load_scan
 
-        scan = load_scan(Path(data) if isinstance(data, os.PathLike) else data, viewpoint=_viewpoint(viewpoint, what),
-                         name=name)
-        return scan if units is None else replace(scan, units=str(units), meta={**scan.meta, "units_stated": True})
+        return load_scan(Path(data) if isinstance(data, os.PathLike) else data, viewpoint=_viewpoint(viewpoint, what),
+                         name=name, units=None if units is None else str(units))
     if isinstance(data, Scan):
         scan = data
         if viewpoint is not None:
             scan = _checked_viewpoint(scan, _viewpoint(viewpoint, what), what)
         if name is not None:
             scan = replace(scan, name=name)
-        return scan if units is None else replace(scan, units=str(units), meta={**scan.meta, "units_stated": True})
-    points = _points(data, what)
-    vp = _viewpoint(viewpoint, what)
-    scan = Scan(points=points, viewpoint=np.zeros(3), name=name or what, units="unknown" if units is None else str(units),
-                meta={"units_stated": units is not None})
-    if vp is None:
-        from rangereg.core.viewpoint import estimate_viewpoint
+        return scan if units is None else replace(scan, units=str(units), units_from=Origin.GIVEN)
+    from rangereg.core.assemble import Given, RawScan, assemble
 
-        return replace(scan, viewpoint=estimate_viewpoint(points), viewpoint_estimated=True)
-    return _checked_viewpoint(scan, vp, what)
+    # bare points are read as a file's points are: the same rule decides the viewpoint, the kind and the units
+    return assemble(RawScan(points=_points(data, what), what=what, name=name or what),
+                    Given(viewpoint=_viewpoint(viewpoint, what), units=None if units is None else str(units)))
 
 
 def _checked_viewpoint(scan: Scan, vp: np.ndarray, what: str) -> Scan:
     from rangereg.core.viewpoint import check_viewpoint
 
     check_viewpoint(scan.points, vp, scan.grid, scan.faces, what)
-    return replace(scan, viewpoint=vp, viewpoint_estimated=False)
+    return replace(scan, viewpoint=vp, viewpoint_from=Origin.GIVEN)
 
 
 def _viewpoint(viewpoint, what: str) -> np.ndarray | None:

@@ -276,10 +276,8 @@ def test_merge_as_the_cli_merges(tmp_path, capsys):
     code = main(["merge", TGT, SRC, "--seed", "1", "--json", "--out", str(tmp_path / "m.ply")])
     out = json.loads(capsys.readouterr().out)
     assert code == 0 and out["placed"] == res.placed and len(out["pairs"]) == len(res.pairs)
-    # the pairs' search is bounded in seconds (merge has no flag to lift it): the same pose unless a run was cut
-    cut = any("bound" in p["stop_reason"] for p in out["pairs"]) or any("bound" in p.stop for p in res.pairs)
-    if not cut:
-        assert np.array_equal(np.array(out["poses"][1]), res.poses[1])
+    # a campaign's pairs are bounded by their work, not by seconds: the same pose however busy the machine
+    assert np.array_equal(np.array(out["poses"][1]), res.poses[1])
     with pytest.raises(rangereg.InputError, match=r"^merge: two scans share a name \(scan1, scan1\)"):
         rangereg.merge([rangereg.as_scan(TGT), rangereg.as_scan(SRC).points])  # the file's stem, the 2nd array's name
     arrays = [rangereg.as_scan(TGT, name="reference"), rangereg.as_scan(SRC).points]  # "reference", "scan1"

@@ -43,8 +43,8 @@ from rangereg.core.scan import Origin, Scan, clean_points
 
 if TYPE_CHECKING:
     from rangereg.core.config import Config
-    from rangereg.core.merge_progress import MergeProgress
     from rangereg.core.merge import MergeResult
+    from rangereg.core.merge_progress import MergeProgress
     from rangereg.core.result import Result
     from rangereg.core.surface import Surface
 
@@ -244,7 +244,7 @@ def legs(events: Sequence[Event]) -> list[Leg]:
 def merge(scans: Iterable, init=None, *, rotation_uncertainty: float | None = None,
           translation_uncertainty: float | None = None, seed: int = 0, pairs: str | None = None,
           workers: int | None = 1, scheduler: str | None = None, threads: int | None = None,
-          progress: Callable[["MergeProgress"], None] | None = None, build_model: bool = True) -> MergeResult:
+          progress: Callable[[MergeProgress], None] | None = None, build_model: bool = True) -> MergeResult:
     """Register a campaign of scans and fuse them, as ``rangereg merge`` does.
 
     scans: two or more, each as :func:`as_scan` takes it (a path to an E57 without ``#K`` brings all its
@@ -254,7 +254,8 @@ def merge(scans: Iterable, init=None, *, rotation_uncertainty: float | None = No
     translation_uncertainty: how far off each initial pose may be; pairs: round 1's pairs ("init", "overlap",
     "chain", "all", "features"); workers: 1 a plain loop here, N a local Dask cluster, None: the CLI's
     choice; scheduler: an existing Dask cluster (tcp://HOST:PORT); threads: per task stream; progress:
-    called with each progress event (core.merge_progress.MergeProgress; str() of it is the CLI's line); build_model: fuse the placed scans into one mesh.
+    called with each progress event (core.merge_progress.MergeProgress; str() of it is the CLI's line);
+    build_model: fuse the placed scans into one mesh.
 
     Returns a :class:`rangereg.core.merge.MergeResult`: ``poses`` (T_reference_scan, None for a scan not
     placed), ``placed``, ``scans`` (each one's report), ``pairs``, ``model`` (the fused mesh). Raises InputError."""

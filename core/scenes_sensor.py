@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .scan import Scan, ScanKind
+from .simulate import look_at
 
 
 # ---- meshes -------------------------------------------------------------------------------------------------
@@ -189,16 +190,9 @@ class DepthCamera:
 
 
 def look_from(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """T_world_camera of a camera at ``eye`` looking at ``target`` (x right, y down, z forward)."""
-    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
+    """T_world_camera of a camera at ``eye`` looking at ``target`` (x right, y down, z forward): the OpenGL
+    sensor of :func:`core.simulate.look_at` turned half a turn about its x axis."""
+    return look_at(eye, target, up) @ np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def depth_frame(mesh, T_world_camera: np.ndarray, cam: DepthCamera, rng: np.random.Generator) -> np.ndarray:

@@ -3,10 +3,12 @@
 from .errors import InputError
 from .events import Cancelled, Event
 from .io import load_conf, load_scan, read_transform, save_scan
+from .panorama import image_of  # noqa: F401 (imported, a panorama's faces enter core.surface's table)
 from .problem import ProblemConfig, prepare, relative_guess
 from .register import METHODS, Config, Result, register
 from .scan import Scan, ScanKind
 from .surface import Surface
+from .unstructured import TangentPlanes  # noqa: F401 (imported, tangent planes enter the table too)
 
 __all__ = ["Cancelled", "Config", "Event", "InputError", "METHODS", "ProblemConfig", "Result", "Scan", "ScanKind",
            "Surface", "load_conf", "load_scan", "prepare", "read_transform", "register", "relative_guess",

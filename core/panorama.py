@@ -326,9 +326,9 @@ class PanoramaView:
 
     def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
         """(N,) bool: the points ``inside`` (N,) that are also :meth:`visible` with ``margin``."""
-        from .frustum import visible_cut
-
-        return visible_cut(self, surface, points, inside, margin)
+        out = inside.copy()
+        out[np.flatnonzero(inside)] = self.visible(surface, points[inside], margin)
+        return out
 
     def widened(self, points: np.ndarray, angle: float, translation: float = 0.0) -> np.ndarray:
         """(N,) bool: points within ``angle`` radians of a direction the sensor saw something and within its
@@ -364,3 +364,18 @@ class PanoramaView:
 
 def panorama_view(scan: Scan) -> PanoramaView:
     return PanoramaView(np.array(scan.viewpoint, dtype=np.float64), image_of(scan))
+
+
+def _faces(scan: Scan) -> tuple[np.ndarray, np.ndarray]:
+    from .surface import EDGE_FACTOR
+
+    return image_of(scan).faces(scan.points, EDGE_FACTOR)
+
+
+def _register() -> None:
+    from .surface import PANORAMA_FACES
+
+    PANORAMA_FACES[:] = [_faces]  # a panorama's triangulation (core.surface's table of kinds)
+
+
+_register()

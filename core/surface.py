@@ -142,12 +142,17 @@ def _triangulate(scan: Scan, axis: np.ndarray | None = None) -> tuple[np.ndarray
     return _face_sensor(pts, faces, scan.viewpoint), float(lengths.max())
 
 
+# The surfaces of the other kinds are built in their own modules on top of this one (core.panorama: a spherical
+# image's faces; core.unstructured: tangent planes). Each puts its builder here when it is imported (core's
+# package imports both), so that this module, which they build on, imports neither.
+PANORAMA_FACES: list = []  # [scan -> ((M, 3) faces, (M, 3) edge lengths)], set by core.panorama
+SURFACE_OF_KIND: dict = {}  # ScanKind -> (scan -> Surface), set by core.unstructured
+
+
 def _panorama_faces(scan: Scan) -> tuple[np.ndarray, float]:
     """A panorama's faces (core.panorama: its spherical image as a grid, edges bounded by the image's spacing)
     and their longest edge."""
-    from .panorama import image_of
-
-    faces, lengths = image_of(scan).faces(scan.points, EDGE_FACTOR)
+    faces, lengths = PANORAMA_FACES[0](scan)
     if len(faces) == 0:
         raise InputError(f"{scan.name}: no surface could be built from the spherical image (every triangle "
                          "bridged a gap)")
@@ -202,10 +207,8 @@ class Surface:
         scan's k-d tree (its points are the vertices)."""
         if scan.faces is not None and len(scan.faces):
             return cls(scan.points, scan.faces, tree=scan.tree)
-        if scan.kind is ScanKind.UNSTRUCTURED:
-            from .unstructured import TangentPlanes
-
-            return TangentPlanes.from_scan(scan)
+        if scan.kind in SURFACE_OF_KIND:
+            return SURFACE_OF_KIND[scan.kind](scan)
         faces, longest = _triangulate(scan)
         return cls(scan.points, faces, tree=scan.tree, longest_edge=longest)
 

@@ -21,8 +21,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .scan import Scan
-from .surface import PARALLEL_QUERY, Surface, local_spacing, pca_normals
+from .scan import Scan, ScanKind
+from .surface import PARALLEL_QUERY, SURFACE_OF_KIND, Surface, local_spacing, pca_normals
 
 # Open3D's recipe fits normals to at most 30 neighbours within 2 voxels of a downsampled cloud (its points ~1
 # voxel apart). A raw cloud's median nearest-neighbour distance (Scan.spacing) is half its mean spacing where the
@@ -182,3 +182,6 @@ def cloud_view(scan: Scan) -> CloudView:
     c = np.array(scan.centroid, dtype=np.float64)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", scan.points - c, scan.points - c))))
     return CloudView(np.array(scan.viewpoint, dtype=np.float64), scan.tree, NEAR_SPACINGS * scan.spacing, c, radius)
+
+
+SURFACE_OF_KIND[ScanKind.UNSTRUCTURED] = TangentPlanes.from_scan  # core.surface's table of kinds

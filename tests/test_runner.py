@@ -68,12 +68,8 @@ def test_next_phase_stops_at_the_local_minimum_that_ends_an_icp_leg():
     assert run.paused and len(run.events) == 3 and run.events[-1].local_minimum
 
 
-def test_next_phase_from_annealing_stops_where_the_next_leg_begins():
-    run = Run(scripted(), mode="phase").start()
-    settle(run, 3)
-    run.step()  # the first annealing move
-    settle(run, 4)
-    run.next_phase()
+def _annealing_leg_held_then_icp_to_the_end(run) -> None:
+    """After Next phase into annealing's leg: it pauses holding ICP's next leg; Next phase runs that to the end."""
     settle(run, 7)
     time.sleep(0.1)  # the next leg's first event is held: the events end with annealing's last move
     assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("sa", 1)]
@@ -81,6 +77,15 @@ def test_next_phase_from_annealing_stops_where_the_next_leg_begins():
     run.join(5)
     assert [(e.phase, e.leg) for e in run.events[7:]] == [("icp", 2), ("icp", 2)]
     assert run.result == ("done", len(SCRIPT))
+
+
+def test_next_phase_from_annealing_stops_where_the_next_leg_begins():
+    run = Run(scripted(), mode="phase").start()
+    settle(run, 3)
+    run.step()  # the first annealing move
+    settle(run, 4)
+    run.next_phase()
+    _annealing_leg_held_then_icp_to_the_end(run)
 
 
 def test_next_phase_from_a_local_minimum_runs_the_next_leg_to_its_end():
@@ -88,13 +93,7 @@ def test_next_phase_from_a_local_minimum_runs_the_next_leg_to_its_end():
     run = Run(scripted(), mode="phase").start()
     settle(run, 3)
     run.next_phase()
-    settle(run, 7)
-    time.sleep(0.1)  # the next leg's first event is held: the events end with annealing's last move
-    assert run.paused and [(e.phase, e.leg) for e in run.events[-2:]] == [("sa", 1), ("sa", 1)]
-    run.next_phase()  # the held event begins the leg Next phase runs: ICP's second leg, to the run's end
-    run.join(5)
-    assert [(e.phase, e.leg) for e in run.events[7:]] == [("icp", 2), ("icp", 2)]
-    assert run.result == ("done", len(SCRIPT))
+    _annealing_leg_held_then_icp_to_the_end(run)
 
 
 def test_a_step_from_a_held_leg_start_lets_that_one_event_through():

@@ -127,6 +127,11 @@ def test_the_campaign_model_is_in_view_after_merge_scans_from_another_scene(data
     page.close()
 
 
+def s1_label(tab):
+    """The first source pick's label node, or None while it is not drawn yet."""
+    return next((m for m in list(tab.pairs.markers) if getattr(m, "text", "") == "S1"), None)
+
+
 def test_a_pick_marker_sits_on_the_click_and_every_click_on_the_source_picks(data_bench, browser):
     from rangereg.app.figures import SOURCE_OVERLAP_RGB, SOURCE_RGB
 
@@ -160,8 +165,10 @@ def test_a_pick_marker_sits_on_the_click_and_every_click_on_the_source_picks(dat
         for k in np.random.default_rng(0).choice(len(xs), 6, replace=False):
             click = np.array([xs[k] + 0.5, ys[k] + 0.5])
             page.mouse.click(*click)
-            wait_for(lambda: tab.pairs.pairs.pending is not None, 10, what=f"a pick at {click} ({said})")
-            label = next(m for m in tab.pairs.markers if getattr(m, "text", "") == "S1")
+            # the pick is recorded before its markers are drawn (pairs.clicked: add, then show): wait for both
+            wait_for(lambda: tab.pairs.pairs.pending is not None and s1_label(tab) is not None, 10,
+                     what=f"a pick at {click} ({said})")
+            label = s1_label(tab)
             assert label.position == pytest.approx(
                 tab.state.display.source_local(tab.state.source.points[tab.pairs.pairs.pending]), abs=1e-6)
             # the marker's distance from the click, in pixels, measured on the browser's own click ray (the camera it

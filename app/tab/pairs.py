@@ -231,7 +231,7 @@ class PairsPanel:
         with self.tab.client.atomic():
             for node in self.markers:
                 node.remove()
-            self.markers = []
+            drawn: list = []
             # the source's picks are children of the moving source node: they move with it; each drawing has names
             # of its own (scene3d.pair_root says why)
             nodes = self.tab.nodes
@@ -242,11 +242,11 @@ class PairsPanel:
                     (f"{nodes.target.root}_picks{nodes.drawn}", "T",
                      d.points(st.target.points[p.target_index]).reshape(-1, 3), TARGET_PICK_RGB)):
                 for k, xyz in enumerate(at):
-                    self.markers.append(scene.add_icosphere(f"{root}/{k}/ball", radius=radius, color=rgb,
-                                                            position=tuple(xyz), cast_shadow=False,
-                                                            receive_shadow=False))
-                    self.markers.append(scene.add_label(f"{root}/{k}/label", f"{letter}{k + 1}", position=tuple(xyz),
-                                                        anchor="center-center", depth_test=False))
+                    drawn.append(scene.add_icosphere(f"{root}/{k}/ball", radius=radius, color=rgb,
+                                                     position=tuple(xyz), cast_shadow=False, receive_shadow=False))
+                    drawn.append(scene.add_label(f"{root}/{k}/label", f"{letter}{k + 1}", position=tuple(xyz),
+                                                 anchor="center-center", depth_test=False))
+            self.markers = drawn  # whole: a reader never sees a drawing half made
 
     def marker_positions(self) -> dict[str, np.ndarray]:
         """{"S1": (3,), "T1": ...}: where each pick's label is, in page coordinates (the source's at the shown pose)."""

@@ -134,7 +134,11 @@ class TangentPlanes(Surface):
         return float(PATCH_SPACINGS * local_spacing(self.vertices, self._vertex_tree).max())
 
     def warm(self) -> TangentPlanes:
-        """Nothing to build: the k-d tree and the planes are made already."""
+        """Nothing to build ahead: the k-d tree is made already, each plane when a query first lands on it."""
+        return self
+
+    def build(self) -> TangentPlanes:
+        """Nothing to build ahead (:meth:`warm`); ray casting (:meth:`first_hit`) builds its patches when asked."""
         return self
 
     def closest_with_normals(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

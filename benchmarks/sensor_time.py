@@ -1,6 +1,7 @@
 """Files to pose on sensor scans: `rangereg register --json`, one whole process a run, as a user runs it.
 
     python benchmarks/sensor_time.py [--runs 3] [--pairs lidar,kinect,fragments] [--data ../shared/data]
+    python benchmarks/sensor_time.py --smallest   # one run on a small simulated fragment pair: a check it runs
 
 Pairs (no `--init`, no flag: the identity and no stated uncertainty, so the global method's no-guess search):
 
@@ -54,20 +55,23 @@ def one_run(source: str, target: str) -> dict:
             "T": np.array(d["transform"]), "trusted": bool(d["below_threshold"]), "found_by": d.get("found_by", "")}
 
 
-def fragment_files(folder: Path) -> tuple[str, str, np.ndarray]:
+def fragment_files(folder: Path, small: bool = False) -> tuple[str, str, np.ndarray]:
     """The simulated fragment pair written to ``folder``: (source path, target path, T_target_source)."""
     from rangereg.core.io import save_scan
     from rangereg.core.scenes_sensor import DepthCamera, fragment_pair
     from rangereg.core.transforms import invert
 
-    s, t = fragment_pair(0, frames=5, cam=DepthCamera(cols=360, rows=270))
+    cam = DepthCamera(cols=80, rows=60) if small else DepthCamera(cols=360, rows=270)
+    s, t = fragment_pair(0, frames=3 if small else 5, cam=cam)
     paths = [folder / f"{scan.name}.ply" for scan in (s, t)]
     for p, scan in zip(paths, (s, t)):
         save_scan(p, scan)
     return str(paths[0]), str(paths[1]), invert(t.pose) @ s.pose
 
 
-def pairs(names: list[str], tmp: Path, shared: Path) -> list[tuple[str, str, str, np.ndarray | None]]:
+def pairs(names: list[str], tmp: Path, shared: Path, small: bool = False) -> list[tuple[str, str, str, np.ndarray | None]]:
+    if small:  # a check that the script runs: one small simulated fragment pair
+        return [("fragments", *fragment_files(tmp, small=True))]
     out = []
     if "lidar" in names and (shared / "lidar").is_dir():
         d = shared / "lidar"
@@ -93,12 +97,15 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=3, help="whole-process runs per pair (default 3)")
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"), help="the shared data folder (lidar/, kinect/)")
     ap.add_argument("--pairs", default="lidar,kinect,fragments", help="comma-separated of lidar, kinect, fragments")
+    ap.add_argument("--smallest", action="store_true", help="one run on a small simulated fragment pair: a check it runs")
     a = ap.parse_args()
+    if a.smallest:
+        a.runs = 1
     if a.runs < 1:
         ap.error("--runs must be >= 1")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name, src, tgt, T_true in pairs([p for p in a.pairs.split(",") if p], Path(tmp), Path(a.data)):
+        for name, src, tgt, T_true in pairs([p for p in a.pairs.split(",") if p], Path(tmp), Path(a.data), a.smallest):
             n = (points_in(src), points_in(tgt))
             load = os.getloadavg()[0]
             runs = [one_run(src, tgt) for _ in range(a.runs)]

@@ -264,6 +264,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str] | None, command: list) -> int:
+    from rangereg.core.open3d_import import defer_plotly
+
+    defer_plotly()  # before anything imports Open3D: its plotly drawing (plotly, dash: ~0.33 s) loads on first use
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)

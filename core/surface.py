@@ -240,6 +240,12 @@ class Surface:
             threading.Thread(target=lambda: self._scene, name="surface-warm", daemon=True).start()
         return self
 
+    def build(self) -> Surface:
+        """Build the query structure now, on this thread (one made on a worker thread, to be queried later
+        from another: the 0.2 s of a 250k-point Kinect frame's). Returns the surface."""
+        _ = self._scene
+        return self
+
     def closest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points (N, 3) float64 and squared distances (N,) for (N, 3) queries."""
         c, d2, _ = self.closest_with_normals(query)

@@ -1,7 +1,7 @@
 """The surface and the view of an unstructured scan (fused fragments, photogrammetry, merged clouds).
 
 Such a cloud has no single viewpoint to triangulate from, so its local surface approximation (the paper's
-"closest point to a local surface approximation") is a plane at each point: Open3D's normals, fitted to the
+"closest point to a local surface approximation") is a plane at each point: its normal fitted to the
 neighbours within ``NORMAL_RADIUS_SPACINGS`` point spacings (at most ``NORMAL_MAX_NEIGHBOURS``). The closest
 point to a query is its projection onto the tangent plane of its nearest cloud point (point-to-plane),
 bounded to that point's patch: a disc of ``PATCH_SPACINGS`` times the point's local spacing, so that a query
@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .scan import Scan, ScanKind
-from .surface import PARALLEL_QUERY, SURFACE_OF_KIND, Surface, local_spacing, pca_normals
+from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surface, local_spacing, pca_normals
 
 # Open3D's recipe fits normals to at most 30 neighbours within 2 voxels of a downsampled cloud (its points ~1
 # voxel apart). A raw cloud's median nearest-neighbour distance (Scan.spacing) is half its mean spacing where the
@@ -37,59 +37,108 @@ PATCH_SPACINGS = 2.0
 # Inside the view: within 3 spacings of a cloud point (a point that close lies on the surface up to the noise
 # and the sampling: 3 nearest-neighbour distances cover a random sampling's holes, twice its mean spacing).
 NEAR_SPACINGS = 3.0
+COARSE_EVERY = 64  # the coarse subset of a cloud's view (CloudView._within): every 64th point
 
 
-def point_normals(points: np.ndarray, spacing: float, tree: cKDTree | None = None) -> np.ndarray:
-    """(N, 3) unit normals (sign arbitrary) of (N, 3) points: Open3D's, from a hybrid KD search within
-    ``NORMAL_RADIUS_SPACINGS`` x ``spacing`` (units), at most ``NORMAL_MAX_NEIGHBOURS`` neighbours (``tree``:
-    a k-d tree of the points, for the few refitted)."""
-    import open3d as o3d
+def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tangent planes at the points ``at`` ((M,) indices into (N, 3) ``points``, whose k-d tree is ``tree``):
+    (M, 3) unit normals (sign arbitrary) and (M,) patch radii (units).
 
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
-    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=NORMAL_RADIUS_SPACINGS * spacing,
-                                                              max_nn=NORMAL_MAX_NEIGHBOURS))
-    n = np.array(pcd.normals)
-    # Open3D leaves (0, 0, 1) where fewer than 3 points (itself included) lie within the radius (a point at a
-    # rim): those are fitted to their nearest points instead. An exact +-z normal is often real (a depth
-    # camera's quantised ranges make flat steps: 29 % of a Kinect frame's normals), so it is refitted only
-    # where the neighbours say so.
+    A normal is the direction of least spread of the point's neighbours within ``NORMAL_RADIUS_SPACINGS`` x
+    ``spacing``, at most ``NORMAL_MAX_NEIGHBOURS`` of them, itself included (Open3D's hybrid search in
+    ``estimate_normals``: the same neighbourhoods and covariance, its normals to 2e-6 degrees on a 274k-point
+    simulated fragment); a point with fewer than 3 there (at a rim) is fitted to its ``FALLBACK_NEIGHBOURS``
+    nearest points instead. A patch is ``PATCH_SPACINGS`` x the mean distance to the point's
+    ``SPACING_NEIGHBOURS`` nearest (core.surface.local_spacing), from the same query."""
     pts = np.asarray(points, dtype=np.float64)
-    tree = cKDTree(pts) if tree is None else tree
-    z = np.flatnonzero(~np.all(np.isfinite(n), axis=1) | (np.abs(n[:, 2]) == 1.0))
-    if len(z) and len(pts) >= 3:
-        d, _ = tree.query(pts[z], 3, distance_upper_bound=NORMAL_RADIUS_SPACINGS * spacing)
-        rim = z[~np.isfinite(d[:, 2])]
-        if len(rim):
-            k = min(FALLBACK_NEIGHBOURS, len(pts))
-            n[rim] = pca_normals(pts, tree.query(pts[rim], k)[1].reshape(-1, k))
-    return n
+    at = np.asarray(at, dtype=np.int64)
+    k = min(max(NORMAL_MAX_NEIGHBOURS, SPACING_NEIGHBOURS + 1), len(pts))
+    d, j = tree.query(pts[at], k=k, workers=-1 if len(at) > PARALLEL_QUERY else 1)
+    d, j = d.reshape(len(at), k), j.reshape(len(at), k)
+    patch = PATCH_SPACINGS * d[:, 1:min(SPACING_NEIGHBOURS + 1, k)].mean(axis=1)
+    kn = min(NORMAL_MAX_NEIGHBOURS, k)
+    within = d[:, :kn] <= NORMAL_RADIUS_SPACINGS * spacing
+    count = within.sum(axis=1)
+    normals = np.empty((len(at), 3))
+    for lo in range(0, len(at), PLANE_CHUNK):
+        w = within[lo:lo + PLANE_CHUNK, :, None]
+        nb = pts[j[lo:lo + PLANE_CHUNK, :kn]]
+        c = (nb - (nb * w).sum(axis=1, keepdims=True) / np.maximum(count[lo:lo + PLANE_CHUNK, None, None], 1)) * w
+        _, vecs = np.linalg.eigh(np.matmul(c.transpose(0, 2, 1), c))
+        normals[lo:lo + PLANE_CHUNK] = vecs[:, :, 0]
+    rim = np.flatnonzero(count < 3)
+    if len(rim):
+        normals[rim] = pca_normals(pts, j[rim, :min(FALLBACK_NEIGHBOURS, k)])
+    return normals, patch
+
+
+PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries, 14 MB
 
 
 @dataclass(eq=False)
 class TangentPlanes(Surface):
-    """A surface of tangent planes over a cloud (module notes): ``vertices`` (N, 3) the points, ``normals``
-    (N, 3) unit, ``patch`` (N,) each plane's radius (units); ``faces`` is empty (no triangles). The closest-point
-    queries answer as a mesh's do (:class:`core.surface.Surface`), so E, ICP and the search use it unchanged."""
+    """A surface of tangent planes over a cloud (module notes): ``vertices`` (N, 3) the points, ``spacing`` their
+    median spacing (units: the normals' neighbourhood), ``normals`` (N, 3) unit, ``patch`` (N,) each plane's
+    radius (units); ``faces`` is empty (no triangles). The closest-point queries answer as a mesh's do
+    (:class:`core.surface.Surface`), so E, ICP and the search use it unchanged.
 
-    normals: np.ndarray | None = field(default=None, repr=False)
-    patch: np.ndarray | None = field(default=None, repr=False)
+    A plane is fitted when a query first lands on its point (:func:`fit_planes`): a registration's queries
+    land on a few thousand of a cloud's points, and fitting every plane of a 274k-point fragment took 2.5 s of
+    CPU (Open3D's normals and the patches' spacing), most of a run's setup. ``normals`` and ``patch`` fit the
+    rest when asked for whole."""
+
+    spacing: float = 0.0
+    _normals: np.ndarray = field(init=False, repr=False)
+    _patch: np.ndarray = field(init=False, repr=False)
+    _fitted: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        super().__post_init__()
+        n = len(self.vertices)
+        self._normals, self._patch, self._fitted = np.zeros((n, 3)), np.zeros(n), np.zeros(n, dtype=bool)
 
     @classmethod
     def from_scan(cls, scan: Scan) -> TangentPlanes:
         """Planes over ``scan``'s points, normals fitted at its spacing, patches from its local spacing."""
         if not scan.spacing > 0:
             raise InputError(f"{scan.name}: the points repeat one another (no spacing); no surface")
-        normals = point_normals(scan.points, scan.spacing, scan.tree)
-        patch = PATCH_SPACINGS * local_spacing(scan.points, scan.tree)
-        return cls(scan.points, np.zeros((0, 3), dtype=np.int64), tree=scan.tree, normals=normals, patch=patch)
+        return cls(scan.points, np.zeros((0, 3), dtype=np.int64), tree=scan.tree, spacing=scan.spacing)
+
+    def _planes_at(self, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(normals, patch radii) of the planes at vertex indices ``j`` (any shape), fitting those not fitted yet
+        (the same values whichever thread fits them first)."""
+        new = np.unique(j[~self._fitted[j]])
+        if len(new):
+            self._normals[new], self._patch[new] = fit_planes(self.vertices, self._vertex_tree, self.spacing, new)
+            self._fitted[new] = True
+        return self._normals[j], self._patch[j]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """(N, 3) unit normals of every plane."""
+        return self._planes_at(np.arange(len(self.vertices)))[0]
+
+    @property
+    def patch(self) -> np.ndarray:
+        """(N,) every plane's radius (units)."""
+        return self._planes_at(np.arange(len(self.vertices)))[1]
 
     @cached_property
     def reach(self) -> float:
-        """The largest patch radius (units): every point of the surface lies within it of a vertex."""
-        return float(self.patch.max()) if len(self.patch) else 0.0
+        """The largest patch radius (units): every point of the surface lies within it of a vertex. From every
+        point's spacing alone (0.2 s of CPU on 100k points; their normals too would take ~1.3 s)."""
+        if not len(self.vertices):
+            return 0.0
+        if self._fitted.all():
+            return float(self._patch.max())
+        return float(PATCH_SPACINGS * local_spacing(self.vertices, self._vertex_tree).max())
 
     def warm(self) -> TangentPlanes:
-        """Nothing to build: the k-d tree and the planes are made already."""
+        """Nothing to build ahead: the k-d tree is made already, each plane when a query first lands on it."""
+        return self
+
+    def build(self) -> TangentPlanes:
+        """Nothing to build ahead (:meth:`warm`); ray casting (:meth:`first_hit`) builds its patches when asked."""
         return self
 
     def closest_with_normals(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,15 +146,16 @@ class TangentPlanes(Surface):
         projection onto the nearest point's tangent plane, at most its patch radius from the point."""
         q = np.asarray(query, dtype=np.float64)
         _, j = self._vertex_tree.query(q, workers=-1 if len(q) > PARALLEL_QUERY else 1)
-        p, n = self.vertices[j], self.normals[j]
+        n, r = self._planes_at(j)
+        p = self.vertices[j]
         v = q - p
         t = v - np.einsum("ij,ij->i", v, n)[:, None] * n  # the in-plane offset
         length = np.linalg.norm(t, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            shrink = np.where(length > self.patch[j], self.patch[j] / length, 1.0)
+            shrink = np.where(length > r, r / length, 1.0)
         c = p + t * shrink[:, None]
         d = q - c
-        return c, np.einsum("ij,ij->i", d, d), n.copy()
+        return c, np.einsum("ij,ij->i", d, d), n
 
     def _build_scene(self):
         """For ray casting only (:meth:`first_hit`): each patch as a square of two triangles inscribed in its disc."""
@@ -141,10 +191,29 @@ class CloudView:
     centre: np.ndarray
     radius: float
 
+    @cached_property
+    def _coarse(self) -> cKDTree:
+        """A k-d tree of every ``COARSE_EVERY``-th point of the cloud (:meth:`_within`)."""
+        return cKDTree(self.tree.data[::COARSE_EVERY])
+
     def _within(self, points: np.ndarray, distance: float) -> np.ndarray:
+        """(N,) bool: (N, 3) points within ``distance`` (units) of a point of the cloud. Beyond ``near`` (a guess's
+        margin: up to the whole cloud's size with no guess) a point within it of a coarse subset of the cloud is
+        within it of the cloud, and the whole tree is asked only about the rest: a nearest-point search that may
+        reach far costs the whole tree ~15 x more (100k points of a fragment, no guess: 1.05 s of CPU, 0.07 s
+        through the subset)."""
         pts = np.asarray(points, dtype=np.float64)
-        d, _ = self.tree.query(pts, distance_upper_bound=distance, workers=-1 if len(pts) > PARALLEL_QUERY else 1)
-        return np.isfinite(d)
+        inside = np.zeros(len(pts), dtype=bool)
+        rest = np.arange(len(pts))
+        if distance > self.near and len(self.tree.data) > COARSE_EVERY:
+            d, _ = self._coarse.query(pts, distance_upper_bound=distance)
+            inside = np.isfinite(d)
+            rest = np.flatnonzero(~inside)
+        if len(rest):
+            d, _ = self.tree.query(pts[rest], distance_upper_bound=distance,
+                                   workers=-1 if len(rest) > PARALLEL_QUERY else 1)
+            inside[rest] = np.isfinite(d)
+        return inside
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: (N, 3) points (this scan's frame) within ``near`` of a point of the cloud."""

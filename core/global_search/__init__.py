@@ -74,7 +74,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
     thinned = source is not whole[0] or target is not whole[1]
     if thinned and surface is None:  # the whole target's surface, made on a thread while the search runs
         pool = ThreadPoolExecutor(1, thread_name_prefix="whole-surface")
-        whole = (whole[0], whole[1], pool.submit(Surface.from_scan, whole[1]))
+        whole = (whole[0], whole[1], pool.submit(lambda target: Surface.from_scan(target).build(), whole[1]))
         pool.shutdown(wait=False)
     setup = prepare_setup(source, target, T_init, config, surface if target is whole[1] else None)
     run = EventStream(listener, setup.frame, setup.budget())

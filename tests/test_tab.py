@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -335,3 +336,44 @@ def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():
     for then in st.apply_handed():
         then()
     assert not st.campaign_busy and not campaign.merge.disabled and said == ["a.ply: unreadable"]
+
+
+LIDAR = Path(__file__).resolve().parents[2] / "shared" / "data" / "lidar"
+
+
+@pytest.mark.skipif(not (LIDAR / "251370668.pcd").exists(), reason="the shared LiDAR frames are absent")
+def test_a_panorama_is_drawn_with_its_sensor_named_and_a_large_cloud_by_a_subset(monkeypatch):
+    """A panorama has no frustum to show where its sensor stood: its viewpoint carries the sensor's axes and a label;
+    a cloud beyond DRAW_POINTS is drawn by a seeded subset at rest, recoloured through the same indices."""
+    import numpy as np
+    import viser
+    from rangereg.app.access import free_port
+    from rangereg.app.tab import scene3d
+    from rangereg.app.views import Display
+    from rangereg.core.frustum import frustum_of
+    from rangereg.core.io import load_scan
+    from rangereg.core.scan import ScanKind
+    from rangereg.core.surface import Surface
+
+    target, source = (load_scan(LIDAR / f"{n}.pcd") for n in (251370668, 251371071))
+    assert source.kind is ScanKind.PANORAMA and target.kind is ScanKind.PANORAMA
+    state = SimpleNamespace(pair=0, display=Display(target, source), residual_rgb=None, source=source, target=target,
+                            problem=None, frusta={"convex": (frustum_of(source, "convex"), frustum_of(target, "convex"))},
+                            surfaces=(Surface.from_scan(source), Surface.from_scan(target)))
+    monkeypatch.setattr(scene3d, "DRAW_POINTS", 20_000)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        cloud = scene3d._cloud(server.scene, state, "source", state.display.source_local(source.points), 0.01,
+                               "convex", False)
+        names = set(server.scene._handle_from_node_name)
+        root = cloud.root
+        assert {f"{root}/viewpoint", f"{root}/viewpoint/axes", f"{root}/viewpoint/label"} <= names
+        assert len(cloud.frustum_segments) == 0  # nothing a frustum would draw
+        assert len(cloud.points.points) == 20_000 == len(np.unique(cloud.drawn_index))
+        full = np.zeros((len(source.points), 3), np.uint8)
+        full[cloud.drawn_index[0]] = (1, 2, 3)
+        monkeypatch.setattr(scene3d, "colours", lambda *a: full)
+        scene3d.recolour(SimpleNamespace(target=cloud, source=cloud), state, False)
+        assert tuple(cloud.points.colors[0]) == (1, 2, 3) and len(cloud.points.colors) == 20_000
+    finally:
+        server.stop()

@@ -27,12 +27,17 @@ from rangereg.app.figures import (
 )
 from rangereg.app.tab.state import TabState
 from rangereg.app.views import Display
+from rangereg.core.scan import ScanKind
 
 RUN_POINTS = 1500  # while a run moves the scan, each cloud is drawn with at most this many points: software
 # WebGL pays per point, hardly per pixel of a point (bunny pair, 1400 x 900 page, no run: 11-14 frames a second
 # with 2 x 6,000 points, 16-18 with 2 x 2,000, 19-21 with none; points drawn 2 x larger: no change). During a
 # run the page has one core: benchmarks/workbench_rate.py, docked panel: 2 x 2,000: 9.2-10.8 updates a second,
 # 2 x 1,500: 9.6-11.2 (median 11.2, three runs each, load 2-4)
+DRAW_POINTS = 100_000  # at rest each cloud is drawn with at most this many points (a seeded subset; registration,
+# picks and exports use every point): an object scan (the bunny's ~40k) is drawn whole, a Kinect frame (~250k) or a
+# fused fragment (~300k) is not sent and drawn whole in a browser without a GPU
+SENSOR_AXES = 0.04  # page units (the target's size is 1): a panorama's sensor marker, its frame's axes
 LIGHT_SIZE_MAX = 3.0  # the subset's points are drawn sqrt(N / RUN_POINTS) times larger (its spacing), at most this
 # (chosen by eye on screenshots of the bunny page: 2.5-3 x reads as the surface, larger as blobs; size costs nothing)
 AMBIENT = 1.0  # the ambient light's intensity, in place of the environment map's fill (set_lights; chosen by eye on
@@ -64,6 +69,7 @@ class CloudNodes:
     viewpoint: viser.IcosphereHandle
     frustum_segments: np.ndarray
     surface_mesh: tuple[np.ndarray, np.ndarray]
+    drawn_index: np.ndarray | None = None  # the points drawn at rest (None: all; DRAW_POINTS)
     frustum: viser.LineSegmentsHandle | None = None
     surface: viser.MeshHandle | None = None
 
@@ -135,7 +141,11 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
     src = which == "source"
     root, rgb, base = f"{pair_root(state)}/{which}", colours(state, which, overlap), SOURCE_RGB if src else TARGET_RGB
     to_page = d.source_local if src else d.points
-    points = scene.add_point_cloud(f"{root}/points", pts, rgb, point_size=size, precision="float32")
+    drawn = None
+    if len(pts) > DRAW_POINTS:
+        drawn = np.sort(np.random.default_rng(1).choice(len(pts), DRAW_POINTS, replace=False))
+    points = scene.add_point_cloud(f"{root}/points", pts if drawn is None else pts[drawn],
+                                   rgb if drawn is None else rgb[drawn], point_size=size, precision="float32")
     light = index = None
     if len(pts) > RUN_POINTS:
         index = np.sort(np.random.default_rng(0).choice(len(pts), RUN_POINTS, replace=False))
@@ -146,8 +156,13 @@ def _cloud(scene, state: TabState, which: str, pts: np.ndarray, size: float, fru
     f = state.frusta[frustum_kind][0 if src else 1]
     scan, surface = (state.source, state.surfaces[0]) if src else (state.target, state.surfaces[1])
     vp = scene.add_icosphere(f"{root}/viewpoint", radius=0.015, color=base, position=to_page(scan.viewpoint))
+    if scan.kind is ScanKind.PANORAMA:  # no frustum to show where it stood: the sensor's own axes, named
+        scene.add_frame(f"{root}/viewpoint/axes", axes_length=SENSOR_AXES, axes_radius=SENSOR_AXES / 12,
+                        origin_radius=0.0)
+        scene.add_label(f"{root}/viewpoint/label", f"{which} sensor", position=(0.0, 0.0, 1.5 * SENSOR_AXES),
+                        anchor="bottom-center")
     cloud = CloudNodes(root, base, points, light, index, vp, to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
-                       (to_page(scan.points), surface.faces))
+                       (to_page(scan.points), surface.faces), drawn_index=drawn)
     cloud.show_frustum(scene, True)
     return cloud
 
@@ -208,7 +223,7 @@ def recolour(nodes: SceneNodes, state: TabState, overlap: bool) -> None:
     """New colours only: the points stay where they are on the page."""
     for which, cloud in (("target", nodes.target), ("source", nodes.source)):
         rgb = colours(state, which, overlap)
-        cloud.points.colors = rgb
+        cloud.points.colors = rgb if cloud.drawn_index is None else rgb[cloud.drawn_index]
         if cloud.light is not None:
             cloud.light.colors = rgb[cloud.light_index]
 

@@ -353,6 +353,8 @@ def _inside_frusta(eye: np.ndarray, d: Display, T: np.ndarray, frusta) -> bool:
     in_target = eye * d.size + d.centre
     in_source = (in_target - T[:3, 3]) @ T[:3, :3]  # T^-1: the source's frame
     for f, p in zip(frusta, (in_source, in_target)):
+        if not hasattr(f, "project"):  # a panorama's or a cloud's view: all round the sensor, no frustum to avoid
+            continue
         _, depth = f.project(p[None])
         if 0 < depth[0] <= f.far and bool(f.contains(p[None])[0]):
             return True

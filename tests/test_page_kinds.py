@@ -1,0 +1,63 @@
+"""The page on a spinning-LiDAR pair (the shared frames): opened from the data folder, both panoramas drawn with
+their sensors named, in view after Fit view, and the global run right and trusted from the page."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import wait_for
+from tests.test_page_scene import in_view, open_tab, settled, show_tab
+
+LIDAR = Path(__file__).resolve().parents[2] / "shared" / "data" / "lidar"
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.fixture(scope="module")
+def lidar_bench():
+    """A workbench in this process on its bundled scene with --data-dir the shared LiDAR frames."""
+    if not (LIDAR / "251370668.pcd").exists():
+        pytest.skip("the shared LiDAR frames (../shared/data/lidar) are absent")
+    from rangereg.app.access import free_port
+    from rangereg.app.workbench import ServeOptions, Workbench
+
+    port = free_port()
+    wb = Workbench(ServeOptions(port=port, data_dir=str(LIDAR)))
+    yield wb, f"http://127.0.0.1:{port}"
+    for tab in list(wb.tabs.values()):
+        tab.close()
+    wb.server.stop()
+
+
+def test_a_lidar_pair_opens_with_its_sensors_in_view_and_registers_trusted(lidar_bench, browser):
+    from rangereg.core.scan import ScanKind
+    from rangereg.core.transforms import invert, rotation_angle
+
+    page, tab = open_tab(lidar_bench, browser)
+    show_tab(page, "Scans")
+    page.get_by_role("button", name="Open files", exact=True).click()
+    wait_for(lambda: tab.state.source is not None and tab.state.source.kind is ScanKind.PANORAMA
+             and tab.nodes is not None and tab.nodes.source.root.startswith(f"/pair{tab.state.pair}"), 120,
+             what="the LiDAR pair")
+    names = set(tab.client.scene._handle_from_node_name)
+    for cloud in (tab.nodes.source, tab.nodes.target):
+        assert f"{cloud.root}/viewpoint/axes" in names and f"{cloud.root}/viewpoint/label" in names
+    page.get_by_role("button", name="Fit view", exact=True).click()
+    settled(page, tab)
+    pts = tab.state.display.points(tab.state.target.points[::50])
+    wait_for(lambda: in_view(tab, pts)[0] > 0.95, 20, what="the framed pair")
+    # the default method from the page's first button, from the identity: right and trusted
+    show_tab(page, "Run")
+    page.get_by_role("button", name="Run global", exact=True).click()
+    wait_for(lambda: tab.state.result is not None and not tab.state.running, 300, what="the global run")
+    truth = np.loadtxt(LIDAR / "relative.txt").reshape(4, 4)  # 251371071's points into 251370668's frame
+    if tab.state.target.name != "251370668":
+        truth = invert(truth)
+    T = tab.state.result.T_target_source
+    assert np.degrees(rotation_angle(T[:3, :3] @ truth[:3, :3].T)) < 1.0
+    assert np.linalg.norm(T[:3, 3] - truth[:3, 3]) < 0.05
+    assert tab.state.result.trusted
+    page.close()

@@ -18,6 +18,7 @@ from ..scan import Scan
 from ..search.budget import BudgetSpent
 from ..surface import Surface
 from .setup import Setup
+from .slide import along_the_free_motion
 from .stages import Hypotheses, stages
 from .stream import EventStream
 
@@ -97,9 +98,13 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         done.append(poses[k])
         run.leg("icp")
         at_guess = setup.problem if poses[k] is setup.T_guess else None
+        def refine_from(T0, at=None):
+            return refine(setup.source, setup.target, setup.surface, T0, setup.config.problem, setup.config,
+                          lambda T_, E_: run.emit("icp", T_, E_), setup.frame, at)
+
         try:
-            T, last = refine(setup.source, setup.target, setup.surface, poses[k], setup.config.problem, setup.config,
-                             lambda T, E: run.emit("icp", T, E), setup.frame, at_guess)
+            T, last = refine_from(poses[k], at_guess)
+            T, last = along_the_free_motion(setup, run, T, last, refine_from)
         except BudgetSpent as spent:  # the budget ran out inside this refinement: it is given up, the search ends
             found.stopped = spent.stop
             return

@@ -27,7 +27,8 @@ SLICE_KNOBS = ("problem.", "guess.", "seed", "lock.")  # what the slice depends 
 
 def trace_notes(trace, guess, cfg, units: str = "units") -> list[str]:
     """What to say about a trace of these scans (checked before): how its run differs from this slice's
-    guess (a core Guess, or a (4, 4) pose) and settings (drawn all the same), or that an old trace without a header could not be checked."""
+    guess (a core Guess, or a (4, 4) pose) and settings (drawn all the same), or that an old trace without a
+    header could not be checked."""
     from rangereg.core.trace import NO_HEADER
 
     if trace.header is None:

@@ -8,8 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from rangereg.core.candidates import CandidateConfig
-from rangereg.core.problem import ProblemConfig
-from rangereg.core.region import no_guess
+from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.result import StopReason
 from rangereg.core.search.budget import Budget, BudgetSpent
@@ -50,9 +49,8 @@ def test_a_slow_clock_gives_the_same_pose_the_bound_counts_work(scene, monkeypat
     import rangereg.core.search.budget as budget
 
     corner, bowl = _unregistrable(scene)
-    cfg = Config(method="global", problem=no_guess(ProblemConfig()),
-                 candidates=replace(CandidateConfig(), fallback_steps=40, kiss_matcher=False))
-    fast = register(corner, bowl, np.eye(4), cfg)
+    cfg = Config(method="global", candidates=replace(CandidateConfig(), fallback_steps=40, kiss_matcher=False))
+    fast = register(corner, bowl, Guess.none(), cfg)
     t = {"now": 0.0}
 
     def slow():  # a machine 1000 x slower: every reading of the clock 10 s later

@@ -58,12 +58,12 @@ def test_a_slow_clock_gives_the_same_pose_the_bound_counts_work(scene, monkeypat
         return t["now"]
 
     monkeypatch.setattr(budget, "time", SimpleNamespace(perf_counter=slow))
-    slowed = register(corner, bowl, np.eye(4), cfg)
+    slowed = register(corner, bowl, Guess.none(), cfg)
     assert np.array_equal(fast.transform, slowed.transform)
     assert fast.iterations == slowed.iterations and fast.stop_text == slowed.stop_text
     assert fast.stop_reason is StopReason.WORK_BOUND
     # a bound in seconds (a user's explicit choice) is what a slow machine changes
-    timed = register(corner, bowl, np.eye(4), replace(cfg, candidates=replace(cfg.candidates, time_limit=30.0)))
+    timed = register(corner, bowl, Guess.none(), replace(cfg, candidates=replace(cfg.candidates, time_limit=30.0)))
     assert timed.stop_reason is StopReason.TIME_BOUND and timed.iterations.total < fast.iterations.total
 
 

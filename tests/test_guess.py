@@ -136,3 +136,15 @@ def test_register_takes_a_guess_and_a_bare_pose_means_the_default_uncertainty(sc
     by_pose = register(source, target, T0, cfg)
     by_guess = register(source, target, Guess(T0, DEFAULT_ROTATION_DEG), cfg)
     assert np.array_equal(by_pose.transform, by_guess.transform) and by_pose.error == by_guess.error
+
+
+def test_rangereg_register_takes_a_guess_as_init_the_same_as_the_pose_and_its_uncertainty_apart(scene):
+    import rangereg
+
+    source, target = scene("corner")
+    T0 = np.eye(4)
+    apart = rangereg.register(source, target, T0, rotation_uncertainty=25, method="icp", seed=3)
+    one = rangereg.register(source, target, rangereg.Guess(T0, 25), method="icp", seed=3)
+    assert np.array_equal(apart.T_target_source, one.T_target_source)
+    with pytest.raises(rangereg.InputError, match="^init is a Guess, which states its own uncertainty"):
+        rangereg.register(source, target, rangereg.Guess(T0, 25), rotation_uncertainty=25)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
+from .region import Region
 from .transforms import check_rigid, invert
 
 DEFAULT_ROTATION_DEG = 15.0  # the paper's starts lie within this of the truth (section 3)
@@ -136,10 +137,8 @@ class Guess:
         in (section 2.1; core.problem divides the translation by its scale to make search units)."""
         return np.radians(self.rotation_deg), self.translation_for(target_size)
 
-    def region(self, source, target):
+    def region(self, source, target) -> Region:
         """The ``global`` method's stated region for this pair (core.region.Region)."""
-        from .region import Region
-
         return Region.of(self, source, target)
 
     def describe(self, units: str = "units") -> str:

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .guess import Guess
 from .scan import Scan
 
 # From this stated rotation up a translation bound says little (a rotation that large about an origin
@@ -64,8 +63,8 @@ class Region:
     units: str = "units"
 
     @classmethod
-    def of(cls, guess: Guess, source: Scan, target: Scan) -> Region:
-        """The region ``guess`` states for this pair (module notes)."""
+    def of(cls, guess: Guess, source: Scan, target: Scan) -> Region:  # noqa: F821 (core.guess imports this module)
+        """The region ``guess`` (a core.guess.Guess) states for this pair (module notes)."""
         T_guess = guess.T_target_source
         theta = np.radians(guess.rotation_deg)
         c = source.centroid

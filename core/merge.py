@@ -238,10 +238,12 @@ class _Campaign:
     (core.merge_rounds), groups (core.merge_groups), report (core.merge_report)."""
 
     def __init__(self, scans: list[Scan], initial: list[np.ndarray], have: bool, config: Config,
-                 settings: MergeConfig, say: Callable[[MergeProgress], None], run: TaskMap, stated: Guess):
+                 settings: MergeConfig, say: Callable[[MergeProgress], None], run: TaskMap,
+                 stated: Guess | None = None):
         self.scans, self.initial, self.have, self.config, self.mc, self.say, self.map = (
             scans, initial, have, config, settings, say, run)
         self.n = len(scans)
+        stated = stated or Guess.identity()
         self.t0 = time.perf_counter()
         self.shared = Shared(token(scans, config), tuple(scan_arrays(s) for s in scans), config,
                              settings.polish_steps, settings.polish_gate, settings.polish_points, stated)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from rangereg.app.cases import Case
 from rangereg.core.errors import InputError
+from rangereg.core.guess import Guess
 from rangereg.core.problem import ProblemConfig, prepare
 from rangereg.core.register import METHODS, Config, register
 from rangereg.core.simulate import SCENES, make_scene, true_transform
@@ -50,8 +51,8 @@ def bunny_cases(folder: Path, pairs=BUNNY_PAIRS, rot=15.0, trans=0.025) -> list[
     out = []
     for src, tgt in pairs:
         s, t = load_scan(folder / f"{src}.ply"), load_scan(folder / f"{tgt}.ply")
-        pc = ProblemConfig(rotation_uncertainty_deg=max(15.0, rot), translation_uncertainty=max(0.025, trans))
-        out.append(Case(f"{src}->{tgt}", s, t, invert(t.pose) @ s.pose, rot, trans, 2.0, 0.002, pc))
+        stated = Guess.identity(max(15.0, rot), max(0.025, trans))
+        out.append(Case(f"{src}->{tgt}", s, t, invert(t.pose) @ s.pose, rot, trans, 2.0, 0.002, ProblemConfig(), stated))
     return out
 
 
@@ -69,7 +70,7 @@ def starts(case: Case, runs: int, seed: int = 0) -> list[np.ndarray]:
 def run_method(case: Case, method: str, T0: np.ndarray, seed: int) -> dict:
     kw = EXTRAS.get(method, {"method": method})
     cfg = Config(seed=seed, problem=case.problem, **kw)
-    res = register(case.source, case.target, T0, cfg)
+    res = register(case.source, case.target, case.stated.at(T0), cfg)
     rot, tr = pose_error(res.transform, case.T_true, case.source.centroid)
     return {"error": res.error, "iterations": res.iterations.icp + res.iterations.sa, "icp": res.iterations.icp,
             "sa": res.iterations.sa, "seconds": res.seconds, "rot": rot, "trans": tr,
@@ -97,7 +98,7 @@ def truth_check(case: Case, runs: list[dict], seed: int = 0) -> dict:
     """
     wrong_preferred = 0
     for r in runs:
-        p = prepare(case.source, case.target, r["T"], case.problem, seed=seed)
+        p = prepare(case.source, case.target, case.stated.at(r["T"]), case.problem, seed=seed)
         if not r["ok"] and p.error(r["T"]) < p.error(case.T_true):
             wrong_preferred += 1
     return {"runs_where_E_prefers_a_wrong_pose": wrong_preferred}

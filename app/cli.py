@@ -74,6 +74,7 @@ def scan_kind(s) -> None:
 def build_parser() -> argparse.ArgumentParser:
     from rangereg.app.options import KNOBS
     from rangereg.core.frustum import KINDS
+    from rangereg.core.guess import DEFAULT_ROTATION_DEG
     from rangereg.core.problem import ProblemConfig
     from rangereg.core.register import METHODS, Config
     from rangereg.core.simulate import SCENES
@@ -111,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--rotation-uncertainty", type=_knob("rotation_uncertainty"), metavar="DEG",
                        help="how far off the guess may be in rotation, 0.01 to 180, about the scan frame's origin (where "
                        "a 4x4 --init's rotation acts: the global method adds the move this implies at the scans' "
-                       f"centroid to the translation); default {pc.rotation_uncertainty_deg:g} deg; 180: any rotation. "
+                       f"centroid to the translation); default {DEFAULT_ROTATION_DEG:g} deg; 180: any rotation. "
                        "The global method takes no --init, no stored rough poses and neither uncertainty flag as no "
                        "guess at all")
         s.add_argument("--translation-uncertainty", type=_knob("translation_uncertainty"), metavar="UNITS",

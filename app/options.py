@@ -3,7 +3,8 @@
 Every number a user may type is declared once in :data:`KNOBS` (kind, range, why the bound) and
 checked once by :func:`parse_value`, whether it arrives as CLI text, page text or a number. A
 :class:`Settings` holds checked values (``None``: the core's own default) and :func:`to_config` is
-the only place that turns them into ``core.register.Config`` + ``ProblemConfig``.
+the only place that turns them into ``core.register.Config`` + ``ProblemConfig``, and :func:`to_guess`
+the only place that turns the stated uncertainty (or no guess) and a pose into a ``core.guess.Guess``.
 """
 
 from __future__ import annotations
@@ -187,13 +188,7 @@ def to_config(s: Settings):
         return {k: v for k, v in kw.items() if v is not None}
 
     base = Config()
-    problem = replace(base.problem, **given(
-        max_points=s.max_points, frustum=s.frustum, rotation_uncertainty_deg=s.rotation_uncertainty,
-        translation_uncertainty=s.translation_uncertainty))
-    if s.no_guess and (s.method or base.method) == "global":
-        from rangereg.core.region import no_guess
-
-        problem = no_guess(problem)
+    problem = replace(base.problem, **given(max_points=s.max_points, frustum=s.frustum))
     anneal = given(t_start=s.t_start, t_min_ratio=s.t_min_ratio, cooling=s.cooling, max_evaluations=s.sa_max_evaluations)
     cfg = replace(base, threshold=s.threshold, seed=s.seed, problem=problem,
                   icp=replace(base.icp, **given(max_iterations=s.icp_max_iterations)),
@@ -207,6 +202,20 @@ def to_config(s: Settings):
                   **given(method=s.method, hops=s.hops, restarts=s.restarts, recut_rounds=s.recut_rounds))
     cfg.validate()
     return cfg
+
+
+def to_guess(s: Settings, T_target_source=None):
+    """The one mapping from settings to a ``core.guess.Guess``: the pose ``T_target_source`` ((4, 4); None: the
+    identity) with the stated uncertainty (None: the core's default); ``no_guess`` (the global method only, as
+    the paper's methods keep their search region): any pose."""
+    from rangereg.core.guess import DEFAULT_ROTATION_DEG, Guess
+    from rangereg.core.register import Config
+
+    T = np.eye(4) if T_target_source is None else T_target_source
+    if s.no_guess and (s.method or Config().method) == "global":
+        return Guess.none(T)
+    rotation = DEFAULT_ROTATION_DEG if s.rotation_uncertainty is None else s.rotation_uncertainty
+    return Guess(T, rotation, s.translation_uncertainty)
 
 
 def has_guess(init, source, target) -> bool:

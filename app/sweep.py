@@ -49,8 +49,7 @@ import numpy as np
 from rangereg.app.crops import crop
 from rangereg.app.distributed import map_tasks, stderr_lines
 from rangereg.core.errors import InputError
-from rangereg.core.problem import ProblemConfig
-from rangereg.core.region import no_guess
+from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.scan import Scan
 from rangereg.core.transforms import invert, perturb, pose_error, random_perturbation, rotation_matrix
@@ -222,14 +221,15 @@ def start_pose(task: SweepTask, s: Scan, t: Scan) -> np.ndarray:
     return T
 
 
-def told(task: SweepTask) -> ProblemConfig:
-    """What the method is told for ``task`` (module notes: modes); never the true error."""
+def told(task: SweepTask, T0: np.ndarray | None = None) -> Guess:
+    """The guess the method is given for ``task`` at its start pose ``T0`` (None: the identity; module notes:
+    modes); never the true error."""
+    T0 = np.eye(4) if T0 is None else T0
     if task.mode == "no-guess":
-        return no_guess(ProblemConfig())
+        return Guess.none(T0)
     if task.mode == "centroid":
-        return ProblemConfig(rotation_uncertainty_deg=180.0 if task.rot >= 90 else max(task.rot, 15.0),
-                             translation_uncertainty=max(task.trans, 0.025))
-    return ProblemConfig(rotation_uncertainty_deg=max(task.rot, 15.0))  # the rotation only
+        return Guess(T0, 180.0 if task.rot >= 90 else max(task.rot, 15.0), max(task.trans, 0.025))
+    return Guess(T0, max(task.rot, 15.0))  # the rotation only
 
 
 def run_sweep_task(task: SweepTask) -> list[dict]:
@@ -249,7 +249,7 @@ def run_sweep_task(task: SweepTask) -> list[dict]:
                     "seconds": seconds, **extra})
 
     t0 = time.perf_counter()
-    g = register(s, t, T0, Config(method="global", seed=task.start, problem=told(task)))
+    g = register(s, t, told(task, T0), Config(method="global", seed=task.start))
     row("global", g.transform, load_s + time.perf_counter() - t0, load_seconds=load_s, trusted=g.below_threshold,
         within_region=g.within_region, stop=g.stop_reason.name, cut=g.cut)
     for method in PEERS:

@@ -22,7 +22,7 @@ Modes (how a start is made and what the method is told)
     identity    T0 = identity (odometry: the scans as stored); told nothing (the defaults)
     sensor      the truth turned about the source sensor's origin by 5, 15, 30 or 60 deg on a seeded axis and
                 shifted by 0.1, 0.25, 0.5 or 1 m; told max(offset, 15) deg and max(shift, 0.25) m
-    no-guess    T0 = identity, told there is no guess (core.region.no_guess)
+    no-guess    T0 = identity, told there is no guess (core.guess.Guess.none)
     (kinect: the starts perturb the identity instead of a truth)
 Right: within 1 deg and 5 cm, the translation error measured at the source frame's origin (the sensor).
 Peers, on the same starts, at the scene's voxel v (core.candidates.scene_voxel):
@@ -44,8 +44,7 @@ from pathlib import Path
 
 import numpy as np
 from rangereg.core.errors import InputError
-from rangereg.core.problem import ProblemConfig
-from rangereg.core.region import no_guess
+from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.scan import Scan
 from rangereg.core.transforms import invert, pose_error, random_perturbation, rotation_matrix
@@ -126,12 +125,13 @@ def sensor_start(T_ref: np.ndarray, rot: float, trans: float, seed: int) -> np.n
     return T
 
 
-def told(mode: str, rot: float, trans: float) -> ProblemConfig:
+def told(mode: str, rot: float, trans: float, T0: np.ndarray) -> Guess:
+    """The guess the method is given at its start pose ``T0`` (module notes: modes)."""
     if mode == "no-guess":
-        return no_guess(ProblemConfig())
+        return Guess.none(T0)
     if mode == "sensor":
-        return ProblemConfig(rotation_uncertainty_deg=max(rot, 15.0), translation_uncertainty=max(trans, 0.25))
-    return ProblemConfig()
+        return Guess(T0, max(rot, 15.0), max(trans, 0.25))
+    return Guess(T0)
 
 
 # ---- the peers ----------------------------------------------------------------------------------------------
@@ -193,7 +193,7 @@ def _judge(T: np.ndarray, T_true: np.ndarray) -> tuple[bool, float, float]:
 def _ours(s, t, T0, task) -> tuple[np.ndarray | None, bool, str, float]:
     t0 = time.perf_counter()
     try:
-        g = register(s, t, T0, Config(method="global", seed=task.start, problem=told(task.mode, task.rot, task.trans)))
+        g = register(s, t, told(task.mode, task.rot, task.trans, T0), Config(method="global", seed=task.start))
     except InputError as exc:
         return None, False, f"refused: {exc}", time.perf_counter() - t0
     except Exception as exc:  # noqa: BLE001 (a crash is a result of the sweep: kept, said, and the sweep goes on)

@@ -14,8 +14,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from rangereg.app.distributed import TaskRunner
+from rangereg.core.guess import Guess
 from rangereg.core.merge import clear_geometry_cache, merge
-from rangereg.core.problem import ProblemConfig
 from rangereg.core.register import Config
 from rangereg.core.transforms import invert, pose_error
 
@@ -72,10 +72,11 @@ def ours(scans, truth, initial, rotation_deg: float = 15.0, seed: int = 0, worke
     ``rotation_deg`` per scan and no translation), the default runner (``workers=None``)."""
     clear_geometry_cache()
     plain = [replace(s, guess=None, pose=None) for s in scans]
-    config = Config(method="global", seed=seed, problem=ProblemConfig(rotation_uncertainty_deg=rotation_deg))
+    config = Config(method="global", seed=seed)
     t0 = time.perf_counter()
     with TaskRunner(workers, progress=progress) as runner:
-        res = merge(plain, initial, config, build_model=False, map_tasks=runner.map, progress=progress)
+        res = merge(plain, initial, config, build_model=False, map_tasks=runner.map, progress=progress,
+                    stated=Guess.identity(rotation_deg))
     seconds = time.perf_counter() - t0
     cycles = [r.cycle for r in res.scans if r.cycle is not None]
     worst = "-" if not cycles else "{:.3f} deg / {:.3g}".format(*max(cycles))

@@ -37,11 +37,10 @@ def flags(task: SweepTask, T0: np.ndarray) -> list[str]:
     """What a user tells the CLI in ``task``'s mode (app.sweep.told, in flags)."""
     if task.mode == "no-guess":
         return []
-    pc = told(task)
+    guess = told(task, T0)
     out = ["--init=" + " ".join(repr(float(v)) for v in T0.ravel()), "--rotation-uncertainty",
-           repr(pc.rotation_uncertainty_deg)]
-    return out + (["--translation-uncertainty", repr(pc.translation_uncertainty)]
-                  if pc.translation_uncertainty is not None else [])
+           repr(guess.rotation_deg)]
+    return out + (["--translation-uncertainty", repr(guess.translation)] if guess.translation is not None else [])
 
 
 def one_run(task: SweepTask) -> dict:

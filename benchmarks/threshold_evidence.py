@@ -40,9 +40,9 @@ from rangereg.app.sweep import shared_pairs  # noqa: E402
 from rangereg.core.candidates import CandidateConfig, make_basis  # noqa: E402
 from rangereg.core.config import Config  # noqa: E402
 from rangereg.core.global_search import refine  # noqa: E402
+from rangereg.core.guess import Guess  # noqa: E402
 from rangereg.core.io import load_scan  # noqa: E402
 from rangereg.core.noise import noise_floor  # noqa: E402
-from rangereg.core.problem import ProblemConfig  # noqa: E402
 from rangereg.core.simulate import SCENES, make_scene, true_transform  # noqa: E402
 from rangereg.core.surface import Surface  # noqa: E402
 from rangereg.core.threshold import FACTOR, MIN_TRUST_OVERLAP, pair_threshold  # noqa: E402
@@ -213,11 +213,11 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: Candidate
     truth = misfit(T_true)
     rng = np.random.default_rng(7)
     wrong = []
-    pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * t.size)
+    stated = Guess.identity(90.0, 0.3 * t.size)
     every = starts_from(T_true, s, rng, starts, t.size)
     for T0 in every if turned is None else itertools.islice(every, starts + turned):
         try:
-            T, _ = refine(s, t, surface, T0, pc, Config(candidates=config))
+            T, _ = refine(s, t, surface, stated.at(T0), Config(candidates=config))
         except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
             continue
         rot, trans = pose_error(T, T_true, s.centroid)

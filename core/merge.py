@@ -1,8 +1,8 @@
 """A set of scans -> globally consistent poses -> one model (the paper's Fig. 2, for many views).
 
 1. Poses to start from (``T_world_scan``): given (a Stanford .conf, or the scans' stored rough poses),
-   each within the stated uncertainty (``Config.problem``: rotation about the scan frame's origin, and
-   translation); or none: no guess, every pair registered over all rotations and translations.
+   each within the stated uncertainty (``stated``, a core.guess.Guess: rotation about the scan frame's origin,
+   and translation); or none: no guess, every pair registered over all rotations and translations.
 2. Round 1's pairs (:class:`MergeConfig` ``pairs``; core.merge_pairs): with poses that tell the scans
    apart, those that overlap under them ("init": each scan's best partners; "overlap": every
    overlapping pair; "chain": consecutive scans), measured for each scan's likeliest partners only;
@@ -11,7 +11,7 @@
    ("features": the share of mutually nearest FPFH features, core.merge_cue).
 3. Each pair is registered by the ``global`` pipeline (core.register) in the pair's region: a relative
    guess between two poses each within R degrees and T units is within 2R and 2T, so the pair's region
-   is twice the stated one (no guess: rotation 180, translation unstated). Trusted pairs are polished.
+   is twice the stated one (core.guess.Guess.between; no guess: rotation 180, translation unstated). Trusted pairs are polished.
    A pair's first registration stops after the candidates when none is trusted (no hybrid fallback:
    ``first_fallback_steps``), and no pair's search is bounded by time, only by its work
    (``pair_time_limit``): the campaign is the same on a busy machine, later. Pairs are
@@ -45,6 +45,7 @@ import numpy as np
 from . import merge_graph, merge_pairs, merge_report, merge_rounds
 from .errors import InputError
 from .fuse import fuse
+from .guess import Guess
 from .merge_cue import NeighbourCue
 from .merge_graph import Screened
 from .merge_progress import Counter, MergeProgress, Step
@@ -200,10 +201,12 @@ def serial_map(fn: Callable[[Any, Any], Any], items: Sequence[Any], shared: Any,
 
 def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Config | None = None,
           progress: Callable[[MergeProgress], None] | None = None, build_model: bool = True, pairs: str | None = None,
-          map_tasks: TaskMap | None = None, settings: MergeConfig | None = None) -> MergeResult:
+          map_tasks: TaskMap | None = None, settings: MergeConfig | None = None,
+          stated: Guess | None = None) -> MergeResult:
     """Register and fuse ``scans`` (module notes). ``initial``: T_world_scan per scan (None: the scans'
-    stored rough poses when all have one, else no guess); ``config.problem``'s rotation and translation
-    uncertainty: how far each initial pose may be off; ``progress``: receives :class:`MergeProgress`
+    stored rough poses when all have one, else no guess); ``stated``: how far each initial pose may be off
+    (core.guess: its rotation and translation uncertainty; its pose unused; None: the default; a pair's guess
+    is :meth:`Guess.between` the two scans'); ``progress``: receives :class:`MergeProgress`
     events; ``pairs``: overrides ``settings.pairs``; ``map_tasks``: runs the tasks (default :func:`serial_map`)."""
     settings = settings or MergeConfig()
     if pairs is not None:
@@ -224,7 +227,8 @@ def merge(scans: list[Scan], initial: list[np.ndarray] | None = None, config: Co
         initial = [check_rigid(T, f"the initial pose of {s.name}") for T, s in zip(initial, scans)]
     except ValueError as exc:
         raise InputError(str(exc)) from None
-    run = _Campaign(scans, initial, have, config, settings, progress or (lambda _event: None), map_tasks or serial_map)
+    run = _Campaign(scans, initial, have, config, settings, progress or (lambda _event: None), map_tasks or serial_map,
+                    stated or Guess.identity())
     return run.go(build_model)
 
 
@@ -234,13 +238,15 @@ class _Campaign:
     (core.merge_rounds), groups (core.merge_groups), report (core.merge_report)."""
 
     def __init__(self, scans: list[Scan], initial: list[np.ndarray], have: bool, config: Config,
-                 settings: MergeConfig, say: Callable[[MergeProgress], None], run: TaskMap):
+                 settings: MergeConfig, say: Callable[[MergeProgress], None], run: TaskMap,
+                 stated: Guess | None = None):
         self.scans, self.initial, self.have, self.config, self.mc, self.say, self.map = (
             scans, initial, have, config, settings, say, run)
         self.n = len(scans)
+        stated = stated or Guess.identity()
         self.t0 = time.perf_counter()
         self.shared = Shared(token(scans, config), tuple(scan_arrays(s) for s in scans), config,
-                             settings.polish_steps, settings.polish_gate, settings.polish_points)
+                             settings.polish_steps, settings.polish_gate, settings.polish_points, stated)
         self.spacing = float(np.median([s.spacing for s in scans]))
         self.centers = [s.centroid for s in scans]
         self.radius = [float(np.linalg.norm(s.points - s.centroid, axis=1).max()) for s in scans]
@@ -258,8 +264,7 @@ class _Campaign:
         self.round = 0
         self.registrations = 0
         self.counters = {step: Counter(step, self.say, self.t0) for step in Step}
-        pc = config.problem
-        self.stated = (pc.rotation_uncertainty_deg, pc.translation_uncertainty) if have else (180.0, None)
+        self.stated = stated if have else Guess.none()  # each scan's initial pose: how far off it may be
         self.mode = settings.pairs
         if not have and self.mode in ("init", "overlap"):
             raise InputError(f"pairs={self.mode!r} needs initial poses (--init, or stored rough poses)")
@@ -300,12 +305,11 @@ class _Campaign:
                            rings=loops, skipped=len(self.skipped - set(self.pairs)),
                            forecasts=tuple(f for c in self.counters.values() for f in c.forecasts))
 
-    def region(self, scale: float = 2.0) -> tuple[float, float | None]:
-        """A pair's region from the stated per-scan one (module notes, step 3). A translation not stated
-        stays unstated, not doubled: the pair's default (a share of the target's size, core.region), to
-        which the move the pair's rotation implies at the centroid is added."""
-        rot, trans = self.stated
-        return min(180.0, scale * rot), None if trans is None else scale * trans
+    def region(self) -> tuple[float, float | None]:
+        """A pair's region (degrees, units or None: unstated) from the stated per-scan one (module notes, step 3):
+        the pair's guess between two scans' (core.guess.Guess.between)."""
+        pair = Guess.between(self.stated, self.stated)
+        return pair.rotation_deg, pair.translation
 
     def rel(self, i: int, j: int) -> np.ndarray:
         return invert(self.initial[i]) @ self.initial[j]

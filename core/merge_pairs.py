@@ -8,16 +8,16 @@ pair up to ``all_pairs_up_to`` scans, else each scan's likeliest neighbours by t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from .guess import Guess
 from .merge_progress import Step
 from .merge_result import Start
 from .merge_tasks import PairTask, overlap_task
 from .posegraph import components
-from .region import Region
 
 # core.merge's campaign state and knobs, by name only: core.merge imports this module
 _Campaign = Any
@@ -173,8 +173,7 @@ def initial_overlaps(c: _Campaign, items: list[tuple[int, int]]) -> list[float]:
 def loose(c: _Campaign, i: int, j: int, T: np.ndarray) -> bool:
     """Whether pair (i, j)'s region (guess T_i_j) lets scan j's centroid move by align_from x scan i's size."""
     rot, trans = c.region()
-    pc = replace(c.config.problem, rotation_uncertainty_deg=rot, translation_uncertainty=trans)
-    return Region.stated(T, pc, c.scans[j], c.scans[i]).translation >= c.mc.align_from * c.scans[i].size
+    return Guess(T, rot, trans).region(c.scans[j], c.scans[i]).translation >= c.mc.align_from * c.scans[i].size
 
 
 def centred(c: _Campaign, i: int, j: int, T: np.ndarray) -> np.ndarray:

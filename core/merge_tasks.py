@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .errors import InputError
 from .frustum import frustum_of, visible_from
 from .fuse import sample_quality
+from .guess import Guess
 from .merge_result import Start
 from .quiet import quiet_open3d
 from .register import Config, register
@@ -34,7 +35,8 @@ OVERLAP_SAMPLE = 2000  # points of each scan an overlap is measured on (a share:
 @dataclass(frozen=True, eq=False)
 class Shared:
     """What every task needs, shipped once per worker: the scans as plain arrays, the registration
-    config and the merge's polish knobs (steps, gate in point spacings, source points at most)."""
+    config and the merge's polish knobs (steps, gate in point spacings, source points at most); ``stated``:
+    the uncertainty stated for each scan's initial pose (core.guess; its pose unused)."""
 
     token: str  # identifies the scan set, for the per-process cache
     scans: tuple  # dicts from scan_arrays
@@ -42,6 +44,7 @@ class Shared:
     polish_steps: int = 30
     polish_gate: float = 1.5
     polish_points: int = 10000
+    stated: Guess = field(default_factory=Guess.identity)
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,7 +163,8 @@ def overlap_task(shared: Shared, item: tuple) -> float:
             inside &= np.einsum("ij,ij->i", normals, tgt.viewpoint - moved) > 0
         elif pc.visibility and inside.any():
             radius = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
-            margin = pc.translation_uncertainty_for(tgt.size) + np.radians(pc.rotation_uncertainty_deg) * radius
+            rotation, translation = shared.stated.uncertainty(tgt.size)
+            margin = translation + rotation * radius
             inside[np.flatnonzero(inside)] = visible_from(surf, tgt.viewpoint, moved[inside], margin)
         fracs.append(float(inside.mean()))
     return min(fracs)
@@ -205,13 +209,12 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     target, surface = built(shared, task.i)
     source = built(shared, task.j)[0]
     seed = pair_seed(shared.config.seed, task.i, task.j, task.attempt)
-    problem = replace(shared.config.problem, rotation_uncertainty_deg=task.rotation_deg,
-                      translation_uncertainty=task.translation)
-    config = replace(shared.config, method="global", seed=seed, problem=problem)
+    guess = Guess(task.T0, task.rotation_deg, task.translation)
+    config = replace(shared.config, method="global", seed=seed)
     if task.fallback_steps is not None:
         config = replace(config, candidates=replace(config.candidates, fallback_steps=task.fallback_steps))
     try:
-        res = register(source, target, task.T0, config)
+        res = register(source, target, guess, config)
     except InputError as exc:  # e.g. no overlap at the guess or at a candidate: a pair that did not register
         return PairOutcome(task.T0, float("inf"), False, None, None, 0.0, None, time.perf_counter() - t0,
                            failure=str(exc))

@@ -16,11 +16,12 @@ import numpy as np
 from .cut import overlap_cut
 from .errors import InputError
 from .frustum import KINDS, Overlap
+from .guess import Guess
 from .noise import NORMAL_NEIGHBOURS
 from .robust_error import RobustError
 from .scan import Scan, ScanKind, scale_mismatch
 from .surface import Surface, pca_normals
-from .transforms import apply, check_rigid, delta_between, invert, perturb
+from .transforms import apply, delta_between, invert, perturb
 
 
 @dataclass(frozen=True)
@@ -28,33 +29,24 @@ class ProblemConfig:
     max_points: int = 300  # source overlap points the error uses (paper: 165-341)
     frustum: str = "convex"  # or "nonconvex"
     visibility: bool = True  # also drop points hidden behind the target's surface (beyond the paper)
-    rotation_uncertainty_deg: float = 15.0  # how wrong the initial guess may be
-    translation_uncertainty: float | None = None  # units; None: 15 % of the target's size
 
     def validate(self) -> None:
         if self.max_points < 3:
             raise InputError(f"max_points must be at least 3, got {self.max_points}")
         if self.frustum not in KINDS:
             raise InputError(f"frustum must be one of {', '.join(KINDS)}, got {self.frustum!r}")
-        if not 0 < self.rotation_uncertainty_deg <= 180:
-            raise InputError(f"rotation uncertainty must be in (0, 180] degrees, got {self.rotation_uncertainty_deg}")
-        if self.translation_uncertainty is not None and not self.translation_uncertainty > 0:
-            raise InputError(f"translation uncertainty must be positive, got {self.translation_uncertainty}")
-
-    def translation_uncertainty_for(self, target_size: float) -> float:
-        """The translation uncertainty in units: as given, or 15 % of the target's size."""
-        return self.translation_uncertainty if self.translation_uncertainty is not None else 0.15 * target_size
 
 
 @dataclass(eq=False)
 class Problem:
-    """source, target: scans; T_init: (4, 4) T_target_source guess; points: (M, 3) sampled source
-    overlap (source frame); center: (3,) their centroid (source frame); scale: units per search unit."""
+    """source, target: scans; guess: the pose the overlap was cut at and its stated uncertainty; points:
+    (M, 3) sampled source overlap (source frame); center: (3,) their centroid (source frame); scale: units
+    per search unit; rotation_uncertainty (radians), translation_uncertainty (units): the guess's."""
 
     source: Scan
     target: Scan
     surface: Surface
-    T_init: np.ndarray
+    guess: Guess
     overlap: Overlap
     used: np.ndarray  # (Ns,) bool: source points in the error's overlap set (frustum + visibility)
     points: np.ndarray
@@ -67,6 +59,11 @@ class Problem:
 
     def __post_init__(self):
         self.error = RobustError(self.points, self.surface)
+
+    @property
+    def T_init(self) -> np.ndarray:
+        """(4, 4) T_target_source: the guess's pose (where the overlap was cut)."""
+        return self.guess.T_target_source
 
     @property
     def steps(self) -> np.ndarray:
@@ -107,20 +104,20 @@ def check_registrable(*scans: Scan) -> None:
                              "same \"units\" in both sidecars if they are alike")
 
 
-def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config: ProblemConfig = ProblemConfig(),
-            surface: Surface | None = None, seed: int = 0) -> Problem:
-    """Triangulate the target, cut the overlap under ``T_init`` and sample the source points
-    (the sample drawn with ``seed``: a registration passes its ``Config.seed``)."""
+def prepare(source: Scan, target: Scan, guess: Guess | np.ndarray | None = None,
+            config: ProblemConfig = ProblemConfig(), surface: Surface | None = None, seed: int = 0) -> Problem:
+    """Triangulate the target, cut the overlap under ``guess`` (a Guess; a (4, 4) T_target_source with the
+    default uncertainty; None: the identity) and sample the source points (the sample drawn with ``seed``:
+    a registration passes its ``Config.seed``)."""
     config.validate()
-    T_init = np.eye(4) if T_init is None else check_rigid(T_init, "initial transform")
+    guess = Guess.of(guess)
     check_registrable(source, target)
     surface = surface if surface is not None else Surface.from_scan(target)
-    t_unc = config.translation_uncertainty_for(target.size)
-    r_unc = np.radians(config.rotation_uncertainty_deg)
-    cut = overlap_cut(source, target, surface, T_init, config.frustum, config.visibility, r_unc, t_unc)
+    r_unc, t_unc = guess.uncertainty(target.size)
+    cut = overlap_cut(source, target, surface, guess.T_target_source, config.frustum, config.visibility, r_unc, t_unc)
     if cut is None:
         raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess, even with "
-                         f"its frustum opened by the rotation uncertainty ({config.rotation_uncertainty_deg:g} deg)")
+                         f"its frustum opened by the rotation uncertainty ({guess.rotation_deg:g} deg)")
     overlap, used = cut.overlap, cut.used
     idx = np.flatnonzero(used)
     rng = np.random.default_rng(seed)
@@ -129,7 +126,7 @@ def prepare(source: Scan, target: Scan, T_init: np.ndarray | None = None, config
     points = source.points[idx]
     center = points.mean(0)
     scale = float(np.sqrt(np.mean(np.sum((points - center) ** 2, axis=1)))) or 1.0
-    return Problem(source, target, surface, T_init, overlap, used, points, center, scale, r_unc, t_unc, cut.name)
+    return Problem(source, target, surface, guess, overlap, used, points, center, scale, r_unc, t_unc, cut.name)
 
 
 # A scene's sample (a panorama, an unstructured cloud): normal-space sampling (Rusinkiewicz and Levoy, "Efficient

@@ -1,18 +1,18 @@
 """The stated region: where the user says the true pose lies, in the user's terms (method "global").
 
-A user states a guess ``T_target_source`` (a 4x4 ``--init``, or two scans' stored rough poses) and how
-wrong it may be: a rotation bound in degrees and, optionally, a translation bound in units. The rotation
-of a 4x4 acts about the scan frame's origin, which may lie far from the scans (a sensor's frame, a
-turntable's axis): a guess wrong by theta there moves the source's centroid by up to 2 r sin(theta / 2),
-r the centroid's distance from that origin. So, measured at the centroid, the region adds that move to
-the translation bound:
+A user states a guess (core.guess.Guess): a pose ``T_target_source`` (a 4x4 ``--init``, or two scans'
+stored rough poses) and how wrong it may be, a rotation bound in degrees and, optionally, a translation
+bound in units. The rotation of a 4x4 acts about the scan frame's origin, which may lie far from the
+scans (a sensor's frame, a turntable's axis): a guess wrong by theta there moves the source's centroid
+by up to 2 r sin(theta / 2), r the centroid's distance from that origin. So, measured at the centroid,
+the region adds that move to the translation bound:
 
     rotation     the angle between the pose's rotation and the guess's <= the stated bound
     translation  |T c - T_guess c| <= stated (or the default share of the target's size)
                  + 2 r sin(theta / 2),  c the source centroid, r = max(|c|, |T_guess c|)
                  (about the source frame's origin, or the target's: whichever moves it more)
                  free (any) from FREE_FROM_DEG up when no translation is stated
-    no guess     rotation 180 deg and no translation stated: any pose (a guess that says nothing)
+    no guess     rotation 180 deg and no translation stated: any pose (core.guess.Guess.none)
 
 Every stage, candidate, result and the page ask this one object whether a pose is inside and how far
 beyond it lies. The paper's methods (hybrid, icp, sa, ...) keep their own search region (core.search:
@@ -21,11 +21,10 @@ twice the stated uncertainty about the guess, section 2.1); this region is the `
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from .problem import ProblemConfig
 from .scan import Scan
 
 # From this stated rotation up a translation bound says little (a rotation that large about an origin
@@ -64,19 +63,19 @@ class Region:
     units: str = "units"
 
     @classmethod
-    def stated(cls, T_guess: np.ndarray, config: ProblemConfig, source: Scan, target: Scan) -> Region:
-        """The region ``config`` states about ``T_guess`` for this pair (module notes)."""
-        T_guess = np.asarray(T_guess, dtype=np.float64)
-        theta = np.radians(config.rotation_uncertainty_deg)
+    def of(cls, guess: Guess, source: Scan, target: Scan) -> Region:  # noqa: F821 (core.guess imports this module)
+        """The region ``guess`` (a core.guess.Guess) states for this pair (module notes)."""
+        T_guess = guess.T_target_source
+        theta = np.radians(guess.rotation_deg)
         c = source.centroid
         r = max(float(np.linalg.norm(c)), float(np.linalg.norm(T_guess[:3, :3] @ c + T_guess[:3, 3])))
-        if config.translation_uncertainty is None and config.rotation_uncertainty_deg >= FREE_FROM_DEG:
+        if guess.translation is None and guess.rotation_deg >= FREE_FROM_DEG:
             translation = np.inf
         else:
-            translation = config.translation_uncertainty_for(target.size) + 2 * r * np.sin(theta / 2)
+            translation = guess.translation_for(target.size) + 2 * r * np.sin(theta / 2)
         return cls(T_guess, float(theta), float(translation), np.array(c, dtype=np.float64),
                    float(np.radians(SLACK_ROTATION_DEG)), SLACK_TRANSLATION * target.size,
-                   float(config.rotation_uncertainty_deg), config.translation_uncertainty, target.units)
+                   float(guess.rotation_deg), guess.translation, target.units)
 
     @property
     def no_guess(self) -> bool:
@@ -125,7 +124,3 @@ class Region:
                 "translation_at_centroid": self.translation if np.isfinite(self.translation) else None,
                 "no_guess": self.no_guess}
 
-
-def no_guess(config: ProblemConfig) -> ProblemConfig:
-    """``config`` stating no guess: any rotation (180 deg), no translation bound (module notes)."""
-    return replace(config, rotation_uncertainty_deg=180.0, translation_uncertainty=None)

@@ -19,6 +19,7 @@ import numpy as np
 
 from .errors import InputError
 from .events import PHASES, Event
+from .guess import Guess
 from .transforms import check_rigid
 
 TRACE_FORMAT = "rangereg-trace"
@@ -79,7 +80,8 @@ class ScanPrint:
 @dataclass(frozen=True, eq=False)
 class TraceHeader:
     """The first line of a trace. T_init: (4, 4) T_target_source the run started from; config: every knob as
-    the run used it (core.config.Config as plain JSON); version: rangereg's."""
+    the run used it (core.config.Config as plain JSON, with the guess's stated uncertainty under ``guess``);
+    version: rangereg's."""
 
     source: ScanPrint
     target: ScanPrint
@@ -91,11 +93,13 @@ class TraceHeader:
     format_version: int = TRACE_VERSION
 
     @classmethod
-    def of(cls, source, target, T_init: np.ndarray, config, source_path: str | None = None,
+    def of(cls, source, target, guess, config, source_path: str | None = None,
            target_path: str | None = None) -> TraceHeader:
-        """The header of a run of ``config`` (a core Config) registering ``source`` onto ``target`` from ``T_init``."""
+        """The header of a run of ``config`` (a core Config) registering ``source`` onto ``target`` from ``guess``
+        (a core.guess.Guess, or a (4, 4) pose: the default uncertainty)."""
+        guess = Guess.of(guess)
         return cls(ScanPrint.of(source, source_path), ScanPrint.of(target, target_path),
-                   np.asarray(T_init, dtype=np.float64), str(config.method), int(config.seed), _plain(config),
+                   np.array(guess.T_target_source), str(config.method), int(config.seed), _stated(config, guess),
                    rangereg_version())
 
     def __repr__(self) -> str:
@@ -148,10 +152,13 @@ class TraceHeader:
                          for w, theirs, mine in which)
         raise InputError(f"{name} was recorded on other scans: {said}")
 
-    def differences(self, T_init: np.ndarray, config=None, only: tuple[str, ...] = (), units: str = "units") -> list[str]:
-        """What differs from a run started here from ``T_init`` with ``config`` (a core Config): readable, for display
-        (a trace of the same scans from another guess or with other settings is still drawn). ``only``: the
-        config keys (dotted, by prefix) worth saying; empty: all."""
+    def differences(self, guess, config=None, only: tuple[str, ...] = (), units: str = "units") -> list[str]:
+        """What differs from a run started here from ``guess`` (a core.guess.Guess, or a (4, 4) pose: the default
+        uncertainty) with ``config`` (a core Config): readable, for display (a trace of the same scans from another
+        guess or with other settings is still drawn). ``only``: the config keys (dotted, by prefix) worth saying;
+        empty: all."""
+        guess = Guess.of(guess)
+        T_init = guess.T_target_source
         out = []
         if not np.allclose(self.T_init, T_init, rtol=0.0, atol=1e-9):
             from .transforms import invert
@@ -160,12 +167,17 @@ class TraceHeader:
             angle = float(np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1.0, 1.0))))
             out.append(f"initial guess ({angle:.3g} deg, {np.linalg.norm(d[:3, 3]):.3g} {units} apart)")
         if config is not None:
-            mine = _flatten(_plain(config))
+            mine = _flatten(_stated(config, guess))
             theirs = _flatten(self.config)
             out += [f"{k} {theirs.get(k, '-')} (here {mine.get(k, '-')})"
                     for k in sorted(set(mine) | set(theirs))
                     if mine.get(k) != theirs.get(k) and (not only or k.startswith(only))]
         return out
+
+
+def _stated(config, guess: Guess) -> dict:
+    """``config`` as plain JSON with the guess's stated uncertainty under ``guess``."""
+    return _plain(config) | {"guess": {"rotation_deg": guess.rotation_deg, "translation": guess.translation}}
 
 
 def _flatten(d: dict, prefix: str = "") -> dict:

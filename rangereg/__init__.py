@@ -33,7 +33,8 @@ _PUBLIC = {
     **dict.fromkeys(("Leg", "Prepared", "Stream", "as_scan", "legs", "merge", "prepare", "register", "stream"),
                     "rangereg.api"),
     "InputError": "rangereg.core.errors", "Cancelled": "rangereg.core.events", "Event": "rangereg.core.events",
-    "Result": "rangereg.core.result", "StopReason": "rangereg.core.result", "Scan": "rangereg.core.scan",
+    "Guess": "rangereg.core.guess", "Result": "rangereg.core.result", "StopReason": "rangereg.core.result",
+    "Scan": "rangereg.core.scan",
 }
 __all__ = sorted(_PUBLIC)
 

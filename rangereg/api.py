@@ -36,13 +36,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rangereg.app.options import Settings, parse_init, says_nothing, to_config
+from rangereg.app.options import Settings, parse_init, says_nothing, to_config, to_guess
 from rangereg.core.errors import InputError
 from rangereg.core.events import Cancelled, Event, Listener
 from rangereg.core.scan import Origin, Scan, clean_points
 
 if TYPE_CHECKING:
     from rangereg.core.config import Config
+    from rangereg.core.guess import Guess
     from rangereg.core.merge import MergeResult
     from rangereg.core.merge_progress import MergeProgress
     from rangereg.core.result import Result
@@ -103,10 +104,11 @@ def register(source, target, init=None, *, rotation_uncertainty: float | None = 
     into the target's frame, as ``rangereg register SOURCE TARGET`` finds it with the same settings and seed.
 
     source, target: as :func:`as_scan` takes them (a :class:`Prepared` target skips its surface's making);
-    init: the guess T_target_source, a (4, 4) rigid matrix (or ``--init``'s text: 16 numbers or a file);
-    None: the scans' stored rough poses when both have one, else none. rotation_uncertainty (degrees, about
-    the scan frame's origin) and translation_uncertainty (the target's units): how far off the guess may be;
-    neither, and no guess: any pose. method: "global" (the default), "hybrid", "icp", "sa", "icp-restarts",
+    init: the guess, a :class:`rangereg.Guess` (its pose T_target_source and how far off it may be), or its
+    pose alone, a (4, 4) rigid matrix (or ``--init``'s text: 16 numbers or a file); None: the scans' stored
+    rough poses when both have one, else none. rotation_uncertainty (degrees, about the scan frame's origin)
+    and translation_uncertainty (the target's units): how far off a pose given alone may be; neither, and no
+    guess: any pose. method: "global" (the default), "hybrid", "icp", "sa", "icp-restarts",
     "basin-hopping"; seed: every random choice. viewpoint_source, viewpoint_target: (3,) sensor positions.
     listener: called with every :class:`rangereg.core.events.Event` (ICP iteration, annealing move,
     candidate) as it happens; it may raise :class:`Cancelled` to stop (the result is then the best pose so
@@ -122,7 +124,7 @@ def register(source, target, init=None, *, rotation_uncertainty: float | None = 
     pair = _pair(source, target, init, viewpoint_source, viewpoint_target,
                  dict(options, rotation_uncertainty=rotation_uncertainty,
                       translation_uncertainty=translation_uncertainty, method=method, seed=seed))
-    return core_register(pair.source, pair.target, pair.T_init, pair.config, listener, surface=pair.surface)
+    return core_register(pair.source, pair.target, pair.guess, pair.config, listener, surface=pair.surface)
 
 
 def stream(source, target, init=None, **options) -> Stream:
@@ -135,7 +137,7 @@ def stream(source, target, init=None, **options) -> Stream:
         raise InputError("stream: the events are what it yields; register(..., listener=) takes a callback")
     viewpoints = options.pop("viewpoint_source", None), options.pop("viewpoint_target", None)
     pair = _pair(source, target, init, *viewpoints, options)
-    return Stream(lambda listener: core_register(pair.source, pair.target, pair.T_init, pair.config, listener,
+    return Stream(lambda listener: core_register(pair.source, pair.target, pair.guess, pair.config, listener,
                                                  surface=pair.surface))
 
 
@@ -280,12 +282,12 @@ def merge(scans: Iterable, init=None, *, rotation_uncertainty: float | None = No
     lacking = [] if have or not any(s.guess is not None for s in loaded) else [s.name for s in loaded if s.guess is None]
     stated = SimpleNamespace(seed=seed, rotation_uncertainty=rotation_uncertainty,
                              translation_uncertainty=translation_uncertainty)
-    config = _python_names(stated_config, stated, have, lacking)
+    config, guess = _python_names(stated_config, stated, have, lacking)
     if workers == 1 and scheduler is None:
-        return core_merge(loaded, initial, config, progress=progress, pairs=pairs, build_model=build_model)
+        return core_merge(loaded, initial, config, progress=progress, pairs=pairs, build_model=build_model, stated=guess)
     with TaskRunner(workers, scheduler, progress=progress, threads=threads) as runner:
         return core_merge(loaded, initial, config, progress=progress, pairs=pairs, map_tasks=runner.map,
-                          build_model=build_model)
+                          build_model=build_model, stated=guess)
 
 
 # ---- the inputs -----------------------------------------------------------------------------------------------
@@ -295,25 +297,32 @@ def merge(scans: Iterable, init=None, *, rotation_uncertainty: float | None = No
 class _Pair:
     source: Scan
     target: Scan
-    T_init: np.ndarray
+    guess: Guess
     config: Config
     surface: Surface | None  # the target's, when prepared
 
 
 def _pair(source, target, init, viewpoint_source, viewpoint_target, options: dict) -> _Pair:
     """The checked pair, the guess and the config, as ``rangereg register`` makes them (app.options)."""
+    from rangereg.core.guess import Guess
     from rangereg.core.problem import relative_guess
 
     settings = _settings(options)
-    T_init = _init(init)
+    given = init if isinstance(init, Guess) else None
+    if given is not None and (settings.rotation_uncertainty is not None or settings.translation_uncertainty is not None
+                              or settings.no_guess):
+        raise InputError("init is a Guess, which states its own uncertainty: give rotation_uncertainty, "
+                         "translation_uncertainty or no_guess in it (Guess(T, rotation_deg, translation), "
+                         "Guess.none()), not beside it")
+    T_init = given.T_target_source if given is not None else _init(init)
     src = _scan(source, viewpoint_source, None, None, "source")
     tgt = _scan(target, viewpoint_target, None, None, "target")
-    if says_nothing(T_init, src, tgt, settings):  # nothing said about the pose: any pose (the global method)
+    if given is None and says_nothing(T_init, src, tgt, settings):  # nothing said: any pose (the global method)
         settings = replace(settings, no_guess=True)
     config = _python_names(to_config, settings)
+    guess = given or _python_names(to_guess, settings, T_init if T_init is not None else relative_guess(src, tgt))
     _engine_ready(config)
-    return _Pair(src, tgt, T_init if T_init is not None else relative_guess(src, tgt), config,
-                 target.surface if isinstance(target, Prepared) else None)
+    return _Pair(src, tgt, guess, config, target.surface if isinstance(target, Prepared) else None)
 
 
 def _engine_ready(config) -> None:

@@ -8,8 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from rangereg.core.candidates import CandidateConfig
-from rangereg.core.problem import ProblemConfig
-from rangereg.core.region import no_guess
+from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.result import StopReason
 from rangereg.core.search.budget import Budget, BudgetSpent
@@ -50,9 +49,8 @@ def test_a_slow_clock_gives_the_same_pose_the_bound_counts_work(scene, monkeypat
     import rangereg.core.search.budget as budget
 
     corner, bowl = _unregistrable(scene)
-    cfg = Config(method="global", problem=no_guess(ProblemConfig()),
-                 candidates=replace(CandidateConfig(), fallback_steps=40, kiss_matcher=False))
-    fast = register(corner, bowl, np.eye(4), cfg)
+    cfg = Config(method="global", candidates=replace(CandidateConfig(), fallback_steps=40, kiss_matcher=False))
+    fast = register(corner, bowl, Guess.none(), cfg)
     t = {"now": 0.0}
 
     def slow():  # a machine 1000 x slower: every reading of the clock 10 s later
@@ -60,12 +58,12 @@ def test_a_slow_clock_gives_the_same_pose_the_bound_counts_work(scene, monkeypat
         return t["now"]
 
     monkeypatch.setattr(budget, "time", SimpleNamespace(perf_counter=slow))
-    slowed = register(corner, bowl, np.eye(4), cfg)
+    slowed = register(corner, bowl, Guess.none(), cfg)
     assert np.array_equal(fast.transform, slowed.transform)
     assert fast.iterations == slowed.iterations and fast.stop_text == slowed.stop_text
     assert fast.stop_reason is StopReason.WORK_BOUND
     # a bound in seconds (a user's explicit choice) is what a slow machine changes
-    timed = register(corner, bowl, np.eye(4), replace(cfg, candidates=replace(cfg.candidates, time_limit=30.0)))
+    timed = register(corner, bowl, Guess.none(), replace(cfg, candidates=replace(cfg.candidates, time_limit=30.0)))
     assert timed.stop_reason is StopReason.TIME_BOUND and timed.iterations.total < fast.iterations.total
 
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from rangereg.core.candidates import CandidateConfig, make_basis, super_fibonacci
-from rangereg.core.problem import ProblemConfig, prepare
+from rangereg.core.guess import Guess
+from rangereg.core.problem import prepare
 from rangereg.core.register import Config, register
 from rangereg.core.surface import Surface
 from rangereg.core.transforms import apply, invert, perturb, pose_error, rotation_angle
@@ -65,10 +66,10 @@ def test_an_empty_frustum_cut_widens_and_the_pair_still_registers(scene):
     # the guess moves the source 2 m sideways, out of the target's view: the frustum cut is empty
     T0 = T_true.copy()
     T0[:3, 3] += 2000.0 * frustum_of(target).basis[0]
-    pc = ProblemConfig(rotation_uncertainty_deg=30.0, translation_uncertainty=2400.0)
-    p = prepare(source, target, T0, pc)
+    guess = Guess(T0, 30.0, 2400.0)
+    p = prepare(source, target, guess)
     assert p.overlap.source_mask.sum() == 0 and p.cut != "frustum"
-    g = register(source, target, T0, Config(method="global", problem=pc))
+    g = register(source, target, guess, Config(method="global"))
     assert g.cut != "frustum"
     assert g.to_json()["cut"] == g.cut
     rot, trans = pose_error(g.transform, T_true, source.centroid)
@@ -79,15 +80,15 @@ def test_a_start_90_degrees_off_registers_with_the_global_pipeline(bunny):
     source, target = bunny("bun045"), bunny("bun000")
     T_true = invert(target.pose) @ source.pose
     T0 = perturb(T_true, np.r_[0.05, 0.0, -0.05, 0.0, 0.0, np.radians(90)], apply(T_true, source.centroid[None])[0])
-    pc = ProblemConfig(rotation_uncertainty_deg=180.0, translation_uncertainty=0.075)
-    g = register(source, target, T0, Config(method="global", problem=pc))
+    guess = Guess(T0, 180.0, 0.075)
+    g = register(source, target, guess, Config(method="global"))
     rot, trans = pose_error(g.transform, T_true, source.centroid)
     assert rot < 2.0 and trans < 0.002
     assert g.below_threshold
     # the guess, 90 degrees off, is not what was refined into the answer: a stage beyond it was scored
     assert g.iterations.candidates >= 2 and set(g.details.candidate_sources) - {"guess"}
     # the same run again gives the same bits (KISS-Matcher's hypothesis included: core.kiss_matcher_candidates)
-    again = register(source, target, T0, Config(method="global", problem=pc))
+    again = register(source, target, guess, Config(method="global"))
     assert np.array_equal(again.transform, g.transform) and again.error == g.error
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from functools import cache
 
 import numpy as np
-from rangereg.core.problem import ProblemConfig
+from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.threshold import MIN_CONSTRAINT, point_to_plane_system
 from rangereg.core.transforms import from_params, invert, pose_error
@@ -55,8 +55,8 @@ def _pair(name: str):
 def _slid(name: str):
     source, target, T = _pair(name)
     along = target.pose[:3, :3].T @ np.array([60.0, 0.0, 0.0])  # 60 mm along the fold (world x)
-    cfg = Config(method="global", problem=ProblemConfig(rotation_uncertainty_deg=5, translation_uncertainty=100))
-    return register(source, target, from_params(np.r_[along, 0, 0, 0]) @ T, cfg), T, source
+    guess = Guess(from_params(np.r_[along, 0, 0, 0]) @ T, 5, 100)
+    return register(source, target, guess, Config(method="global")), T, source
 
 
 def test_a_pose_slid_along_a_fold_of_two_planes_is_not_trusted_and_the_reason_is_said():

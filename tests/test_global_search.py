@@ -7,8 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from rangereg.core.problem import ProblemConfig
-from rangereg.core.region import Region, no_guess
+from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.transforms import invert, pose_error, rotation_matrix
 
@@ -27,7 +26,7 @@ def test_a_rotation_about_the_frame_origin_within_the_stated_bound_is_inside_the
     source, target = scene("corner")
     T = np.eye(4)
     T[:3, 3] = [300.0, -200.0, 50.0]  # the corner's centroid lies ~1 m from its frame's origin
-    region = Region.stated(T, ProblemConfig(rotation_uncertainty_deg=30.0), source, target)
+    region = Guess(T, 30.0).region(source, target)
     for _ in range(50):
         deg = rng.uniform(0, 30)
         inside = _about_origin(T, deg, rng.normal(size=3), np.zeros(3))
@@ -42,13 +41,12 @@ def test_from_ninety_degrees_the_translation_is_free_and_no_guess_takes_any_pose
     source, target = scene("corner")
     far = np.eye(4)
     far[:3, 3] = [5 * target.size, 0, 0]
-    assert not Region.stated(np.eye(4), ProblemConfig(rotation_uncertainty_deg=60.0), source, target).inside(far)
-    ninety = Region.stated(np.eye(4), ProblemConfig(rotation_uncertainty_deg=90.0), source, target)
+    assert not Guess.identity(60.0).region(source, target).inside(far)
+    ninety = Guess.identity(90.0).region(source, target)
     assert ninety.translation_free and ninety.inside(far)
-    stated = Region.stated(np.eye(4), ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=1.0),
-                           source, target)
+    stated = Guess.identity(90.0, 1.0).region(source, target)
     assert not stated.translation_free and not stated.inside(far)
-    anything = Region.stated(np.eye(4), no_guess(ProblemConfig()), source, target)
+    anything = Guess.none().region(source, target)
     flipped = _about_origin(far, 179.0, np.array([1.0, 0.0, 0.0]), np.zeros(3))
     assert anything.no_guess and anything.inside(flipped) and anything.describe().startswith("no guess")
 
@@ -57,7 +55,7 @@ def test_sixty_degrees_about_the_frame_origin_with_the_rotation_alone_told_regis
     source, target = bunny("bun045"), bunny("bun000")
     T_true = invert(target.pose) @ source.pose
     T0 = _about_origin(T_true, 60.0, np.array([0.3, 1.0, -0.2]), np.array([0.03, -0.02, 0.05]))
-    res = register(source, target, T0, Config(method="global", problem=ProblemConfig(rotation_uncertainty_deg=60.0)))
+    res = register(source, target, Guess(T0, 60.0), Config(method="global"))
     rot, trans = pose_error(res.transform, T_true, source.centroid)
     assert rot < 2.0 and trans < 0.002
     assert res.trusted and res.within_region  # the 60 deg about the origin moved the centroid ~0.1 m: inside
@@ -65,7 +63,7 @@ def test_sixty_degrees_about_the_frame_origin_with_the_rotation_alone_told_regis
 
 def test_no_hypothesis_is_dropped_a_trusted_pose_beyond_the_region_comes_back_and_says_so(bunny):
     source, target = bunny("bun090"), bunny("bun000")  # 90 deg apart; the identity stated as good to 15 deg
-    res = register(source, target, np.eye(4), Config(method="global", problem=ProblemConfig(rotation_uncertainty_deg=15.0)))
+    res = register(source, target, Guess.identity(15.0), Config(method="global"))
     rot, trans = pose_error(res.transform, invert(target.pose) @ source.pose, source.centroid)
     assert rot < 2.0 and trans < 0.002
     assert res.trusted and res.within_region is False and res.details.beyond.startswith("found ")
@@ -82,19 +80,18 @@ def test_when_nothing_is_trusted_the_fallback_takes_exactly_its_steps_and_says_w
     _, bowl = scene("bowl")  # two different objects: no pose is right, none is trusted
 
     def run(steps):
-        cfg = Config(method="global", problem=no_guess(ProblemConfig()),
-                     candidates=replace(CandidateConfig(), fallback_steps=steps))
-        return cfg, register(corner, bowl, np.eye(4), cfg)
+        cfg = Config(method="global", candidates=replace(CandidateConfig(), fallback_steps=steps))
+        return cfg, register(corner, bowl, Guess.none(), cfg)
 
     _, none = run(0)
-    cfg, ten = run(10)
+    _, ten = run(10)
     assert not none.trusted and not ten.trusted
     assert none.stop_reason.name == ten.stop_reason.name == "WORK_BOUND"
     assert "before the hybrid could start" in none.stop_text
     assert "its steps are spent (10 steps for the hybrid from the best candidate, 1000 steps" in ten.stop_text
     steps = lambda r: r.iterations.icp + r.iterations.sa  # noqa: E731
     assert steps(ten) - steps(none) == 10  # the same stages, then exactly the bound's steps of the hybrid
-    assert "--full-search" in advice(ten, cfg) and "not trusted" in advice(ten, cfg)
+    assert "--full-search" in advice(ten, Guess.none()) and "not trusted" in advice(ten, Guess.none())
 
 
 WARNS = """
@@ -155,9 +152,8 @@ def test_past_the_time_bound_no_stage_starts_and_the_run_says_so(scene):
 
     corner, _ = scene("corner")
     _, bowl = scene("bowl")
-    cfg = Config(method="global", problem=no_guess(ProblemConfig()),
-                 candidates=replace(CandidateConfig(), time_limit=1e-6))  # spent before the first stage
-    res = register(corner, bowl, np.eye(4), cfg)
+    cfg = Config(method="global", candidates=replace(CandidateConfig(), time_limit=1e-6))  # spent before the first stage
+    res = register(corner, bowl, Guess.none(), cfg)
     assert res.stop_reason.name == "TIME_BOUND" and "1e-06 s" in res.stop_text
     assert set(res.details.candidate_sources.values()) == {"not reached within the search's bound"}
     assert not res.trusted and res.iterations.icp == res.iterations.sa == 0

@@ -64,8 +64,8 @@ def test_kiss_matcher_gives_the_same_bits_every_run_in_its_own_process_or_in_thi
 
 def test_the_setup_starts_kiss_matcher_ahead_only_when_its_stage_comes_next_to_the_guess(scene):
     from rangereg.core.global_search.setup import prepare_setup
+    from rangereg.core.guess import Guess
     from rangereg.core.kiss_matcher_candidates import kiss_available
-    from rangereg.core.problem import ProblemConfig
     from rangereg.core.register import Config
 
     if not kiss_available():
@@ -73,8 +73,7 @@ def test_the_setup_starts_kiss_matcher_ahead_only_when_its_stage_comes_next_to_t
     target, source = scene("corner")
     first = CandidateConfig().guess_first_deg
     for deg, ahead in ((first, False), (first + 10, True)):
-        setup = prepare_setup(source, target, np.eye(4), Config(method="global",
-                                                                 problem=ProblemConfig(rotation_uncertainty_deg=deg)))
+        setup = prepare_setup(source, target, Guess.identity(deg), Config(method="global"))
         assert (setup.ahead is not None) is ahead  # within guess_first_deg the guess is refined alone first
         if ahead:
             setup.ahead.result(timeout=60)

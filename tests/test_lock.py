@@ -10,8 +10,8 @@ import pytest
 from rangereg.core import Config, register
 from rangereg.core.anneal import AnnealConfig
 from rangereg.core.errors import InputError
+from rangereg.core.guess import Guess
 from rangereg.core.lock import Lock
-from rangereg.core.problem import ProblemConfig
 from rangereg.core.transforms import PARAM_NAMES, apply, from_params, invert, perturb, pose_error
 
 SHORT_SA = AnnealConfig(t_min_ratio=1e-5, cooling=0.93, moves_per_temperature=25, settle_below=1e-2,
@@ -153,7 +153,7 @@ def test_a_translation_only_lock_recovers_a_pure_shift_and_never_turns():
     ("icp-restarts", dict(restarts=3)),
     ("basin-hopping", dict(hops=3)),
     ("hybrid", dict(recut_rounds=2, coarse_to_fine=True, polish=True, anneal=AnnealConfig(max_evaluations=60))),
-    ("global", dict(problem=ProblemConfig(rotation_uncertainty_deg=60.0))),  # candidates moved onto the allowed set
+    ("global", dict(rotation_deg=60.0)),  # candidates moved onto the allowed set
 ])
 def test_every_method_keeps_the_locked_parameters_in_every_event(method, options):
     from rangereg.core.problem import prepare
@@ -161,11 +161,12 @@ def test_every_method_keeps_the_locked_parameters_in_every_event(method, options
     source, target, Tt = _bowl()
     c = apply(Tt, source.points.mean(0)[None])[0]
     T0 = perturb(Tt, np.r_[40.0, -20.0, 0, 0, 0, 0.06], c)  # the truth moved in free parameters only
+    guess = Guess(T0, options.pop("rotation_deg", 15.0))
     config = Config(method=method, seed=2, lock=Lock.parse("rx,ry,tz"), **options)
-    problem = prepare(source, target, T0, config.problem, seed=config.seed)
+    problem = prepare(source, target, guess, config.problem, seed=config.seed)
     pivot = apply(T0, problem.center[None])[0]
     events = []
-    res = register(source, target, T0, config, events.append, problem=problem)
+    res = register(source, target, guess, config, events.append, problem=problem)
     assert events
     locked = [PARAM_NAMES.index(n) for n in ("tz", "rx", "ry")]
     for e in events:
@@ -182,8 +183,7 @@ def test_the_global_pipeline_registers_a_turntable_pair_from_far_round_the_table
     # are moved onto the turntable before they are scored, and every refinement turns about the axis only
     source, target, Tt, T0, point = _turntable_case(100.0)
     events = []
-    res = register(source, target, T0, Config(method="global", lock=_table(point),
-                                              problem=ProblemConfig(rotation_uncertainty_deg=180.0)), events.append)
+    res = register(source, target, Guess(T0, 180.0), Config(method="global", lock=_table(point)), events.append)
     rot, tr = pose_error(res.transform, Tt, source.points.mean(0))
     assert rot < 1.0 and tr < 1.0, (rot, tr)
     assert res.method == "global" and res.iterations.candidates >= 1

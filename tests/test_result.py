@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from rangereg.core.region import Region
 from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
 from rangereg.core.threshold import pair_threshold
 
@@ -39,9 +38,9 @@ def test_json_keeps_its_keys_with_readable_text_and_adds_below_threshold():
 def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided(scene):
     assert _result(error=0.5, threshold=1.0).trust_text == "E is below the threshold (1)"
     source, target = scene("corner")
-    from rangereg.core.problem import ProblemConfig
+    from rangereg.core.guess import Guess
 
-    region = Region.stated(np.eye(4), ProblemConfig(), source, target)
+    region = Guess.identity().region(source, target)
 
     def global_(trusted, misfit, beyond=""):
         details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), misfit, region, not beyond, beyond, 0.1, 4, {"guess": 1})

@@ -29,10 +29,10 @@ def test_each_mode_rotates_about_its_own_point_and_tells_only_what_a_user_knows(
     axis = np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
     assert abs(abs(axis / np.linalg.norm(axis) @ (t.pose[:3, :3].T @ [0, 1, 0])) - 1) < 1e-9
     assert np.array_equal(start_pose(_task("no-guess"), s, t), np.eye(4))
-    assert told(_task("origin")).translation_uncertainty is None  # the rotation only
-    assert told(_task("origin", rot=5.0)).rotation_uncertainty_deg == 15.0
-    assert told(_task("no-guess")).rotation_uncertainty_deg == 180.0
-    assert told(_task("centroid")).translation_uncertainty == 0.05
+    assert told(_task("origin")).translation is None  # the rotation only
+    assert told(_task("origin", rot=5.0)).rotation_deg == 15.0
+    assert told(_task("no-guess")).is_none
+    assert told(_task("centroid")).translation == 0.05
 
 
 def test_the_tasks_cover_every_family_mode_and_level_and_the_table_reports_each():

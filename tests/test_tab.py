@@ -106,18 +106,18 @@ def test_the_annealing_settings_reach_annealing_alone():
 
 
 def test_the_pages_uncertainty_fields_and_no_guess_reach_the_run(scene):
-    from rangereg.app.tab.settings import guess_text, page_config, read_settings
+    import numpy as np
+    from rangereg.app.tab.settings import guess_text, page_guess, read_settings
 
     typed = read_settings(settings_handles(rotation_uncertainty="60", translation_uncertainty="25"))
     for method in ("global", "hybrid"):
-        pc = page_config(typed, method).problem
-        assert (pc.rotation_uncertainty_deg, pc.translation_uncertainty) == (60.0, 25.0)
+        g = page_guess(typed, np.eye(4), method)
+        assert (g.rotation_deg, g.translation) == (60.0, 25.0)
     nothing = read_settings(settings_handles(rotation_uncertainty="60", no_guess=True))
-    pc = page_config(nothing, "global").problem
-    assert (pc.rotation_uncertainty_deg, pc.translation_uncertainty) == (180.0, None)  # Run global: no guess
-    assert page_config(nothing, "hybrid").problem.rotation_uncertainty_deg == 60.0  # the paper's keep their region
+    g = page_guess(nothing, np.eye(4), "global")
+    assert (g.rotation_deg, g.translation) == (180.0, None) and g.is_none  # Run global: no guess
+    assert page_guess(nothing, np.eye(4), "hybrid").rotation_deg == 60.0  # the paper's keep their region
     source, target = scene("corner")
-    import numpy as np
 
     assert guess_text(nothing, np.eye(4), source, target).startswith("no guess")
     assert guess_text(typed, np.eye(4), source, target).startswith("60 deg, ")
@@ -263,13 +263,12 @@ def test_a_moving_scan_is_drawn_by_a_subset_of_larger_points():
 def test_the_finished_line_leads_with_trust_and_advises_only_when_not_trusted(scene):
     import numpy as np
     from rangereg.app.tab.run import page_advice, result_line
-    from rangereg.core.problem import ProblemConfig
-    from rangereg.core.region import Region
+    from rangereg.core.guess import Guess
     from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
     from rangereg.core.threshold import pair_threshold
 
     source, target = scene("corner")
-    region = Region.stated(np.eye(4), ProblemConfig(), source, target)
+    region = Guess.identity().region(source, target)
 
     def result(trusted, beyond=""):
         d = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 1.0, region, not beyond, beyond, 0.1, 3, {}, "guess")

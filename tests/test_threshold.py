@@ -52,8 +52,8 @@ def test_the_pair_threshold_trusts_no_twin_of_the_bowl_and_trusts_the_truth(scen
     are claims of this test, whichever the processor gives."""
     from rangereg.core.candidates import CandidateConfig
     from rangereg.core.global_search import refine
+    from rangereg.core.guess import Guess
     from rangereg.core.noise import noise_floor
-    from rangereg.core.problem import ProblemConfig
     from rangereg.core.simulate import true_transform
     from rangereg.core.threshold import pair_threshold
 
@@ -66,14 +66,14 @@ def test_the_pair_threshold_trusts_no_twin_of_the_bowl_and_trusts_the_truth(scen
     thr = pair_threshold(floor, basis.angle_floor, basis.min_overlap)
     assert thr.holds(basis, T_true)
     _, axes = np.linalg.eigh(np.cov((source.points - source.centroid).T))
-    pc = ProblemConfig(rotation_uncertainty_deg=90.0, translation_uncertainty=0.3 * target.size)
+    stated = Guess.identity(90.0, 0.3 * target.size)
     config = Config(candidates=CandidateConfig(refine_metric="plane"))
     centre = apply(T_true, source.centroid[None])[0]
     twins = right = 0
     for axis in (2, 1, 0):
         for deg in (35, -50, 70, 90):
             turned = perturb(T_true, np.r_[0, 0, 0, np.radians(deg) * (T_true[:3, :3] @ axes[:, axis])], centre)
-            T, _ = refine(source, target, surface, turned, pc, config)
+            T, _ = refine(source, target, surface, stated.at(turned), config)
             rot, trans = pose_error(T, T_true, source.centroid)
             if rot > 2.0:  # a wrong minimum (the scenes' success bound: 1 deg, 1 % of the size)
                 twins += 1

@@ -49,7 +49,7 @@ def test_the_header_is_the_first_line_and_says_what_the_run_was(corner_trace):
     assert header["source"] == {"path": str(CORNER[0]), "name": "scan2", "points": len(source.points),
                                 "sha256": ScanPrint.of(source).sha256}
     assert header["method"] == "hybrid" and header["seed"] == 2 and header["rangereg"]
-    assert header["config"]["seed"] == 2 and header["config"]["problem"]["rotation_uncertainty_deg"] == 15.0
+    assert header["config"]["seed"] == 2 and header["config"]["guess"]["rotation_deg"] == 15.0
     target = load_scan(CORNER[1])
     assert np.allclose(header["T_init"], relative_guess(source, target))  # the guess the run started from
     trace = read_trace(corner_trace.read_text(), "run.jsonl")

@@ -20,9 +20,10 @@ import sys
 import time
 
 import numpy as np
-from rangereg.app.options import Settings, read_text_file, to_config
+from rangereg.app.options import Settings, read_text_file, to_config, to_guess
 from rangereg.app.outputs import check_output, library_prints_to_stderr, strict_json, write_output
 from rangereg.core.errors import InputError
+from rangereg.core.guess import Guess
 
 PROGRESS_DELAY = 1.0  # s: a run that fails sooner shows no progress lines
 NOT_PLACED = 3  # exit status: the merge ran, but some scan is not placed
@@ -57,7 +58,8 @@ class DelayedLines:
 
 
 def stated_config(a, have_poses: bool, lacking: list[str] = ()):
-    """The registration config from the flags: the per-scan uncertainty of the initial poses (none: no guess).
+    """(the registration config, the per-scan uncertainty of the initial poses: a core Guess about the identity)
+    from the flags (no poses: none may be stated, and the campaign has no guess).
     ``lacking``: the scans with no stored rough pose when others have one."""
     rot, trans = getattr(a, "rotation_uncertainty", None), getattr(a, "translation_uncertainty", None)
     if not have_poses and (rot is not None or trans is not None):
@@ -65,7 +67,8 @@ def stated_config(a, have_poses: bool, lacking: list[str] = ()):
                else "without --init or stored poses there are none")
         raise InputError("--rotation-uncertainty and --translation-uncertainty say how far the initial poses may be "
                          f"off; {why} (no guess: every pair is registered over all rotations)")
-    return to_config(Settings(method="global", seed=a.seed, rotation_uncertainty=rot, translation_uncertainty=trans))
+    s = Settings(method="global", seed=a.seed, rotation_uncertainty=rot, translation_uncertainty=trans)
+    return to_config(s), to_guess(s)
 
 
 def run(a) -> int:
@@ -102,13 +105,14 @@ def run(a) -> int:
         truth_from = "stored with the scans (their sidecars or a .conf beside them)"
     have = initial is not None or all(s.guess is not None for s in scans)
     lacking = [] if have or not any(s.guess is not None for s in scans) else [s.name for s in scans if s.guess is None]
-    config = stated_config(a, have, lacking)
+    config, stated = stated_config(a, have, lacking)
     if lacking and say is not None:
         say(f"stored rough poses are missing for {', '.join(lacking)}: none is used (no guess)")
     # --json: stdout holds the report alone (Open3D's C++ warnings go to stderr)
     with library_prints_to_stderr(a.json), runner:
-        res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map, build_model=not as_e57)
-    report = build_report(res, scans, truth, config, have, runner, scheduler, out, as_e57)
+        res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map, build_model=not as_e57,
+                    stated=stated)
+    report = build_report(res, scans, truth, stated if have else Guess.none(), runner, scheduler, out, as_e57)
     report["truth_from"] = truth_from
     try:
         if a.json:
@@ -143,16 +147,16 @@ def _write_placed_e57(path, scans, res, initial) -> None:
               world_poses([scans[ref]], [res.poses[k] for k in placed], T_world_ref))
 
 
-def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, as_e57: bool = False) -> dict:
-    """Everything the merge found, as one JSON-ready dict (``--json`` prints it)."""
+def build_report(res, scans, truth, stated, runner, scheduler, out, as_e57: bool = False) -> dict:
+    """Everything the merge found, as one JSON-ready dict (``--json`` prints it). ``stated``: each initial pose's
+    uncertainty (a core Guess; no guess: none)."""
     from rangereg.core.fuse import double_layer_fraction
     from rangereg.core.merge_result import PairStatus
     from rangereg.core.transforms import invert, pose_error
 
     names = [s.name for s in scans]
     gap = float(np.median([s.spacing for s in scans]))
-    pc = config.problem
-    rot, trans = (pc.rotation_uncertainty_deg, pc.translation_uncertainty) if have else (180.0, None)
+    pair = Guess.between(stated, stated)
     report = {
         "scans": names,
         "reference": names[res.reference],  # the poses are in its frame: the first scan's unless its group is not the largest
@@ -175,8 +179,8 @@ def build_report(res, scans, truth, config, have: bool, runner, scheduler, out, 
         # by which that pair missed the loop's other pairs before the graph optimised the loop, and after
         "rings": [{"scans": [names[k] for k in r.order], "closing_pair": [names[r.closing[0]], names[r.closing[1]]],
                    "closing_residual": _residual(r.residual), "after": _residual(r.after)} for r in res.rings],
-        "stated": {"no_guess": not have, "rotation_deg": rot, "translation": trans,
-                   "pair_rotation_deg": min(180.0, 2 * rot), "pair_translation": None if trans is None else 2 * trans},
+        "stated": {"no_guess": stated.is_none, "rotation_deg": stated.rotation_deg, "translation": stated.translation,
+                   "pair_rotation_deg": pair.rotation_deg, "pair_translation": pair.translation},
         "runner": runner.choice,
         "workers": 1 if runner.serial else (runner.workers if scheduler is None else None),
         "scheduler": scheduler,

@@ -7,7 +7,7 @@ import sys
 from argparse import Namespace
 
 import numpy as np
-from rangereg.app.options import Settings, parse_init, to_config
+from rangereg.app.options import Settings, parse_init, to_config, to_guess
 from rangereg.core.sidefiles import names_a_file
 
 
@@ -32,6 +32,11 @@ def inputs(a: Namespace) -> list[str]:
 def config(a: Namespace, **overrides):
     """The core Config from the parsed flags, through the one settings path (app.options)."""
     return to_config(Settings.from_mapping(vars(a), **overrides))
+
+
+def guess(a: Namespace, T_init: np.ndarray, **overrides):
+    """The core Guess from the parsed flags at pose ``T_init``, through the one settings path (app.options)."""
+    return to_guess(Settings.from_mapping(vars(a), **overrides), T_init)
 
 
 def load(a: Namespace) -> tuple[object, object, np.ndarray]:

@@ -41,9 +41,9 @@ class Progress:
 
 def run(a: Namespace) -> int:
     with library_prints_to_stderr(a.json):  # --json: stdout holds the JSON and nothing else
-        res, source, target, cfg, seconds, trace, out = _register(a)
+        res, source, target, (cfg, guess), seconds, trace, out = _register(a)
     try:
-        report(res, source, target, cfg, a.json, seconds)  # first: a file that cannot be written loses only itself
+        report(res, source, target, cfg, guess, a.json, seconds)  # first: a file that cannot be written loses only itself
     finally:  # the files are written even when stdout is gone (`| head`)
         failed = []
         if trace is not None:
@@ -61,7 +61,8 @@ def run(a: Namespace) -> int:
 
 
 def _register(a: Namespace):
-    """Check, read, register: (result, source, target, config, seconds, trace file or None, --out path or None)."""
+    """Check, read, register: (result, source, target, (config, guess), seconds, trace file or None, --out path or
+    None)."""
     from rangereg.core.register import register
 
     cfg = pair.config(a)
@@ -79,15 +80,16 @@ def _register(a: Namespace):
     import rangereg.core.global_search  # noqa: F401
     t0 = time.perf_counter()
     source, target, T_init = pair.load(a)
-    if says_nothing(a.init, source, target, Settings.from_mapping(vars(a))):
-        cfg = pair.config(a, no_guess=True)  # nothing said about the pose: any pose (the global method)
+    # nothing said about the pose: any pose (the global method)
+    nothing = says_nothing(a.init, source, target, Settings.from_mapping(vars(a)))
+    guess = pair.guess(a, T_init, **({"no_guess": True} if nothing else {}))
     # progress is for someone watching a terminal: a log or a pipe gets the result and at most one error line
     progress = Progress(not a.json and sys.stderr.isatty())
     trace = TraceFile(trace_path) if trace_path else None
     if trace is not None:  # the header first: which scans (by content), the guess, every knob, the seed
         from rangereg.core.trace import TraceHeader
 
-        trace.write(json.dumps(TraceHeader.of(source, target, T_init, cfg, a.source, a.target).to_json()))
+        trace.write(json.dumps(TraceHeader.of(source, target, guess, cfg, a.source, a.target).to_json()))
 
     def listener(e):
         if trace is not None:
@@ -95,7 +97,7 @@ def _register(a: Namespace):
         progress(e)
 
     try:
-        res = register(source, target, T_init, cfg, listener)
+        res = register(source, target, guess, cfg, listener)
     except BaseException:
         if trace is not None:
             trace.discard()
@@ -103,7 +105,7 @@ def _register(a: Namespace):
     if trace is not None:  # the closing line: the pose the run returned (not always its last event)
         trace.write(json.dumps({"result": res.to_json()}))
     seconds = {"seconds": time.perf_counter() - t0, "import_seconds": t0 - t_imports}
-    return res, source, target, cfg, seconds, trace, out
+    return res, source, target, (cfg, guess), seconds, trace, out
 
 
 def _write_transform(path, res) -> None:
@@ -112,13 +114,14 @@ def _write_transform(path, res) -> None:
     write_transform(path, res.transform, error=res.error, method=res.method)
 
 
-def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
-    """Print the result: one JSON object, or lines for people (with the truth when the scans carry it).
+def report(res, source, target, cfg, guess, as_json: bool, seconds: dict) -> None:
+    """Print the result of a run of ``cfg`` from ``guess`` (core Config and Guess): one JSON object, or lines for
+    people (with the truth when the scans carry it).
     ``seconds``: 'seconds' from reading both files to the result, 'import_seconds' the imports before."""
     estimated = [s.name for s in (source, target) if s.viewpoint_estimated]
     if as_json:
         out = {**res.to_json(), "search_seconds": res.seconds, **seconds, "viewpoint_estimated": estimated,
-               "advice": advice(res, cfg)}
+               "advice": advice(res, guess)}
         if cfg.lock.active:
             out["lock"] = str(cfg.lock)
         print(strict_json(out))
@@ -148,13 +151,14 @@ def report(res, source, target, cfg, as_json: bool, seconds: dict) -> None:
 
         rot, tr = pose_error(res.transform, invert(target.pose) @ source.pose, source.points.mean(0))
         print(f"vs ground truth: rotation {rot:.3f} deg, translation {tr:.4g} {target.units} (at the source centroid)")
-    note = advice(res, cfg)
+    note = advice(res, guess)
     if note:
         print(f"note: {note}")
 
 
-def advice(res, cfg) -> str:
-    """What the user can do about this result, in a sentence ('' when nothing)."""
+def advice(res, guess) -> str:
+    """What the user can do about this result (``guess``: the core Guess it started from), in a sentence ('' when
+    nothing)."""
     if res.details is not None and res.below_threshold and not res.within_region:
         return ("the pose was found beyond the uncertainty stated for the guess; if the guess may be that far off, "
                 "say so with --rotation-uncertainty / --translation-uncertainty (a twin of a symmetric scene inside "
@@ -167,6 +171,6 @@ def advice(res, cfg) -> str:
                 "guess at all), or search on from this pose (--full-search; or --out pose.json, then --method "
                 "hybrid --init pose.json).")
     return ("E stayed above the threshold, so this is probably not the registration. The search covers about "
-            f"twice the guess's stated uncertainty ({cfg.problem.rotation_uncertainty_deg:g} deg); if the guess may "
+            f"twice the guess's stated uncertainty ({guess.rotation_deg:g} deg); if the guess may "
             "be farther off, give a better --init or a larger --rotation-uncertainty / --translation-uncertainty, "
             "or try --method global or basin-hopping.")

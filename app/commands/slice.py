@@ -22,19 +22,20 @@ def read_trace(path: str):
     return read(read_text_file(path, "--trace"), f"--trace {path}")
 
 
-SLICE_KNOBS = ("problem.", "seed", "lock.")  # what the slice itself depends on: the overlap cut, its sample, a lock
+SLICE_KNOBS = ("problem.", "guess.", "seed", "lock.")  # what the slice depends on: the overlap cut, its sample, a lock
 
 
-def trace_notes(trace, T_init, cfg, units: str = "units") -> list[str]:
+def trace_notes(trace, guess, cfg, units: str = "units") -> list[str]:
     """What to say about a trace of these scans (checked before): how its run differs from this slice's
-    settings (drawn all the same), or that an old trace without a header could not be checked."""
+    guess (a core Guess, or a (4, 4) pose) and settings (drawn all the same), or that an old trace without a
+    header could not be checked."""
     from rangereg.core.trace import NO_HEADER
 
     if trace.header is None:
         return [f"note: {trace.name}: {NO_HEADER}"]
     h = trace.header
     said = [f"trace: {h.source.name} -> {h.target.name}, method {h.method}, seed {h.seed}, rangereg {h.version}"]
-    diff = h.differences(T_init, cfg, SLICE_KNOBS, units)
+    diff = h.differences(guess, cfg, SLICE_KNOBS, units)
     if diff:
         said.append("note: the traced run differs from this slice's settings in " + "; ".join(diff))
     return said
@@ -66,7 +67,8 @@ def run(a: Namespace) -> int:
     source, target, T_init = pair.load(a)
     if trace is not None:
         trace.check_scans(source, target)  # a trace of other scans is refused (by content, not file name)
-    problem = prepare(source, target, T_init, cfg.problem, seed=cfg.seed)
+    guess = pair.guess(a, T_init)
+    problem = prepare(source, target, guess, cfg.problem, seed=cfg.seed)
     center = trace.end if (a.center == "end" and trace is not None) else problem.T_init
     spans = spans or tuple(default_span(problem, n) for n in params)
     sl = compute_slice(problem, center, params, spans, a.steps)
@@ -86,7 +88,7 @@ def run(a: Namespace) -> int:
                      path=path_xy if path_xy is not None else np.zeros((0, 2)))
 
     try:
-        for line in trace_notes(trace, T_init, cfg, target.units) if trace is not None else []:
+        for line in trace_notes(trace, guess, cfg, target.units) if trace is not None else []:
             print(line)
         print(f"{sl!r} -> {png}" + (f", {npz}" if npz else ""))
     finally:  # the files are written even when stdout is gone (`| head`)

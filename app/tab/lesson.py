@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 from rangereg.app.figures import fmt, squared_unit
-from rangereg.app.tab.settings import problem_config
+from rangereg.app.tab.settings import page_guess, problem_config
 from rangereg.app.tab.status import Progress
 from rangereg.app.views import temperature_of
 from rangereg.core.errors import InputError
@@ -241,8 +241,8 @@ class LessonPanel:
         # the slice through the truth, on the overlap cut there: the error surface the registration ends on, as in
         # the paper's Fig. 3 and 7 (under the start's cut the same grid shows 5 of its minima against 11)
         settings = tab.run_panel.settings()
-        at_truth = prepare(st.source, st.target, st.T_truth, problem_config(settings), surface=st.surfaces[1],
-                           seed=settings.seed)
+        at_truth = prepare(st.source, st.target, page_guess(settings, st.T_truth), problem_config(settings),
+                           surface=st.surfaces[1], seed=settings.seed)
         self.start_xy = tuple(float(v) for v in project(at_truth, st.T_truth, self.lesson.params, [st.T_init])[0])
         h = tab.landscape.h
         h.span_a.value, h.span_b.value = (fmt(v) for v in self.lesson.spans)

@@ -88,7 +88,7 @@ class ModelPanel:
         """Merge the chosen data files on a worker thread; its progress lines and report go to the panel."""
         from fnmatch import fnmatch
 
-        from rangereg.app.options import Settings, to_config
+        from rangereg.app.options import Settings, to_config, to_guess
 
         c = self.h.campaign
         st = self.state
@@ -99,7 +99,8 @@ class ModelPanel:
             raise InputError(f"the pattern {pattern!r} matches {len(files)} scan file(s) of the data folder; "
                              "a campaign needs two or more")
         seed = self.tab.run_panel.settings().seed
-        config = to_config(Settings(method="global", seed=seed, rotation_uncertainty=c.rotation.value))
+        stated = Settings(method="global", seed=seed, rotation_uncertainty=c.rotation.value)
+        config, per_scan = to_config(stated), to_guess(stated)
         with st.lock:
             if st.campaign_busy:
                 raise InputError("a campaign merge is working: wait for its report")
@@ -126,7 +127,7 @@ class ModelPanel:
                 scans = [self.tab.wb.load_data_file(f) for f in files]
                 # the plain loop: a cluster started from the page would outlive its work in the server
                 with TaskRunner(1, progress=say) as runner:
-                    res = merge(scans, None, config, progress=say, map_tasks=runner.map)
+                    res = merge(scans, None, config, progress=say, map_tasks=runner.map, stated=per_scan)
             except Exception as exc:  # said on the page; the tab lives on
                 self.tab.notify("Campaign merge failed", str(exc))
                 self.state.hand(_campaign_over, self._unlock)

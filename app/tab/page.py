@@ -25,7 +25,7 @@ from rangereg.app.tab.refresher import Refresher
 from rangereg.app.tab.replay import ReplayPanel
 from rangereg.app.tab.run import RunPanel, build_chart, chart_axes
 from rangereg.app.tab.scans import ScansPanel
-from rangereg.app.tab.settings import problem_config
+from rangereg.app.tab.settings import page_guess, problem_config
 from rangereg.app.tab.state import TabState
 from rangereg.app.views import Display, Trail
 from rangereg.core.errors import InputError
@@ -96,7 +96,8 @@ class Tab:
         T_init = st.T_init if keep_pose else T_file
         surfaces = Surface.from_scan(source), Surface.from_scan(target)
         frusta = {k: (frustum_of(source, k), frustum_of(target, k)) for k in KINDS}
-        problem = prepare(source, target, T_init, problem_config(settings), surface=surfaces[1], seed=settings.seed)
+        problem = prepare(source, target, page_guess(settings, T_init), problem_config(settings), surface=surfaces[1],
+                          seed=settings.seed)
         threshold = settings.threshold
         if threshold is None:
             threshold = estimate_threshold(problem, settings.seed)
@@ -138,8 +139,8 @@ class Tab:
         if st.source is None or st.running:
             return
         settings = self.run_panel.settings()
-        problem = prepare(st.source, st.target, st.T_init, problem_config(settings), surface=st.surfaces[1],
-                          seed=settings.seed)
+        problem = prepare(st.source, st.target, page_guess(settings, st.T_init), problem_config(settings),
+                          surface=st.surfaces[1], seed=settings.seed)
         with st.lock:
             st.set_problem(problem)
         scene3d.redraw_frustums(self.client.scene, self.nodes, st, settings.frustum)

@@ -19,6 +19,7 @@ from rangereg.app.tab.settings import (
     SettingsHandles,
     guess_text,
     page_config,
+    page_guess,
     read_number,
     read_settings,
 )
@@ -227,15 +228,16 @@ class RunPanel:
         cfg = page_config(self.settings(), method)
         with st.lock:
             source, target, T_init, surface = st.source, st.target, st.T_init, st.problem.surface
+            guess = page_guess(self.settings(), T_init, method)
 
             def work(listener):
                 # each run cuts its own overlap (the paper's methods; the global method cuts per candidate) on
                 # the target surface the page made once
-                return register(source, target, T_init, cfg, listener, surface=surface)
+                return register(source, target, guess, cfg, listener, surface=surface)
 
             st.reset_run(T_init)
             st.run_method = method
-            st.run_header = TraceHeader.of(source, target, T_init, cfg)  # the exported trace's first line
+            st.run_header = TraceHeader.of(source, target, guess, cfg)  # the exported trace's first line
             st.run = run = Run(work, mode=mode, on_done=self._done)
             st.events = run.events
         self.tab.nodes.gizmo.visible = False

@@ -11,8 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import viser
-from rangereg.app.options import KNOBS, Settings, parse_lock, to_config
+from rangereg.app.options import KNOBS, Settings, parse_lock, to_config, to_guess
 from rangereg.app.tab.fields import parse_setting
+from rangereg.core.guess import DEFAULT_ROTATION_DEG, Guess
 from rangereg.core.problem import ProblemConfig
 from rangereg.core.register import Config
 
@@ -55,7 +56,7 @@ NUMBERS: dict[str, NumberField] = {
                                       f"{_per_method(_CORE.anneal.max_evaluations, _CORE.sa_alone.max_evaluations)}; "
                                       f"{ANNEALS}", auto=True),
     "max_points": NumberField("Overlap sample size", str(_CORE.problem.max_points), "source points in E"),
-    "rotation_uncertainty": NumberField("Rotation uncertainty (deg)", f"{_CORE.problem.rotation_uncertainty_deg:g}",
+    "rotation_uncertainty": NumberField("Rotation uncertainty (deg)", f"{DEFAULT_ROTATION_DEG:g}",
                                         "how far off the initial pose may be in rotation, about the source frame's "
                                         "origin; the paper's methods search twice this round the pose, Run global adds "
                                         "the move it implies at the centroid; 180: any rotation"),
@@ -101,9 +102,14 @@ def checked_lock(text: str) -> str | None:
 
 def guess_text(s: Settings, T_init, source, target) -> str:
     """The initial pose's stated region as Run global takes it (core.region), in the user's words."""
-    from rangereg.core.region import Region
+    return page_guess(s, T_init, "global").region(source, target).describe()
 
-    return Region.stated(T_init, page_config(s, "global").problem, source, target).describe()
+
+def page_guess(s: Settings, T_init, method: str = "hybrid") -> Guess:
+    """The initial pose ``T_init`` (4, 4) with the page's stated uncertainty, as ``method`` takes it (no guess:
+    Run global only); the paper's methods by default, as the overlap cut the page shows (problem_config)."""
+    page_config(s, method)  # every field checked, as a run would
+    return to_guess(replace(s, method=method), T_init)
 
 
 def problem_config(s: Settings) -> ProblemConfig:

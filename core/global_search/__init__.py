@@ -4,7 +4,7 @@ pair's fixed basis.
 
     setup      (setup.py) cut the overlap under the guess (widened when empty, core.cut), triangulate
                the target; the pair's noise floor, its fixed scoring basis, its pair threshold
-               (core.threshold); the stated region (core.region: what the user said about the guess)
+               (core.threshold); the stated region (core.guess.Guess.region: what the user said about the guess)
     stages     (stages.py) the guess; KISS-Matcher's hypothesis (beside the guess when the rotation is
                stated wider than ``CandidateConfig.guess_first_deg``); the rotation samples within the
                region (core.candidates), shifted to fit; FPFH + RANSAC
@@ -47,6 +47,7 @@ from ..candidates import for_search
 from ..config import Config
 from ..errors import InputError
 from ..events import Cancelled, Listener
+from ..guess import Guess
 from ..icp import icp
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
@@ -62,11 +63,12 @@ from .stream import EventStream
 __all__ = ["EventStream", "Hypotheses", "Stage", "kiss_ahead", "refine", "register_global"]
 
 
-def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None,
+def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None = None,
                     config: Config = Config(method="global"), listener: Listener | None = None,
                     surface: Surface | None = None) -> Result:
-    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes);
-    ``config.candidates`` holds its own knobs, ``config.problem`` the stated region (core.region);
+    """Register ``source`` onto ``target`` (T_target_source) with the global pipeline (module notes) from
+    ``guess`` (core.guess: its pose and stated region; a (4, 4) pose: the default uncertainty);
+    ``config.candidates`` holds its own knobs;
     ``surface``: the target's, when triangulated already."""
     config.validate()
     whole = (source, target, surface)
@@ -76,7 +78,7 @@ def register_global(source: Scan, target: Scan, T_init: np.ndarray | None = None
         pool = ThreadPoolExecutor(1, thread_name_prefix="whole-surface")
         whole = (whole[0], whole[1], pool.submit(lambda target: Surface.from_scan(target).build(), whole[1]))
         pool.shutdown(wait=False)
-    setup = prepare_setup(source, target, T_init, config, surface if target is whole[1] else None)
+    setup = prepare_setup(source, target, guess, config, surface if target is whole[1] else None)
     run = EventStream(listener, setup.frame, setup.budget())
     found, local_minima = Found(), 0
     try:
@@ -105,12 +107,11 @@ def _on_the_whole(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray, l
     cfg = setup.config
     surface = surface.result() if isinstance(surface, Future) else surface
     surface = surface if surface is not None else Surface.from_scan(target)
-    converged = replace(cfg.problem, rotation_uncertainty_deg=cfg.search.resegment_rotation_deg,
-                        translation_uncertainty=cfg.search.resegment_translation * target.size)
     icp_config = replace(cfg.icp, metric=cfg.candidates.refine_metric, patience=cfg.candidates.refine_patience,
                          max_iterations=min(cfg.icp.max_iterations, cfg.candidates.refine_iterations))
     try:
-        p = prepare(source, target, T, converged, surface=surface, seed=cfg.seed)
+        p = prepare(source, target, Guess.converged(T, cfg.search, target.size), cfg.problem, surface=surface,
+                    seed=cfg.seed)
     except InputError:  # no overlap cut on the whole scans at this pose: the thinned scans' answer stands
         return T, last_cut, found_by
     T_whole = icp(p.error, T, icp_config, lambda T_, E: run.emit("icp", T_, E, charge=False), frame=setup.frame).T
@@ -124,9 +125,8 @@ def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut:
     """The Result of pose T: E on the overlap cut at T (a trusted refinement's last cut is that already)."""
     cfg = setup.config
     if last_cut is None:
-        converged = replace(cfg.problem, rotation_uncertainty_deg=cfg.search.resegment_rotation_deg,
-                            translation_uncertainty=cfg.search.resegment_translation * setup.target.size)
-        last_cut = prepare(setup.source, setup.target, T, converged, surface=setup.surface, seed=cfg.seed)
+        converged = Guess.converged(T, cfg.search, setup.target.size)
+        last_cut = prepare(setup.source, setup.target, converged, cfg.problem, surface=setup.surface, seed=cfg.seed)
     s = setup.basis.evaluate(T[None])
     misfit = setup.threshold.misfit(setup.basis, T, s)
     trusted = setup.threshold.holds(setup.basis, T, s, misfit)

@@ -9,9 +9,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..config import Config
+from ..guess import Guess
 from ..icp import icp
 from ..lock import LockFrame
-from ..problem import Problem, ProblemConfig, prepare
+from ..problem import Problem, prepare
 from ..region import offsets
 from ..result import Stop
 from ..scan import Scan
@@ -23,22 +24,24 @@ from .stages import Hypotheses, stages
 from .stream import EventStream
 
 
-def refine(source: Scan, target: Scan, surface: Surface, T: np.ndarray, pc: ProblemConfig, config: Config,
-           on_step=None, frame: LockFrame | None = None, at_T: Problem | None = None) -> tuple[np.ndarray, Problem]:
-    """ICP (``config.candidates.refine_metric``) on the robust E from T: on the overlap cut at T (``at_T``,
-    when one was cut there already), then on the cut at the pose found (under ``frame``'s lock, when
-    given: core.lock). Returns the pose and that last cut."""
-    cc, s = config.candidates, config.search
+def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: Config, on_step=None,
+           frame: LockFrame | None = None, at_T: Problem | None = None) -> tuple[np.ndarray, Problem]:
+    """ICP (``config.candidates.refine_metric``) on the robust E from the pose of ``guess`` (its stated
+    uncertainty, the rotation at most ``refine_rotation_deg``): on the overlap cut there (``at_T``, when one was
+    cut there already), then on the converged cut at the pose found (under ``frame``'s lock, when given:
+    core.lock). Returns the pose and that last cut."""
+    cc = config.candidates
     # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
-    near = replace(pc, rotation_uncertainty_deg=min(pc.rotation_uncertainty_deg, cc.refine_rotation_deg),
-                   visibility=False)
-    converged = replace(pc, rotation_uncertainty_deg=s.resegment_rotation_deg,
-                        translation_uncertainty=s.resegment_translation * target.size)
+    near = replace(config.problem, visibility=False)
     icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience,
                          max_iterations=min(config.icp.max_iterations, cc.refine_iterations))
-    for cfg in (near, converged):
-        p = at_T if cfg is near and at_T is not None else prepare(source, target, T, cfg, surface=surface, seed=config.seed)
-        T = icp(p.error, T, icp_config, on_step, frame=frame).T
+    T = guess.T_target_source
+    p = at_T if at_T is not None else prepare(source, target, guess.narrowed(cc.refine_rotation_deg), near,
+                                              surface=surface, seed=config.seed)
+    T = icp(p.error, T, icp_config, on_step, frame=frame).T
+    p = prepare(source, target, Guess.converged(T, config.search, target.size), config.problem, surface=surface,
+                seed=config.seed)
+    T = icp(p.error, T, icp_config, on_step, frame=frame).T
     return T, p
 
 
@@ -98,8 +101,9 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         done.append(poses[k])
         run.leg("icp")
         at_guess = setup.problem if poses[k] is setup.T_guess else None
+
         def refine_from(T0, at=None):
-            return refine(setup.source, setup.target, setup.surface, T0, setup.config.problem, setup.config,
+            return refine(setup.source, setup.target, setup.surface, setup.guess.at(T0), setup.config,
                           lambda T_, E_: run.emit("icp", T_, E_), setup.frame, at)
 
         try:

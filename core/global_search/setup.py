@@ -12,6 +12,7 @@ import numpy as np
 
 from ..candidates import Basis, CandidateConfig, feature_spacing, make_basis
 from ..config import Config
+from ..guess import Guess
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
 from ..noise import noise_floors_ahead
@@ -44,6 +45,10 @@ class Setup:
         return self.problem.surface
 
     @property
+    def guess(self) -> Guess:
+        return self.problem.guess
+
+    @property
     def T_guess(self) -> np.ndarray:
         return self.problem.T_init
 
@@ -72,27 +77,27 @@ def kiss_ahead(source: Scan, target: Scan, cc: CandidateConfig) -> Future | None
     return future
 
 
-def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config,
+def prepare_setup(source: Scan, target: Scan, guess: Guess | np.ndarray | None, config: Config,
                   surface: Surface | None = None) -> Setup:
     """The cut under the guess, the basis, the pair threshold and the region (module notes: setup);
     ``surface``: the target's, when triangulated already."""
     t0 = time.perf_counter()
     cc, pc = config.candidates, config.problem
-    T_init = np.eye(4) if T_init is None else np.asarray(T_init, dtype=np.float64)
+    guess = Guess.of(guess)
     check_registrable(source, target)  # before any thread or process starts on them
     # KISS-Matcher's hypothesis is scored beside the guess when the rotation is stated wider than
     # guess_first_deg (.stages): then it starts first, on the other core. Else it is wanted only when the
     # guess alone is not trusted (at 5-15 deg, 6 of 60 sweep runs), and is made then (.stages.matched):
     # started ahead, it took the other core from the setup's threads and the guess's refinement (the
     # bunny's 5-15 deg starts, load ~6: wall median 0.51 s started ahead, 0.47 s made when wanted).
-    ahead = kiss_ahead(source, target, cc) if pc.rotation_uncertainty_deg > cc.guess_first_deg else None
+    ahead = kiss_ahead(source, target, cc) if guess.rotation_deg > cc.guess_first_deg else None
     # the pair's noise floors, measured on a thread while this one triangulates the target and cuts the
     # overlap (the surface's query structure built on a third meanwhile); they are measured with as many
     # queries as the cut's sample holds, which is the most a sample holds unless the cut is small
     rng = np.random.default_rng(config.seed)
     floors = noise_floors_ahead([source, target], rng, pc.max_points)
     surface = (surface if surface is not None else Surface.from_scan(target)).warm()
-    problem = prepare(source, target, T_init, pc, surface=surface, seed=config.seed)
+    problem = prepare(source, target, guess, pc, surface=surface, seed=config.seed)
     if len(problem.points) != pc.max_points:
         rng = np.random.default_rng(config.seed)
         floors = noise_floors_ahead([source, target], rng, len(problem.points))
@@ -102,7 +107,7 @@ def prepare_setup(source: Scan, target: Scan, T_init: np.ndarray | None, config:
     floor = float(np.mean(floors()))
     basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
     threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
-    region = Region.stated(problem.T_init, pc, source, target)
+    region = guess.region(source, target)
     return Setup(source, target, config, problem, basis, threshold, region, frame, ahead, t0)
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..config import Config
+from ..guess import Guess
 from ..problem import Problem, prepare
 from ..result import Stop, StopReason
 from ..transforms import pose_error
@@ -44,14 +45,8 @@ class Round:
 def recut(problem: Problem, T: np.ndarray, config: Config, converged: bool) -> Problem:
     """The overlap cut again at pose T: with the guess's full uncertainty, or, once ``converged``,
     with the small uncertainty left after a registration."""
-    pc, s = config.problem, config.search
-    if converged:
-        pc = replace(pc, rotation_uncertainty_deg=s.resegment_rotation_deg,
-                     translation_uncertainty=s.resegment_translation * problem.target.size)
-    else:
-        pc = replace(pc, rotation_uncertainty_deg=float(np.degrees(problem.rotation_uncertainty)),
-                     translation_uncertainty=problem.translation_uncertainty)
-    return prepare(problem.source, problem.target, T, pc, surface=problem.surface, seed=config.seed)
+    guess = Guess.converged(T, config.search, problem.target.size) if converged else problem.guess.at(T)
+    return prepare(problem.source, problem.target, guess, config.problem, surface=problem.surface, seed=config.seed)
 
 
 def jaccard(a: np.ndarray, b: np.ndarray) -> float:

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..config import Config
 from ..events import Cancelled, Listener
+from ..guess import Guess
 from ..lock import LockFrame
 from ..problem import Problem, prepare
 from ..result import Iterations, Result
@@ -25,13 +26,15 @@ from .rounds import Round, best_round, cancelled, polish, search_rounds
 from .state import SearchState
 
 
-def run_method(source: Scan, target: Scan, T_init: np.ndarray | None, config: Config, listener: Listener | None = None,
-               problem: Problem | None = None, frame: LockFrame | None = None, budget: Budget | None = None) -> Result:
-    """``config.method`` (a paper method) from the guess ``T_init`` (T_target_source); see core.register.
+def run_method(source: Scan, target: Scan, guess: Guess | np.ndarray | None, config: Config,
+               listener: Listener | None = None, problem: Problem | None = None, frame: LockFrame | None = None,
+               budget: Budget | None = None) -> Result:
+    """``config.method`` (a paper method) from ``guess`` (core.guess; a (4, 4) T_target_source: the default
+    uncertainty); see core.register.
     ``budget``: a bound on its steps (core.search.budget); when it is spent the run returns its best pose so far,
     stopped by the budget's reason."""
     t0 = time.perf_counter()
-    problem = problem or prepare(source, target, T_init, config.problem, seed=config.seed)
+    problem = problem or prepare(source, target, guess, config.problem, seed=config.seed)
     threshold = threshold_for(problem, config)
     state = SearchState(problem, config, listener, frame, budget)
     # the search region is centred on the pose the problem was cut at: the guess (section 2.1)

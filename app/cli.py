@@ -224,11 +224,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "Dask cluster (started with 'dask scheduler' and 'dask worker')")
     s.add_argument("--threads", type=_knob("threads"), default=None, help="threads per task stream (this process, or "
                    "each worker): default all cores for --workers 1, cores // N for a local cluster of N")
-    s.add_argument("--pairs", choices=("init", "overlap", "chain", "all", "features"), help="the first round's "
-                   "pairs: init = each scan's best-overlapping partners under the initial poses (default with "
+    s.add_argument("--pairs", choices=("init", "overlap", "chain", "all", "features", "sequence"), help="the first "
+                   "round's pairs: init = each scan's best-overlapping partners under the initial poses (default with "
                    "poses); overlap = every overlapping pair; chain = consecutive scans and the last with the "
                    "first; all = every pair (default without poses up to 6 scans); features = each scan's "
-                   "likeliest neighbours by their features (default without poses beyond)")
+                   "likeliest neighbours by their features (default without poses beyond); sequence = frames in "
+                   "order (LiDAR or RGB-D): consecutive frames from the identity (odometry, within "
+                   "--rotation-uncertainty of it), then the loop closures the odometry's poses make likely")
     s.add_argument("--json", action="store_true")
 
     s = sub.add_parser("scenes", help="regenerate the bundled default scenes",

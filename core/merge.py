@@ -42,7 +42,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from . import merge_graph, merge_pairs, merge_report, merge_rounds
+from . import merge_graph, merge_pairs, merge_report, merge_rounds, merge_sequence
 from .errors import InputError
 from .fuse import fuse
 from .guess import Guess
@@ -152,8 +152,12 @@ class MergeConfig:
     cycle_rotation_deg: float = 2.0
     cycle_translation: float = 4.0
     max_rounds: int = 4
+    # a sequence's loop candidates (core.merge_sequence): each frame's best this many by overlap under the
+    # odometry's poses (the 5 shared Kinect frames: every frame overlaps every other; 2 closes a loop through
+    # each frame without registering every pair)
+    loop_partners: int = 2
 
-    PAIR_MODES: ClassVar[tuple[str, ...]] = ("init", "overlap", "chain", "all", "features")
+    PAIR_MODES: ClassVar[tuple[str, ...]] = ("init", "overlap", "chain", "all", "features", "sequence")
 
     def validate(self) -> None:
         if self.pairs is not None and self.pairs not in self.PAIR_MODES:
@@ -164,7 +168,7 @@ class MergeConfig:
             raise InputError(f"overlaps must satisfy 0 < min_overlap_any <= min_overlap < 1, got "
                              f"{self.min_overlap_any} and {self.min_overlap}")
         for name in ("max_partners", "polish_steps", "polish_points", "all_pairs_up_to", "cue_partners", "reach_partners",
-                     "max_rounds", "join_partners", "join_rounds", "measure_partners", "first_fallback_steps"):
+                     "max_rounds", "loop_partners", "join_partners", "join_rounds", "measure_partners", "first_fallback_steps"):
             v = getattr(self, name)
             low = 0 if name in ("polish_steps", "join_rounds", "first_fallback_steps") else 1
             if name == "first_fallback_steps" and v is None:
@@ -264,7 +268,9 @@ class _Campaign:
         self.round = 0
         self.registrations = 0
         self.counters = {step: Counter(step, self.say, self.t0) for step in Step}
-        self.stated = stated if have else Guess.none()  # each scan's initial pose: how far off it may be
+        # each scan's initial pose: how far off it may be; a sequence's frames with no poses: the identity between
+        # consecutive frames, within the stated region
+        self.stated = stated if have or settings.pairs == "sequence" else Guess.none()
         self.mode = settings.pairs
         if not have and self.mode in ("init", "overlap"):
             raise InputError(f"pairs={self.mode!r} needs initial poses (--init, or stored rough poses)")
@@ -287,7 +293,9 @@ class _Campaign:
             self.register(tasks)
             graph = self.graph()
             tasks = []
-            if self.round < self.mc.max_rounds:
+            if self.mode == "sequence" and self.round == 1:  # odometry done: the loop candidates under its poses
+                tasks = merge_sequence.loop_tasks(self, graph[0]) + merge_rounds.join_only(self, *graph)
+            elif self.round < self.mc.max_rounds:
                 tasks = merge_rounds.next_tasks(self, *graph)
             elif self.round < last:  # past the regular rounds: only the pairs that could join a group left apart
                 tasks = merge_rounds.join_only(self, *graph)

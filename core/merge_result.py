@@ -21,6 +21,7 @@ class Start(StrEnum):
 
     ROUGH_POSES = "rough poses"  # the initial poses, in twice the stated per-scan region
     NO_GUESS = "no guess"  # over all rotations and translations
+    IDENTITY = "identity"  # consecutive frames of a sequence with no poses: the identity, in the stated region
     GRAPH_POSE = "graph pose"  # the pose graph's poses, in MergeConfig.found_rotation_deg
 
 

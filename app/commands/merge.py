@@ -59,10 +59,11 @@ class DelayedLines:
 
 def stated_config(a, have_poses: bool, lacking: list[str] = ()):
     """(the registration config, the per-scan uncertainty of the initial poses: a core Guess about the identity)
-    from the flags (no poses: none may be stated, and the campaign has no guess).
+    from the flags (no poses: none may be stated, and the campaign has no guess; a sequence's: how far each frame
+    may lie from the identity of the one before).
     ``lacking``: the scans with no stored rough pose when others have one."""
     rot, trans = getattr(a, "rotation_uncertainty", None), getattr(a, "translation_uncertainty", None)
-    if not have_poses and (rot is not None or trans is not None):
+    if not have_poses and getattr(a, "pairs", None) != "sequence" and (rot is not None or trans is not None):
         why = (f"stored rough poses are missing for {', '.join(lacking)} (give every pose with --init)" if lacking
                else "without --init or stored poses there are none")
         raise InputError("--rotation-uncertainty and --translation-uncertainty say how far the initial poses may be "

@@ -113,7 +113,8 @@ def run(a) -> int:
     with library_prints_to_stderr(a.json), runner:
         res = merge(scans, initial, config, progress=say, pairs=pairs, map_tasks=runner.map, build_model=not as_e57,
                     stated=stated)
-    report = build_report(res, scans, truth, stated if have else Guess.none(), runner, scheduler, out, as_e57)
+    report = build_report(res, scans, truth, stated if have or pairs == "sequence" else Guess.none(), runner,
+                          scheduler, out, as_e57)
     report["truth_from"] = truth_from
     try:
         if a.json:
@@ -213,6 +214,8 @@ def print_report(report: dict, res, scans) -> None:
     """The report for people: the run, every pair, every scan, the model."""
     g, st, units, names = report["graph"], report["stated"], scans[0].units, report["scans"]
     where = "no guess (every pair over all rotations and translations)" if st["no_guess"] else (
+        f"each frame from the one before it (the identity when no poses are given) within {st['rotation_deg']:g} deg"
+        " (odometry), then the loop closures its poses make likely" if g["mode"] == "sequence" else
         f"initial poses within {st['rotation_deg']:g} deg" +
         (f" and {st['translation']:g} {units}" if st["translation"] is not None else "") +
         f" each (pairs: {st['pair_rotation_deg']:g} deg)")

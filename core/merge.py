@@ -282,7 +282,7 @@ class _Campaign:
     # ---- the rounds ----
 
     def go(self, build_model: bool) -> MergeResult:
-        tasks = merge_pairs.first_tasks(self)
+        tasks = merge_sequence.odometry_tasks(self) if self.mode == "sequence" else merge_pairs.first_tasks(self)
         graph = None
         if not tasks:  # no pair overlaps under the poses: the scans apart are reached by the cue at once
             graph = self.graph()

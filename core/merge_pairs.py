@@ -136,10 +136,6 @@ def likeliest(c: _Campaign, poses: list, partners: int, among: list[int] | None 
 def first_tasks(c: _Campaign) -> list[PairTask]:
     """Round 1's registrations (module notes)."""
     n, mode, mc = c.n, c.mode, c.mc
-    if mode == "sequence":
-        from .merge_sequence import odometry_tasks
-
-        return odometry_tasks(c)
     rot, trans = c.region()
     if mode == "all":
         chosen = [(i, j) for i in range(n) for j in range(i + 1, n)]

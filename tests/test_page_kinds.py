@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import wait_for
-from tests.test_page_scene import in_view, open_tab, settled, show_tab
+from tests.test_page_scene import in_view, open_tab, serving_folder, settled, show_tab
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 LIDAR, KINECT = DATA / "lidar", DATA / "kinect"
@@ -22,15 +22,7 @@ def serve(folder: Path, needs: str):
     """A workbench in this process on its bundled scene with --data-dir ``folder`` (skipped without ``needs``)."""
     if not (folder / needs).exists():
         pytest.skip(f"the shared files ({folder}) are absent")
-    from rangereg.app.access import free_port
-    from rangereg.app.workbench import ServeOptions, Workbench
-
-    port = free_port()
-    wb = Workbench(ServeOptions(port=port, data_dir=str(folder)))
-    yield wb, f"http://127.0.0.1:{port}"
-    for tab in list(wb.tabs.values()):
-        tab.close()
-    wb.server.stop()
+    yield from serving_folder(folder)
 
 
 @pytest.fixture(scope="module")

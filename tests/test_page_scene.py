@@ -21,11 +21,17 @@ def data_bench():
     """A workbench in this process on its bundled scene (corner) with --data-dir the shared bunny scans."""
     if not BUNNY.is_dir():
         pytest.skip("the shared bunny scans (../shared/data/bunny) are absent")
+    yield from serving_folder(BUNNY)
+
+
+def serving_folder(folder):
+    """(Workbench, its URL) in this process on its bundled scene with --data-dir ``folder``; its tabs closed and
+    the server stopped when the fixture ends."""
     from rangereg.app.access import free_port
     from rangereg.app.workbench import ServeOptions, Workbench
 
     port = free_port()
-    wb = Workbench(ServeOptions(port=port, data_dir=str(BUNNY)))
+    wb = Workbench(ServeOptions(port=port, data_dir=str(folder)))
     yield wb, f"http://127.0.0.1:{port}"
     for tab in list(wb.tabs.values()):
         tab.close()

@@ -110,10 +110,11 @@ def test_after_a_run_the_source_is_coloured_by_residual_with_its_histogram(bench
     wait_finished(page)
     show_tab(page, "Model")
     page.get_by_label("Colour by residual", exact=True).check()
-    wait_for(lambda: "by distance to the target surface" in page.locator("body").inner_text(), what="the histogram")
+    # the histogram's title comes before its plot (legend and cap line) is drawn: wait for all of it
+    wanted = ("by distance to the target surface", "within the cap (d < √t)", "beyond the cap", "cap √t")
+    wait_for(lambda: all(w in page.locator("body").inner_text() for w in wanted), what="the histogram")
     body = page.locator("body").inner_text()
     units = tab.state.target.units
-    assert "within the cap (d < √t)" in body and "beyond the cap" in body and "cap √t" in body
     assert f"distance to the target surface ({units})" in body
     colours = tab.nodes.source.points.colors
     assert len(np.unique(colours, axis=0)) > 20 and not np.all(colours == SOURCE_RGB)

@@ -151,10 +151,16 @@ class Result:
             text = "too little of the scans overlaps at this pose to judge it"
         elif not d.pinned and d.misfit < factor:
             c = d.constraint
-            text = ("where the scans overlap they agree at the noise level, but the overlap does not pin all six "
-                    f"degrees of freedom: it lets the pose slide by {c.free_motion} (the matched point-to-plane "
-                    f"system's weakest / strongest eigenvalue {c.ratio:.3g} < {d.threshold.min_constraint:g})"
-                    if c.matched else "too little of the scans overlaps at this pose to judge what it pins")
+            if not c.matched:
+                text = "too little of the scans overlaps at this pose to judge what it pins"
+            elif c.ratio < d.threshold.min_constraint:
+                text = ("where the scans overlap they agree at the noise level, but the overlap does not pin all six "
+                        f"degrees of freedom: it lets the pose slide by {c.free_motion} (the matched point-to-plane "
+                        f"system's weakest / strongest eigenvalue {c.ratio:.3g} < {d.threshold.min_constraint:g})")
+            else:
+                text = ("where the scans overlap they agree at the noise level, but the overlap pins the pose weakly "
+                        f"and it slides freely by {c.free_motion}: slid that way by 3-8 match distances it scores "
+                        f"only {c.rise:.3g} x as high (pinned from {d.threshold.min_rise:g} x)")
         else:
             text = (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
                     f"{d.misfit:.3g}, trusted below {factor:g})")

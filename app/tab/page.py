@@ -221,11 +221,11 @@ class Tab:
             state = ("cancelling" if st.run.cancelled else "paused" if st.run.paused else "running") if running \
                 else "idle"
             units = st.target.units if st.target is not None else ""
+            name, basis = status.threshold_label(result if not running else None, typed)
             pair = f"{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}"
             rows = status.rows(p, pair=pair, units=units, overlap=int(st.problem.used.sum()) if st.problem else 0,
                                method=st.run_method, state=state, lock=lock, threshold=st.threshold,
-                               threshold_name=status.threshold_label(result if not running else None, typed),
-                               guess=guess)
+                               threshold_name=name, threshold_basis=basis, guess=guess)
             more = [st.finished_text] if st.finished_text and not running else []
         self.pose.show_result(None if running else result)
         self.lesson.write(p)

@@ -83,7 +83,7 @@ def test_each_step_is_one_sentence_quoting_the_statuss_own_numbers():
     assert "tx = 362.3 mm and ry = -15°" in sentence("start", f(Progress()))
     # the Start dropdown's numbers (about the source's centre) are named beside the slice's, so the two tx agree
     text = sentence("start", f(Progress(), chosen=(325.0, -15.0)))
-    assert "tx = 362.3 mm and ry = -15°" in text and "the Start chosen, 325 mm and -15°" in text, text
+    assert "tx = 362.3 mm and ry = -15°" in text and "the Start's 325 mm is about" in text, text
     assert "E = 582.8 mm² after 25 ICP iterations, above the threshold 10.57 mm²" in sentence("stuck", f(stuck))
     text = sentence("lower", f(at_lower))
     assert "72 annealing moves" in text and "from 582.8 to 472.1 mm²" in text and "E = 533.2 mm²" in text

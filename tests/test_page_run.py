@@ -142,7 +142,9 @@ def test_the_lesson_at_1280_by_720_keeps_next_in_view_and_its_sentences_quote_th
     assert f"tx = {fmt(start[0])} mm and ry = {fmt(start[1])}°" in sentence, sentence
     # and the Start dropdown's own numbers, so its tx and the sentence's do not read as two starts
     chosen = re.match(r"\d+: (\S+) mm, (\S+)°", str(tab.lesson.h.start.value))
-    assert f"the Start chosen, {chosen[1]} mm and {chosen[2]}°" in sentence, (tab.lesson.h.start.value, sentence)
+    assert f"the Start's {chosen[1]} mm is about" in sentence and chosen[2] == fmt(start[1]), (chosen[0], sentence)
+    words = page.get_by_text(re.compile(r"^0 · The start\.")).last
+    assert in_view(words), words.bounding_box()  # the whole sentence above the fold, under Next
     # the chart's axis titles fit beside and under the plot
     for label in page.locator(".u-axis .u-label").all():
         box = label.bounding_box()

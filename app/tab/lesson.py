@@ -139,14 +139,12 @@ def sentence(step: str, f: Facts) -> str:
     p = f.progress
     head = f"**{NUMBERS[step]} · {TITLES[step]}.** "
     if step == "start":
-        # the dropdown's shift and turn are about the source's centre, the slice's axes about the overlap's: the same
-        # start has two tx, and the sentence names both so that neither reads as a mistake
+        # the dropdown's shift is about the source's centre, the slice's tx about the overlap's (the turn is the same
+        # about either): one start, two tx, and the sentence names both so that neither reads as a mistake
         chosen = "" if f.chosen is None else (
-            f" (the Start chosen, {fmt(f.chosen[0])} {f.units} and {fmt(f.chosen[1])}°, is that shift and turn about "
-            "the source's centre; the slice's axes are about the overlap's centre)")
+            f" (the Start's {fmt(f.chosen[0])} {f.units} is about the source's centre, the slice's about the overlap's)")
         return head + (f"On the slice the source (orange) starts at tx = {fmt(f.start[0])} {f.units} and ry = "
-                       f"{fmt(f.start[1])}° from the truth, the white dot on the contour{chosen}; Next runs ICP from "
-                       "here.")
+                       f"{fmt(f.start[1])}°, the white dot on the contour{chosen}; Next runs ICP.")
     if step == "icp":
         return head + ("Each iteration pairs every source point with the closest point on the target surface and "
                        "moves the scan to fit those pairs: downhill on E, the green path.")

@@ -215,6 +215,9 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
             if not mask.any():
                 continue
             xy = np.where(mask[:, None], path_xy, np.nan)
+            # a white casing under the leg: ICP's green would melt into Viridis's greens (the lesson's "green path")
+            fig.add_trace(go.Scatter(x=xy[:, 0], y=xy[:, 1], mode="lines", showlegend=False, hoverinfo="skip",
+                                     line=dict(color="white", width=4.5)))
             fig.add_trace(go.Scatter(x=xy[:, 0], y=xy[:, 1], mode="lines", name=name,
                                      line=dict(color=f"rgb{PHASE_RGB[phase]}", width=2)))
         fig.add_trace(go.Scatter(x=path_xy[:1, 0], y=path_xy[:1, 1], mode="markers", name="start",

@@ -81,6 +81,9 @@ def test_each_step_is_one_sentence_quoting_the_statuss_own_numbers():
         return Facts(10.57, "mm", (362.3, -15.0), p, **kw)
 
     assert "tx = 362.3 mm and ry = -15°" in sentence("start", f(Progress()))
+    # the Start dropdown's numbers (about the source's centre) are named beside the slice's, so the two tx agree
+    text = sentence("start", f(Progress(), chosen=(325.0, -15.0)))
+    assert "tx = 362.3 mm and ry = -15°" in text and "the Start's 325 mm is about" in text, text
     assert "E = 582.8 mm² after 25 ICP iterations, above the threshold 10.57 mm²" in sentence("stuck", f(stuck))
     text = sentence("lower", f(at_lower))
     assert "72 annealing moves" in text and "from 582.8 to 472.1 mm²" in text and "E = 533.2 mm²" in text
@@ -94,6 +97,10 @@ def test_each_step_is_one_sentence_quoting_the_statuss_own_numbers():
                                threshold=10.57, threshold_name="Threshold", guess=""))
         numbers = re.findall(r"-?\d+(?:\.\d+)?(?:e[+-]\d+)?", sentence(step, f(p)).split("**", 2)[2])
         assert numbers and all(n in status for n in numbers if n not in ("0.04", "0.54")), (step, numbers, status)
+    # the threshold's value comes before what it is (a narrow panel cuts the row's end, not the number)
+    row = rows(done, pair="a → b", units="mm", overlap=1, method="hybrid", state="idle", lock="", threshold=4.478e-2,
+               threshold_name="Pair threshold", threshold_basis="Run global's test", guess="")[4]
+    assert row == "Pair threshold 0.04478 mm² (Run global&#x27;s test)", row
     for step, title in (("icp", "1 · ICP runs"), ("stuck", "2 · Stuck above the threshold"),
                         ("anneal", "3 · Annealing roams, temperature falling"), ("lower", "4 · A lower point"),
                         ("icp-again", "5 · ICP again"), ("below", "6 · Below the threshold")):

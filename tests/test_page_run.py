@@ -37,7 +37,7 @@ def test_the_default_method_is_the_first_button_and_the_papers_methods_are_group
     folder = page.get_by_text(PAPERS_FOLDER, exact=True).bounding_box()["y"]
     assert all(y[GLOBAL_BUTTON] < folder < y[t] for t in RUN_BUTTONS if t != GLOBAL_BUTTON), (y, folder)
     # the threshold row says which threshold it is: the paper's E threshold until Run global shows its own
-    assert "Threshold (the paper's, on E: from the scans' noise)" in status_text(page)
+    assert re.search(r"Threshold \S+ mm² \(the paper's, on E: from the scans' noise\)", status_text(page))
     page.close()
 
 
@@ -46,8 +46,20 @@ def test_the_result_line_leads_with_trust_and_advises_only_when_not_trusted(benc
     page.get_by_role("button", name="Run global", exact=True).click()
     line = wait_finished(page)
     assert line.startswith("trust yes:") and "What to do" not in status_text(page), line
-    assert "Pair threshold (Run global's test" in status_text(page)
+    assert re.search(r"Pair threshold \S+ mm² \(Run global's test", status_text(page))
+    # the row never wraps: where the panel is narrow its words are cut, its value stays in view
+    page.set_viewport_size({"width": 1280, "height": 720})
+    page.wait_for_timeout(500)
+    assert page.evaluate(VALUE_IN_VIEW, "Pair threshold "), status_text(page)
     page.close()
+
+
+VALUE_IN_VIEW = """(name) => { const row = [...document.querySelectorAll('.rangereg-status > div')].find(
+    d => d.textContent.startsWith(name)); const node = row.firstChild;
+  const value = node.textContent.match(/^[^(]*?\\d\\S* \\S+²/);  // the name, the value and its unit
+  if (!value) return false;
+  const r = document.createRange(); r.setStart(node, 0); r.setEnd(node, value[0].length);
+  return r.getBoundingClientRect().right <= row.getBoundingClientRect().right; }"""
 
 
 def test_icp_stuck_from_the_run_tab_says_trust_no_then_what_to_do_and_ends_the_lesson(bench, browser):
@@ -128,6 +140,11 @@ def test_the_lesson_at_1280_by_720_keeps_next_in_view_and_its_sentences_quote_th
     sentence = tab.lesson.h.text.content
     start = tab.landscape.path.xy[0]
     assert f"tx = {fmt(start[0])} mm and ry = {fmt(start[1])}°" in sentence, sentence
+    # and the Start dropdown's own numbers, so its tx and the sentence's do not read as two starts
+    chosen = re.match(r"\d+: (\S+) mm, (\S+)°", str(tab.lesson.h.start.value))
+    assert f"the Start's {chosen[1]} mm is about" in sentence and chosen[2] == fmt(start[1]), (chosen[0], sentence)
+    words = page.get_by_text(re.compile(r"^0 · The start\.")).last
+    assert in_view(words), words.bounding_box()  # the whole sentence above the fold, under Next
     # the chart's axis titles fit beside and under the plot
     for label in page.locator(".u-axis .u-label").all():
         box = label.bounding_box()

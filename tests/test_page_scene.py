@@ -308,3 +308,21 @@ def test_the_opening_view_frames_the_bunny_from_outside_its_frustums(data_bench,
 
     assert count(SOURCE_RGB) + count(TARGET_RGB) > 5 * (count(faded(SOURCE_RGB)) + count(faded(TARGET_RGB)))
     page.close()
+
+
+def test_the_first_pair_is_seen_upright_from_the_opening_view_the_page_chose(data_bench, browser):
+    # the first pair of a page (drawn as the browser connects): the camera the browser reports is the one the page set,
+    # +y up (a pose sent with the first change of up was read in viser's +z frame: the scans seen on their side)
+    from rangereg.app.tab.scene3d import default_view
+
+    page, tab = open_tab(data_bench, browser)
+    settled(page, tab)
+    st = tab.state
+    eye, look_at = default_view(st.display, st.target, st.source, st.T, st.frusta[tab.run_panel.settings().frustum])
+    cam = tab.client.camera
+    assert np.allclose(cam.up_direction, (0.0, 1.0, 0.0), atol=1e-6), cam.up_direction
+    assert np.allclose(cam.position, eye, atol=1e-4) and np.allclose(cam.look_at, look_at, atol=1e-4), (cam.position, eye)
+    # the page's +y points up the screen
+    up = project(tab, np.array([look_at, look_at + np.array([0.0, 0.2, 0.0])]))
+    assert up[1, 1] < up[0, 1] - 20 and abs(up[1, 0] - up[0, 0]) < 1, up
+    page.close()

@@ -376,3 +376,23 @@ def test_a_panorama_is_drawn_with_its_sensor_named_and_a_large_cloud_by_a_subset
         assert tuple(cloud.points.colors[0]) == (1, 2, 3) and len(cloud.points.colors) == 20_000
     finally:
         server.stop()
+
+
+def test_viewpoint_fields_show_4_digits_and_a_field_left_as_shown_keeps_the_exact_viewpoint(bunny):
+    import re
+
+    import numpy as np
+    from rangereg.app.tab.scans import ScansPanel
+
+    source, target = bunny("bun045"), bunny("bun000")
+    panel = SimpleNamespace(h=SimpleNamespace(vp_source=SimpleNamespace(value="0 0 0"),
+                                              vp_target=SimpleNamespace(value="0 0 0")), vp_shown={})
+    ScansPanel.show_viewpoints(panel, source, target)
+    for field, scan in ((panel.h.vp_source, source), (panel.h.vp_target, target)):
+        shown = field.value.split()
+        assert len(shown) == 3 and all(len(re.sub(r"\D", "", v.split("e")[0]).lstrip("0")) <= 4 for v in shown), shown
+        assert np.allclose([float(v) for v in shown], scan.viewpoint, rtol=1e-3, atol=1e-12)
+        # Apply with the field as shown: the exact viewpoint, not its 4 digits (the scan is not moved)
+        assert np.array_equal(ScansPanel._viewpoint(panel, field, "viewpoint"), scan.viewpoint)
+    panel.h.vp_source.value = "0.1 0.2 1.5"  # typed: taken as typed
+    assert np.array_equal(ScansPanel._viewpoint(panel, panel.h.vp_source, "source viewpoint"), [0.1, 0.2, 1.5])

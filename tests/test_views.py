@@ -125,6 +125,12 @@ def test_slice_figure_draws_both_legs_in_the_page_colours_and_the_current_pose()
         drawn = ~np.isnan(np.asarray(traces[name].x, float))
         assert drawn.any()
     assert np.array_equal(~np.isnan(np.asarray(traces["SA"].x, float)), [False, False, True, True, False])
+    # each leg over a wider white casing of the same points, so the path shows on every colour of the contour
+    for name in ("ICP", "SA"):
+        k = list(fig.data).index(traces[name])
+        casing = fig.data[k - 1]
+        assert casing.line.color == "white" and casing.line.width > traces[name].line.width and not casing.showlegend
+        assert np.array_equal(np.asarray(casing.x, float), np.asarray(traces[name].x, float), equal_nan=True)
     assert (traces["shown pose"].x[0], traces["shown pose"].y[0]) == (0.0, 0.5)
     assert (traces["minima of the slice"].x[0], traces["minima of the slice"].y[0]) == (0.0, 0.0)  # the bowl's floor
     assert (traces["start"].x[0], traces["start"].y[0]) == (0.9, 8.0)

@@ -95,4 +95,8 @@ def show_number(v: float) -> str:
 
 
 def show_vector(v) -> str:
-    return " ".join(show_number(x) for x in v)
+    """A vector for a text field in 4 significant digits, as every number on the page (round-off shown as 0); the
+    field's owner keeps the exact vector for a field left as shown."""
+    from rangereg.app.figures import fmt
+
+    return " ".join(fmt(0.0 if abs(float(x)) < 1e-12 else float(x)) for x in v)

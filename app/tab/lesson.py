@@ -129,6 +129,7 @@ class Facts:
     progress: Progress = field(default_factory=Progress)
     finished: bool = False
     off: tuple[float, float] | None = None
+    chosen: tuple[float, float] | None = None  # the start as the Start dropdown names it (core.scenes.Lesson.starts)
 
 
 def sentence(step: str, f: Facts) -> str:
@@ -138,8 +139,12 @@ def sentence(step: str, f: Facts) -> str:
     p = f.progress
     head = f"**{NUMBERS[step]} · {TITLES[step]}.** "
     if step == "start":
+        # the dropdown's shift is about the source's centre, the slice's tx about the overlap's (the turn is the same
+        # about either): one start, two tx, and the sentence names both so that neither reads as a mistake
+        chosen = "" if f.chosen is None else (
+            f" (the Start's {fmt(f.chosen[0])} {f.units} is about the source's centre, the slice's about the overlap's)")
         return head + (f"On the slice the source (orange) starts at tx = {fmt(f.start[0])} {f.units} and ry = "
-                       f"{fmt(f.start[1])}° from the truth, the white dot on the contour; Next runs ICP from here.")
+                       f"{fmt(f.start[1])}°, the white dot on the contour{chosen}; Next runs ICP.")
     if step == "icp":
         return head + ("Each iteration pairs every source point with the closest point on the target surface and "
                        "moves the scan to fit those pairs: downhill on E, the green path.")
@@ -321,7 +326,8 @@ class LessonPanel:
             from rangereg.core.transforms import pose_error
 
             off = pose_error(result.transform, T_truth, source.centroid)
-        line = sentence(self.story.step, Facts(threshold or 0.0, units, self.start_xy, progress, finished, off))
+        line = sentence(self.story.step, Facts(threshold or 0.0, units, self.start_xy, progress, finished, off,
+                                                   self.lesson.starts[self.k]))
         if line != self.line:
             self.line = self.h.text.content = line
 

@@ -42,6 +42,11 @@ log = logging.getLogger("rangereg.workbench")
 class Tab:
     def __init__(self, workbench, client: viser.ClientHandle):
         self.wb, self.client, self.gui = workbench, client, client.gui
+        # +y up from the first message on, and the opening pose sent again if the browser still read it in viser's +z
+        # (scene3d.CameraKeeper)
+        client.scene.set_up_direction("+y")
+        client.flush()
+        self.camera = scene3d.CameraKeeper(client)
         self.state = TabState()
         self.nodes: scene3d.SceneNodes | None = None
         self.run_drawing = False  # a run moves the scan: the light clouds are drawn
@@ -117,6 +122,7 @@ class Tab:
             if self.nodes is not None:
                 self.nodes.remove()
             self.nodes = scene3d.draw_pair(self.client, st, settings.frustum, self.scans.h.show.overlap.value)
+        self.camera.keep()
         self.nodes.gizmo.on_update(lambda e: self.guarded(self.pose.dragged))
         self.run_panel.h.plot.axes = chart_axes(target.units)
         self.lesson.forget()
@@ -221,11 +227,11 @@ class Tab:
             state = ("cancelling" if st.run.cancelled else "paused" if st.run.paused else "running") if running \
                 else "idle"
             units = st.target.units if st.target is not None else ""
+            name, basis = status.threshold_label(result if not running else None, typed)
             pair = f"{st.source.name if st.source else '-'} → {st.target.name if st.target else '-'}"
             rows = status.rows(p, pair=pair, units=units, overlap=int(st.problem.used.sum()) if st.problem else 0,
                                method=st.run_method, state=state, lock=lock, threshold=st.threshold,
-                               threshold_name=status.threshold_label(result if not running else None, typed),
-                               guess=guess)
+                               threshold_name=name, threshold_basis=basis, guess=guess)
             more = [st.finished_text] if st.finished_text and not running else []
         self.pose.show_result(None if running else result)
         self.lesson.write(p)

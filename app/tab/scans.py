@@ -164,6 +164,7 @@ class ScansPanel:
         h.apply_vp.on_click(lambda e: guarded(self.apply_viewpoints))
         h.e57.open.on_click(lambda e: guarded(self.open_e57_pair))
         self.e57_scans: list[Scan] = []  # the last uploaded E57's scans (under the tab's lock)
+        self.vp_shown: dict[int, tuple[str, np.ndarray]] = {}  # per viewpoint field: (text shown, exact viewpoint)
         for box in (h.show.frustums, h.show.surfaces, h.show.path):
             box.on_update(lambda e: guarded(tab.apply_visibility))
         h.show.overlap.on_update(lambda e: guarded(tab.recolour))
@@ -229,13 +230,24 @@ class ScansPanel:
     def apply_viewpoints(self) -> None:
         st = self.state
         st.require_scans()
-        self.tab.load_pair(with_viewpoint(st.source, parse_vector(self.h.vp_source.value, "source viewpoint")),
-                           with_viewpoint(st.target, parse_vector(self.h.vp_target.value, "target viewpoint")),
+        self.tab.load_pair(with_viewpoint(st.source, self._viewpoint(self.h.vp_source, "source viewpoint")),
+                           with_viewpoint(st.target, self._viewpoint(self.h.vp_target, "target viewpoint")),
                            keep_pose=True)
 
+    def _viewpoint(self, field, what: str) -> np.ndarray:
+        """A viewpoint field as (3,): the exact viewpoint while it reads as shown, else the numbers typed."""
+        shown = self.vp_shown.get(id(field))
+        if shown is not None and str(field.value).strip() == shown[0]:
+            return shown[1]
+        return np.asarray(parse_vector(field.value, what), dtype=np.float64)
+
     def show_viewpoints(self, source: Scan, target: Scan) -> None:
-        self.h.vp_source.value = show_vector(source.viewpoint)
-        self.h.vp_target.value = show_vector(target.viewpoint)
+        """Both viewpoints in 4 significant digits, as every number on the page (the exact ones kept for Apply)."""
+        for field, scan in ((self.h.vp_source, source), (self.h.vp_target, target)):
+            exact = np.asarray(scan.viewpoint, dtype=np.float64).copy()
+            text = show_vector(exact)
+            self.vp_shown[id(field)] = (text, exact)
+            field.value = text
 
     def lock(self, running: bool) -> None:
         for b in self.h.held_by_a_run():

@@ -202,9 +202,11 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     minima = scene.add_point_cloud(f"{root}/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
                                    point_shape="circle")
     eye, look_at = default_view(d, tgt, src, state.T, state.frusta[frustum_kind])
-    client.camera.up_direction = (0.0, 1.0, 0.0)
     client.camera.position = tuple(eye)
     client.camera.look_at = tuple(look_at)
+    # the up direction last: set before the position and look-at, the browser kept the camera's up it had (+x, from
+    # viser's opening pose), and the page showed the scans on their side
+    client.camera.up_direction = UP
     return SceneNodes(frame, source, target, gizmo, path, minima)
 
 
@@ -359,6 +361,41 @@ def _inside_frusta(eye: np.ndarray, d: Display, T: np.ndarray, frusta) -> bool:
         if 0 < depth[0] <= f.far and bool(f.contains(p[None])[0]):
             return True
     return False
+
+
+UP = (0.0, 1.0, 0.0)  # the page's up: the target's +y (the scans' frame)
+
+
+class CameraKeeper:
+    """Sends the page's camera pose again where the browser read it in another up direction.
+
+    viser's browser reads a camera pose in the world up it holds when the pose arrives; the first pair is drawn as the
+    browser connects, while it may still hold viser's +z up, and was then seen from a rotated eye, on its side (the
+    browser reported +x up). The orbit controls keep the up they are given, so a reported up other than :data:`UP`
+    is that misreading, never the user's doing: the pose the page last set (:meth:`keep`) is sent again, a few times
+    at most.
+    """
+
+    TRIES = 5
+
+    def __init__(self, client: viser.ClientHandle):
+        self.client = client
+        self.pose: tuple[tuple, tuple] | None = None  # (position, look_at) the page last set
+        self.tries = 0
+        client.camera.on_update(self._reported)
+
+    def keep(self) -> None:
+        """Remember the camera pose the page has just set (position, look-at; up :data:`UP`)."""
+        cam = self.client.camera
+        self.pose, self.tries = (tuple(cam.position), tuple(cam.look_at)), 0
+
+    def _reported(self, cam) -> None:
+        if self.pose is None or np.allclose(cam.up_direction, UP, atol=1e-3) or self.tries >= self.TRIES:
+            return
+        self.tries += 1
+        cam.position = self.pose[0]  # first: a new position moves the look-at point along with it
+        cam.look_at = self.pose[1]
+        cam.up_direction = UP
 
 
 def fit_camera(client: viser.ClientHandle, points: np.ndarray) -> None:

@@ -61,17 +61,18 @@ def progress(trail, events: list, E0: float, result, running: bool) -> Progress:
                     float(minima[-1]) if minima else float("nan"), shown)
 
 
-def threshold_label(result, typed: bool) -> str:
-    """Which threshold the page shows: the pair threshold after Run global (its bound on the median matched d²),
-    else the paper's E threshold, estimated from the scans' noise or as typed in Settings."""
+def threshold_label(result, typed: bool) -> tuple[str, str]:
+    """Which threshold the page shows, as (name, what it is): the pair threshold after Run global (its bound on the
+    median matched d²), else the paper's E threshold, estimated from the scans' noise or as typed in Settings."""
     if result is not None and getattr(result, "details", None) is not None:
-        return "Pair threshold (Run global's test: median matched d², normals)"
-    return "Threshold (the paper's, on E: " + ("as typed in Settings)" if typed else "from the scans' noise)")
+        return "Pair threshold", "Run global's test: median matched d², normals"
+    return "Threshold", "the paper's, on E: " + ("as typed in Settings" if typed else "from the scans' noise")
 
 
 def rows(p: Progress, *, pair: str, units: str, overlap: int, method: str, state: str, lock: str,
-         threshold: float | None, threshold_name: str, guess: str) -> list[str]:
-    """The status's progress rows, as HTML (each one line)."""
+         threshold: float | None, threshold_name: str, guess: str, threshold_basis: str = "") -> list[str]:
+    """The status's progress rows, as HTML (each one line; the threshold's value before what it is, so a narrow
+    panel cuts the words, not the number)."""
     u = squared_unit(units)
     last = p.last
     phase = last.phase.upper() if last is not None else "-"
@@ -87,10 +88,11 @@ def rows(p: Progress, *, pair: str, units: str, overlap: int, method: str, state
         temp = "temperature - (annealing only)"
     thr = fmt(threshold) if threshold is not None else "auto"
     e = html.escape
+    basis = f" ({e(threshold_basis)})" if threshold_basis else ""
     return [f"<b>{e(pair)}</b> ({e(units)}) · overlap {overlap} points",
             f"Method <b>{e(method or '-')}</b> · {state} · phase <b>{phase}</b> · "
             + (f"locked <b>{e(lock)}</b>" if lock else "nothing locked"),
-            counts, f"{E} · {temp}", f"{e(threshold_name)} {thr} {u}", e(guess)]
+            counts, f"{E} · {temp}", f"{e(threshold_name)} {thr} {u}{basis}", e(guess)]
 
 
 def page_html(progress_rows: list[str], more: list[str]) -> str:

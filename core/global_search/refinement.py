@@ -4,6 +4,7 @@ stages."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -78,6 +79,10 @@ class Found:
     beyond: np.ndarray | None = None
     last_cut: Problem | None = None
     stopped: Stop | None = None  # the search's budget was spent during a refinement (it is given up)
+    # a thinned pair's check (module notes in __init__: thinned): a pose trusted on the thinned scans, refined on
+    # the whole ones (None: no cut there, the thinned pose stands); it counts as trusted only where that is too
+    confirm: Callable[[np.ndarray], np.ndarray | None] | None = None
+    confirmed: list = field(default_factory=list)  # the poses refined on the whole scans by ``confirm``
 
     def note(self, T: np.ndarray, source: str) -> None:
         """Pose T (4, 4) was found by ``source``."""
@@ -125,6 +130,11 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         except BudgetSpent as spent:  # the budget ran out inside this refinement: it is given up, the search ends
             found.stopped = spent.stop
             return
+        if setup.trusted(T) and found.confirm is not None:
+            T_whole = found.confirm(T)
+            if T_whole is not None:
+                found.confirmed.append(T_whole)
+                T, last = T_whole, None  # its cut is made again on the scans the result reports
         found.note(T, hyp.label(k))
         if setup.trusted(T):
             if setup.region.inside(T):
@@ -146,10 +156,12 @@ def best_refined(setup: Setup, poses: list[np.ndarray]) -> tuple[np.ndarray, flo
     raise AssertionError("unreachable: the last mask holds every pose")
 
 
-def search_stages(setup: Setup, run: EventStream) -> tuple[Found, dict]:
+def search_stages(setup: Setup, run: EventStream, confirm: Callable[[np.ndarray], np.ndarray | None] | None = None
+                  ) -> tuple[Found, dict]:
     """Every stage in turn until one refines a pose the pair threshold trusts inside the region (module
-    notes: stages, verdict). Returns what was found and, per stage, how many poses it gave or why none."""
-    found, sources = Found(), {}
+    notes: stages, verdict); ``confirm``: :attr:`Found.confirm`. Returns what was found and, per stage, how many
+    poses it gave or why none."""
+    found, sources = Found(confirm=confirm), {}
     for stage in stages(setup):
         if found.stopped is not None or run.budget.spent() is not None or run.budget.left("candidates") == 0:
             sources[stage.name] = "not reached within the search's bound"

@@ -130,7 +130,7 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         except BudgetSpent as spent:  # the budget ran out inside this refinement: it is given up, the search ends
             found.stopped = spent.stop
             return
-        if setup.trusted(T) and found.confirm is not None:
+        if found.confirm is not None and setup.trusted(T):  # (the check first: a trust test costs a basis query)
             T_whole = found.confirm(T)
             if T_whole is not None:
                 found.confirmed.append(T_whole)

@@ -33,7 +33,7 @@ def pair_statuses(c: _Campaign, g: Graph, screened: Screened) -> list[PairResult
             kind, reason = Rejection.NOT_JOINED, (f"its scans are not joined to {c.scans[c.reference].name} "
                                                   "(the frame of the poses) by used pairs")
         else:
-            status = PairStatus.USED
+            status, reason = PairStatus.USED, screened.corroborated.get(key, "")
         if status is PairStatus.REJECTED and c.tried[key] == 1 and c.shares.get(key, 1.0) < c.mc.min_overlap:
             reason += (f"; not registered again: under the poses found its scans match by "
                        f"{c.shares[key]:.0%}, too little to be trusted")

@@ -118,7 +118,8 @@ def test_the_four_bunny_scans_with_no_poses_all_land(bunny):
     assert not _right(scans, res.poses)
     far = next(p for p in res.pairs if {p.i, p.j} == {2, 3})
     assert far.status == "rejected" and not far.trusted and "not trusted" in far.reason
-    assert all(p.trusted for p in res.used) and len(res.used) >= 4  # a cycle checks every scan
+    # bun045 with bun315 (right, misfit 4.6, just above the pair threshold's 4.5) closes the loop through bun000
+    assert all(p.trusted or "closes the loop through" in p.reason for p in res.used) and len(res.used) >= 4
     assert all(r.cycle is not None and r.cycle[0] < 2.0 for r in res.scans)
 
 

@@ -91,6 +91,31 @@ def test_the_graph_step_says_why_each_pair_is_not_usable(camp):
     assert g.placed[:5] == [True] * 5 and not any(g.placed[5:])
 
 
+def test_an_untrusted_pair_is_used_where_a_triangle_with_a_trusted_pair_corroborates_it(camp):
+    c = _campaign(camp)
+    for i in range(4):
+        _pair(c, camp, i, i + 1)  # trusted, misfit 0.5: the level's bound is 3.3 x 0.5
+    _pair(c, camp, 4, 5, trusted=False, misfit=0.6, stop=BOUND)  # right, at the level
+    _pair(c, camp, 3, 5, trusted=False, misfit=0.7, stop=BOUND)  # right: closes 3-4-5 with the trusted (3, 4)
+    twin = from_params(np.r_[0, 0, 0, 0, 0, np.radians(120.0)])
+    # scans 6 and 7 turned the same wrong way onto 4: a triangle that closes, at the level, but none of it trusted
+    _pair(c, camp, 4, 6, T=_truth(camp, 4, 6) @ twin, trusted=False, misfit=0.6, stop=BOUND)
+    _pair(c, camp, 4, 7, T=_truth(camp, 4, 7) @ twin, trusted=False, misfit=0.6, stop=BOUND)
+    _pair(c, camp, 6, 7, T=invert(twin) @ _truth(camp, 6, 7) @ twin, trusted=False, misfit=0.6, stop=BOUND)
+    # ... and one closing 3-4-6 with the trusted (3, 4), above the level
+    _pair(c, camp, 3, 6, T=_truth(camp, 3, 6) @ twin, trusted=False, misfit=3.6, stop=BOUND)
+    s = merge_graph.screen(c)
+    assert sorted(s.corroborated) == [(3, 5), (4, 5)]
+    assert sorted(s.usable) == sorted([(i, i + 1) for i in range(4)] + [(3, 5), (4, 5)])
+    assert all(s.why[k][0] is Rejection.NOT_TRUSTED for k in [(4, 6), (4, 7), (6, 7), (3, 6)])
+    g, screened = merge_graph.build(c)
+    assert g.placed[:6] == [True] * 6 and not any(g.placed[6:])
+    assert np.allclose(invert(g.poses[3]) @ g.poses[5], _truth(camp, 3, 5), atol=1e-6)
+    used = {p.key: p for p in merge_report.pair_statuses(c, g, screened)}
+    assert used[3, 5].status is PairStatus.USED and "closes the loop through" in used[3, 5].reason
+    assert used[4, 6].status is PairStatus.REJECTED and used[4, 6].rejection is Rejection.NOT_TRUSTED
+
+
 # ---- rounds ----
 
 def test_the_next_round_registers_again_from_the_graph_and_measures_only_near_pairs(camp):

@@ -133,6 +133,49 @@ def test_the_campaign_model_is_in_view_after_merge_scans_from_another_scene(data
     page.close()
 
 
+CAMPAIGN_LINES = """() => { window._campaign = [];
+  const read = () => { const p = [...document.querySelectorAll('p')].find(e => /^(features|overlaps|pairs|graph|model)[ ,]/
+      .test(e.innerText));
+    const text = p ? p.innerText : '';
+    if (text && window._campaign[window._campaign.length - 1] !== text) window._campaign.push(text); };
+  new MutationObserver(read).observe(document.body, {subtree: true, childList: true, characterData: true}); }"""
+
+UNCOVERED = """(el) => { const r = el.getBoundingClientRect();
+  const x = r.left + Math.min(r.width / 2, 40), y = r.top + r.height / 2;
+  const top = document.elementFromPoint(x, y); return top !== null && (el === top || el.contains(top)); }"""
+
+
+def test_at_1280_by_720_the_campaign_report_leads_with_its_overall_line_and_its_headline_is_in_view(data_bench, browser):
+    page, tab = open_tab(data_bench, browser, viewport=(1280, 720))
+    show_tab(page, "Model")
+    text_input(page, "Scans").fill("bun0[04]*")  # two scans: one pair
+    page.evaluate(CAMPAIGN_LINES)
+    page.get_by_role("button", name="Merge scans", exact=True).click()
+    headline = page.locator("strong", has_text=re.compile(r"^2 of 2 scans placed$"))
+    headline.wait_for(timeout=300_000)
+    shown = [t.split("\n") for t in page.evaluate("() => window._campaign")]
+    counts = re.compile(r"pairs, round \d+ \d+/\d+")
+    # while it works and at its end, the overall line (the pairs registered) leads, the other lines below it
+    assert any(counts.match(line) for lines in shown for line in lines), shown
+    for lines in shown:
+        assert all(not counts.match(line) for line in lines[1:]), lines
+    report = shown[-1]
+    assert counts.match(report[0]) and report[1].startswith("2 of 2 scans placed ·"), report
+    assert [line.split(":")[0] for line in report[2:]] == ["bun000", "bun045"], report
+    # the headline is in the viewport without scrolling, and nothing (a notification) is drawn over it
+    box = headline.bounding_box()
+    assert box["y"] >= 0 and box["y"] + box["height"] <= 720 and box["x"] + box["width"] <= 1280, box
+    assert page.evaluate("() => document.scrollingElement.scrollTop") == 0
+    notes = page.locator(".mantine-Notification-root")
+    wait_for(lambda: notes.count() > 0, what="the campaign's notification")
+    for i in range(notes.count()):
+        n = notes.nth(i).bounding_box()
+        assert n is None or n["x"] + n["width"] <= box["x"] or box["x"] + box["width"] <= n["x"] \
+            or n["y"] + n["height"] <= box["y"] or box["y"] + box["height"] <= n["y"], (n, box)
+    assert headline.evaluate(UNCOVERED)
+    page.close()
+
+
 def s1_label(tab):
     """The first source pick's label node, or None while it is not drawn yet."""
     return next((m for m in list(tab.pairs.markers) if getattr(m, "text", "") == "S1"), None)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from pathlib import Path
@@ -287,6 +288,35 @@ def test_the_finished_line_leads_with_trust_and_advises_only_when_not_trusted(sc
         line = result_line(r, "mm", (1.0, 2.0))
         assert line.startswith(f"<b>Finished: trust {'yes' if trusted else 'no'}</b>")
         assert ("What to do" in line) is not trusted and "from the truth" in line
+
+
+def test_the_campaigns_overall_pairs_line_leads_its_progress_and_its_report():
+    from rangereg.app.tab.model import CampaignLines
+    from rangereg.core.merge_progress import MergeProgress, Step
+
+    lines = CampaignLines()
+    assert lines.text() == ""
+    lines.add(MergeProgress(Step.FEATURES, 0, 4, 4, 1.0))
+    assert lines.text() == "features 4/4, 0:01 elapsed, done"  # no pair counted yet: the newest lines alone
+    events = [MergeProgress(Step.PAIRS, 1, 0, 6, 1.0, note="registering 6 pairs"),
+              MergeProgress(Step.PAIRS, 1, 1, 6, 2.0), MergeProgress(Step.PAIRS, 1, 3, 6, 3.0),
+              MergeProgress(Step.PAIRS, 1, 6, 6, 9.0), MergeProgress(Step.GRAPH, 1, 1, 1, 9.0, note="5 of 6 pairs used"),
+              "a task runner's line", MergeProgress(Step.OVERLAPS, 1, 1, 1, 9.5),
+              MergeProgress(Step.PAIRS, 2, 6, 8, 10.0, note="registering 2 pairs"), MergeProgress(Step.PAIRS, 2, 7, 8, 12.0)]
+    for e in events:
+        lines.add(e)
+        shown = lines.text().split("  \n")
+        counts = [line for line in shown if re.match(r"pairs, round \d+ \d+/\d+", line)]
+        # the overall line, the newest count of the pairs, is first and alone; every other line is under it
+        assert len(counts) <= 1 and (not counts or shown[0] == counts[0]), shown
+        assert len(shown) <= 1 + CampaignLines.KEEP
+    shown = lines.text().split("  \n")
+    assert shown[0] == "pairs, round 2 7/8, 0:12 elapsed, ETA unknown", shown
+    assert shown[1:] == ["pairs, round 1: registering 6 pairs", "graph, round 1: 5 of 6 pairs used", "a task runner's line",
+                         "overlaps, round 1 1/1, 0:10 elapsed, done", "pairs, round 2: registering 2 pairs"]
+    report = lines.report("**4 of 4 scans placed** · 5 of 6 pairs used  \nbun000: placed").split("  \n")
+    assert report == ["pairs, round 2 7/8, 0:12 elapsed, ETA unknown", "**4 of 4 scans placed** · 5 of 6 pairs used",
+                      "bun000: placed"]
 
 
 def test_one_campaign_at_a_time_and_a_runs_end_does_not_free_its_buttons():

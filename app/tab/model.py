@@ -49,12 +49,15 @@ class ModelPanel:
         if getattr(wb, "data_dir", None) is None:
             return None
         with gui.add_folder("Campaign"):
+            # the progress, then the report, first in the folder: at 1280 x 720 the report's headline is in view
+            # without scrolling the panel (under the fields and the button it was below the fold)
+            progress = gui.add_markdown("")
             return CampaignHandles(
                 gui.add_text("Scans", "", hint="a pattern of the data folder's files, e.g. bun*.ply (empty: all)"),
                 gui.add_number("Rotation uncertainty (deg)", 15.0, min=0.1, max=180.0, step=0.1,
                                hint="how far each scan's stored rough pose may be off (scans with none: no guess)"),
                 gui.add_button("Merge scans", hint="register the scans' pairs, keep those that close, fuse the model"),
-                gui.add_markdown(""))
+                progress)
 
     def start(self) -> None:
         from rangereg.core.fuse import fuse
@@ -107,16 +110,11 @@ class ModelPanel:
             st.campaign_busy = True
             pair = st.pair
         c.merge.disabled = self.h.merge.disabled = True
-        lines: list[str] = []
-        counts: list = []  # the merge's pair-registration events (core.merge_progress)
+        lines = CampaignLines()
 
         def say(event) -> None:  # from the worker: the newest lines, shown by the refresher
-            from rangereg.core.merge_progress import MergeProgress, Step
-
-            if isinstance(event, MergeProgress) and event.step is Step.PAIRS and not event.note:
-                counts.append(event)
-            lines.append(str(event))
-            text = "  \n".join(lines[-6:])
+            lines.add(event)
+            text = lines.text()
             self.state.hand(lambda st: None, lambda: setattr(c.progress, "content", text))
 
         def work() -> None:
@@ -138,7 +136,7 @@ class ModelPanel:
                 if st.pair == pair and st.display is not None:
                     st.model = res.model
 
-            report = campaign_text(res) + (f"  \n{counts[-1]}" if counts else "")
+            report = lines.report(campaign_text(res))
             self.state.hand(apply, lambda: self._campaign_done(res, report))
 
         threading.Thread(target=work, daemon=True, name="rangereg-campaign").start()
@@ -188,6 +186,34 @@ class ModelPanel:
 def _campaign_over(st: TabState) -> None:
     """On the refresher, under the lock: the campaign's buttons may be given back."""
     st.campaign_busy = False
+
+
+class CampaignLines:
+    """A campaign's progress as the panel shows it: the overall line (the newest count of the pairs registered, over
+    every round) leads and stays first; the newest other lines (the steps' counts and notes) follow it."""
+
+    KEEP = 5  # other lines shown under the overall one
+
+    def __init__(self):
+        self.overall: str = ""
+        self.others: list[str] = []
+
+    def add(self, event) -> None:
+        """One progress event of core.merge (a MergeProgress) or a line of the task runner's (a str)."""
+        from rangereg.core.merge_progress import MergeProgress, Step
+
+        if isinstance(event, MergeProgress) and event.step is Step.PAIRS and not event.note:
+            self.overall = str(event)
+        else:
+            self.others.append(str(event))
+
+    def text(self) -> str:
+        """The panel's markdown while the campaign works."""
+        return "  \n".join(([self.overall] if self.overall else []) + self.others[-self.KEEP:])
+
+    def report(self, result: str) -> str:
+        """The panel's markdown at the end: the overall line, then ``result`` (campaign_text: headline, per scan)."""
+        return "  \n".join(([self.overall] if self.overall else []) + [result])
 
 
 def campaign_text(res) -> str:

@@ -15,7 +15,7 @@ import pytest
 
 from tests.conftest import ROOT, wait_for
 from tests.test_teach import open_tab
-from tests.test_workbench import show_tab, wait_finished
+from tests.test_workbench import show_tab, wait_cancelled, wait_finished
 
 pytestmark = pytest.mark.browser
 ARTIFACTS = ROOT / "artifacts"
@@ -110,9 +110,25 @@ def test_pause_says_paused_within_a_third_of_a_second_of_the_click_and_the_run_s
         time.sleep(0.5)
         assert st.paused and len(st.events) <= n + 1  # it stopped (at most the move under way when clicked)
         page.get_by_role("button", name="Cancel", exact=True).click()
-        wait_finished(page)
+        wait_cancelled(page)
     # the best of three: a loaded machine delays some clicks, not every one
     assert min(seconds) < 0.3, f"click reached the page -> paused {seconds} s; mouse click -> paused {clicks} s"
+    page.close()
+
+
+def test_a_cancelled_run_leads_with_the_cancel_and_its_pose_so_far_not_with_a_finished_verdict(bench, browser):
+    page, tab = open_tab(bench, browser)
+    page.get_by_role("button", name="Run SA", exact=True).click()  # annealing alone: a long run
+    wait_for(lambda: len(tab.state.events) > 20, 60, "the run's moves")
+    page.get_by_role("button", name="Cancel", exact=True).click()
+    wait_cancelled(page)
+    text = status_text(page)
+    counts = re.search(r"Iterations: ICP (\d+), SA (\d+)", text)
+    result = text[text.index("Guess"):].split("\n", 1)[1]  # what follows the progress rows: the run's end
+    m = re.match(r"Cancelled at iteration (\d+): E = (\S+) mm², pose so far \(not trusted\)\n", result)
+    assert m and int(m.group(1)) == int(counts.group(1)) + int(counts.group(2)) == len(tab.state.events), text
+    assert float(m.group(2)) == pytest.approx(tab.state.result.error, rel=1e-3)
+    assert "Finished" not in text and "trust no" not in text and "What to do" not in text, text
     page.close()
 
 

@@ -290,6 +290,28 @@ def test_the_finished_line_leads_with_trust_and_advises_only_when_not_trusted(sc
         assert ("What to do" in line) is not trusted and "from the truth" in line
 
 
+def test_a_cancelled_runs_line_leads_with_the_cancel_not_a_verdict():
+    import numpy as np
+    from rangereg.app.tab.run import result_line
+    from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+    from rangereg.core.threshold import pair_threshold
+
+    cancel = Stop(StopReason.CANCELLED)
+    hybrid = Result(np.eye(4), 5.0, Iterations(12, 30), 1, 50, 0.5, "hybrid", 1.0, cancel)
+    line = result_line(hybrid, "mm", (1.0, 2.0))
+    assert line.startswith("<b>Cancelled at iteration 42</b>: E = 5 mm², pose so far (not trusted)<br>"), line
+    assert "ICP 12, SA 30" in line and "from the truth" in line
+    assert "Finished" not in line and "trust" not in line.replace("not trusted", "") and "What to do" not in line
+    low = Result(np.eye(4), 0.5, Iterations(3), 0, 3, 0.1, "icp", 1.0, cancel)  # below the threshold, still cancelled
+    assert result_line(low).startswith("<b>Cancelled at iteration 3</b>")
+    # the global method gives back its initial pose when cancelled: the line says so
+    d = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), None, None, True, "", 0.1, 0, {"guess": 1}, "guess")
+    glob = Result(np.eye(4), 9.0, Iterations(4, 0, 7), 0, 20, 0.3, "global", 1.0, cancel, trusted=False, details=d)
+    line = result_line(glob, "m")
+    assert line.startswith("<b>Cancelled at iteration 11</b>: E = 9 m², the initial pose kept (not trusted)<br>"), line
+    assert "candidates 7" in line
+
+
 def test_the_campaigns_overall_pairs_line_leads_its_progress_and_its_report():
     from rangereg.app.tab.model import CampaignLines
     from rangereg.core.merge_progress import MergeProgress, Step

@@ -28,6 +28,7 @@ from rangereg.app.views import Trail
 from rangereg.core.errors import InputError
 from rangereg.core.frustum import KINDS
 from rangereg.core.register import register
+from rangereg.core.result import StopReason
 from rangereg.core.trace import TraceHeader
 
 GLOBAL_BUTTON = "Run global"  # the default method, first: any start, trusted or said not to be
@@ -134,14 +135,28 @@ def page_advice(r) -> str:
 
 def result_line(r, units: str = "", off: tuple[float, float] | None = None) -> str:
     """The Finished line (HTML): trust first, then E, why it stopped and the time; the distance from the truth when
-    the scene knows it (``off``: degrees, units); what to do only when the pose is not trusted."""
+    the scene knows it (``off``: degrees, units); what to do only when the pose is not trusted. A cancelled run
+    did not finish: its line leads with the cancel (:func:`cancelled_line`)."""
     u = squared_unit(units)
+    truth = f" · {fmt(off[0], 2)}° and {fmt(off[1], 2)} {html.escape(units)} from the truth" if off else ""
+    if r.stop_reason is StopReason.CANCELLED:
+        return cancelled_line(r, u, truth)
     trusted = r.below_threshold
     head = f"<b>Finished: trust {'yes' if trusted else 'no'}</b>: {html.escape(tidy(r.trust_text))}"
-    truth = f" · {fmt(off[0], 2)}° and {fmt(off[1], 2)} {html.escape(units)} from the truth" if off else ""
     body = f"E = {fmt(r.error)} {u} · stopped: {html.escape(tidy(r.stop_text))} · {r.seconds:.2f} s{truth}"
     advice = page_advice(r)
     return f"{head}<br>{body}" + (f'<br><b style="color:#b00">What to do:</b> {html.escape(advice)}' if advice else "")
+
+
+def cancelled_line(r, u: str, truth: str) -> str:
+    """A cancelled run's line (HTML): where it was cancelled and E there, the pose it left (not judged: the search did
+    not end), then its steps and time. The global method gives back its initial pose when cancelled (core.global_search),
+    the paper's methods their best pose so far."""
+    it = r.iterations
+    pose = "the initial pose kept" if r.found_by == "guess" else "pose so far"
+    steps = f"ICP {it.icp}, SA {it.sa}" + (f", candidates {it.candidates}" if it.candidates else "")
+    return (f"<b>Cancelled at iteration {it.total}</b>: E = {fmt(r.error)} {u}, {pose} (not trusted)"
+            f"<br>{steps} · {r.seconds:.2f} s{truth}")
 
 
 class RunPanel:

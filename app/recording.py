@@ -3,10 +3,10 @@
 One self-contained HTML file: viser's own built client (shipped in the viser wheel as a single
 ``client/build/index.html``) with the scene recording embedded as base64 (the client plays
 ``window.__VISER_EMBED_DATA__``, the format of viser's ``.viser`` files). The recording holds the
-scans, their frustums, the moving scan over time, the path growing as it moves (ICP green, SA
-magenta) and, when a slice was computed, the landscape as a 3-D height field with the path on it; a line of text
-follows the run (event k of n, its iteration, phase, E and temperature), beside a legend of the colours, and the
-chart of log10 E against iteration grows beside the scans as the run plays.
+scans, their frustums (over the scans' depths, :func:`frustum_segments`), the moving scan over time, the path
+growing as it moves (ICP green, SA magenta) and, when a slice was computed, the landscape as a 3-D height field with
+the path on it; a line of text follows the run (event k of n, its iteration, phase, E and temperature), beside a
+legend of the colours, and the chart of log10 E against iteration grows beside the scans as the run plays.
 
 The page's E chart is a viser GUI element (uPlot), and a recording holds scene messages only: viser marks every
 GUI message ``include_in_scene_serialization=False`` (``_CreateGuiComponentMessage`` in viser/_messages.py, the
@@ -43,7 +43,9 @@ from rangereg.app.figures import (
 from rangereg.app.tab.scene3d import FRUSTUM_THICKNESS, default_view, set_lights
 from rangereg.app.views import Display, Trail, temperature_of
 from rangereg.core.errors import InputError
+from rangereg.core.frustum import Frustum
 
+DEPTH_PAD = 0.05  # a frustum is drawn over its scan's depths, this share of their range beyond (frustum_segments)
 MAX_POINTS = 20000  # per scan in the recording: the file stays a few MB
 FRAMES = 150  # poses the recording steps through (evenly over the run's events)
 SECONDS = 10.0  # how long the recording plays
@@ -110,11 +112,30 @@ def _draw_pair(scene, run: RunToRecord):
     frame = scene.add_frame("/source", show_axes=False, wxyz=wxyz, position=pos)
     scene.add_point_cloud("/source/points", _thin(d.source_local(run.source.points)), SOURCE_RGB, point_size=size,
                           precision="float32")
-    for which, f, to_page, rgb in (("source", run.frustums[0], d.source_local, SOURCE_RGB),
-                                   ("target", run.frustums[1], d.points, TARGET_RGB)):
-        scene.add_line_segments(f"/{which}/frustum", to_page(f.wireframe().reshape(-1, 3)).reshape(-1, 2, 3),
+    for which, f, scan, to_page, rgb in (("source", run.frustums[0], run.source, d.source_local, SOURCE_RGB),
+                                         ("target", run.frustums[1], run.target, d.points, TARGET_RGB)):
+        segments = frustum_segments(f, scan.points)
+        scene.add_line_segments(f"/{which}/frustum", to_page(segments.reshape(-1, 3)).reshape(-1, 2, 3),
                                 faded(rgb), thickness=FRUSTUM_THICKNESS, thickness_units="screen")
     return frame, size
+
+
+def frustum_segments(view, points: np.ndarray) -> np.ndarray:
+    """(S, 2, 3) line segments drawing ``view`` (core.frustum's, of the scan with (N, 3) ``points``, in its frame) in
+    the recording: a frustum over its scan's depths (padded by DEPTH_PAD of their range), the part of the pyramid the
+    scan fills, its spokes pointing the sensor's way. Drawn from the sensor to its far outline (1.05 x the farthest
+    depth), the bunny's spokes (1.2 m long, to scans 0.15 m across) were most of what the opening view showed.
+    Other views: their own wireframe."""
+    if not isinstance(view, Frustum):
+        return view.wireframe()
+    _, depth = view.project(points)
+    ahead = depth[depth > 0]
+    if not len(ahead):
+        return view.wireframe()
+    pad = DEPTH_PAD * float(np.ptp(ahead))
+    front, back = view.outline_points(max(float(ahead.min()) - pad, 0.0)), view.outline_points(float(ahead.max()) + pad)
+    rings = [np.stack([o, np.roll(o, -1, axis=0)], axis=1) for o in (front, back)]
+    return np.concatenate([np.stack([front, back], axis=1), *rings])
 
 
 def _legend(scene) -> None:
@@ -217,6 +238,21 @@ def _draw_chart_frame(scene, chart: Chart, units: str) -> None:
                         anchor="center-left")
 
 
+def opening_view(run: RunToRecord, trail: Trail, terrain_box: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Chart]:
+    """(eye, look_at, chart): the recording's opening camera and its chart. The scans (and the terrain's (K, 3) page
+    points ``terrain_box``) framed from outside both frustums, the chart placed on that view's right, then the view
+    widened to take the chart in too (still from outside the frustums: app.tab.scene3d.default_view)."""
+    from rangereg.app.tab.scene3d import pair_extent
+
+    d = run.display
+    extent = pair_extent(d, run.target, run.source, run.T_start)
+    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums, terrain_box)
+    chart = chart_of(run, trail, eye, look_at, extent if terrain_box is None else np.r_[extent, terrain_box])
+    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums,
+                                chart.corners() if terrain_box is None else np.r_[terrain_box, chart.corners()])
+    return eye, look_at, chart
+
+
 def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hold: float = HOLD) -> bytes:
     """The recording (.viser bytes): the pair, then the scan moving along the run with its path growing."""
     import viser
@@ -243,16 +279,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
             on_terrain = on_surface(run.slice_view.slice, path.xy)
         _legend(scene)
         info = scene.add_label("/info", event_line(run, 0), position=INFO_AT, anchor="center-left")
-        # the opening view: the scans (and the terrain) framed from outside the frustums; the chart on its right,
-        # then the view widened to take it in too
-        from rangereg.app.tab.scene3d import pair_extent
-
-        extent = pair_extent(run.display, run.target, run.source, run.T_start)
-        terrain_box = terrain.extent() if terrain is not None else None
-        eye, look_at = default_view(run.display, run.target, run.source, run.T_start, run.frustums, terrain_box)
-        chart = chart_of(run, trail, eye, look_at, extent if terrain_box is None else np.r_[extent, terrain_box])
-        eye, look_at = default_view(run.display, run.target, run.source, run.T_start, run.frustums,
-                                    chart.corners() if terrain_box is None else np.r_[terrain_box, chart.corners()])
+        eye, look_at, chart = opening_view(run, trail, terrain.extent() if terrain is not None else None)
         _draw_chart_frame(scene, chart, run.units)
         recorder = server.get_scene_serializer()
         # recorded after the snapshot: the camera messages are then part of the file

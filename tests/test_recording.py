@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import io
 import time
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.conftest import ASSETS, wait_for
+from tests.conftest import ASSETS, BUNNY, wait_for
 from tests.test_workbench import CHROMIUM, FLAGS
 
 pytestmark = pytest.mark.browser
@@ -96,3 +97,82 @@ def test_the_opening_camera_is_outside_both_frustums_and_the_chart_beside_the_sc
     # widened to take the chart in, the camera is still outside the frustums
     eye2, _ = default_view(d, run.target, run.source, run.T_start, run.frustums, chart.corners())
     assert not _inside_frusta(eye2, d, run.T_start, run.frustums)
+
+
+@cache
+def _bunny_run():
+    from rangereg.app.recording import RunToRecord
+    from rangereg.app.tab.settings import FRUSTUM
+    from rangereg.app.views import Display
+    from rangereg.core.frustum import frustum_of
+    from rangereg.core.io import load_scan
+    from rangereg.core.problem import relative_guess
+    from rangereg.core.register import Config, register
+
+    source, target = load_scan(BUNNY / "bun045.ply"), load_scan(BUNNY / "bun000.ply")  # the page's first bunny pair
+    T0, events = relative_guess(source, target), []
+    r = register(source, target, T0, Config(method="hybrid"), listener=events.append)
+    frusta = (frustum_of(source, FRUSTUM), frustum_of(target, FRUSTUM))  # the page's default kind
+    return RunToRecord(source, target, Display(target, source), frusta, T0, events, units=target.units,
+                       threshold=r.threshold)
+
+
+@pytest.fixture
+def bunny_run():
+    if not BUNNY.is_dir():
+        pytest.skip("the shared bunny scans (../shared/data/bunny) are absent")
+    return _bunny_run()
+
+
+def test_the_bunny_recording_opens_outside_both_frustums_drawn_round_the_scans_not_from_the_sensors(bunny_run):
+    from rangereg.app.recording import frustum_segments, opening_view
+    from rangereg.app.tab.scene3d import _inside_frusta, pair_extent
+    from rangereg.app.views import Trail
+    from rangereg.core.transforms import apply
+
+    run = bunny_run
+    d = run.display
+    trail = Trail(d, run.events)
+    trail.update()
+    eye, _, _ = opening_view(run, trail)
+    assert not _inside_frusta(eye, d, run.T_start, run.frustums)
+    extent = pair_extent(d, run.target, run.source, run.T_start)
+    lo, hi = extent.min(0), extent.max(0)
+    room = 0.25 * np.linalg.norm(hi - lo)
+    for f, scan, T in ((run.frustums[0], run.source, run.T_start), (run.frustums[1], run.target, np.eye(4))):
+        drawn = d.points(apply(T, frustum_segments(f, scan.points).reshape(-1, 3)))  # where the page shows them
+        # every line within a quarter of the scans' diagonal of their box: no spoke from the sensor 1.2 m away
+        assert np.all((drawn >= lo - room) & (drawn <= hi + room)), (drawn.min(0), drawn.max(0), lo, hi)
+        assert len(drawn) >= 2 * 3 * len(f.outline)  # spokes and both rings: the frustum's shape, not a stub
+
+
+def pale_and_scan_pixels(png: bytes) -> tuple[int, int]:
+    """(pixels of the scans' colours, pale tinted pixels: the frustums' lines) of a screenshot."""
+    from PIL import Image
+    from rangereg.app.figures import SOURCE_RGB, TARGET_RGB
+
+    px = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    px[:200, :350] = 255  # the page's note about software WebGL
+    scans = sum(int((np.abs(px - np.array(rgb)).sum(2) < 30).sum()) for rgb in (SOURCE_RGB, TARGET_RGB))
+    pale = (px.min(2) > 140) & (px.sum(2) < 735) & (np.ptp(px, axis=2) > 25)
+    return scans, int(pale.sum())
+
+
+def test_the_bunny_recordings_opening_view_shows_the_scans_more_than_their_frustums(bunny_run, tmp_path, browser):
+    from rangereg.app.recording import recording_html
+
+    path = tmp_path / "bunny.html"
+    path.write_bytes(recording_html(bunny_run, frames=20, seconds=2.0, hold=30.0))  # the start held
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(Path(path).as_uri())
+    page.locator("canvas").first.wait_for(timeout=60_000)
+    counts = []
+
+    def drawn() -> bool:
+        counts.append(pale_and_scan_pixels(page.locator("canvas").first.screenshot()))
+        return counts[-1][0] > 2000
+
+    wait_for(drawn, 60, what="the scans in the recording")
+    scans, pale = counts[-1]
+    assert pale < scans, counts[-1]
+    page.close()

@@ -40,7 +40,7 @@ from rangereg.app.figures import (
     fmt,
     squared_unit,
 )
-from rangereg.app.tab.scene3d import FRUSTUM_THICKNESS, default_view, set_lights
+from rangereg.app.tab.scene3d import DEFAULT_FOV, FRUSTUM_THICKNESS, default_view, set_lights
 from rangereg.app.views import Display, Trail, temperature_of
 from rangereg.core.errors import InputError
 from rangereg.core.frustum import Frustum
@@ -57,6 +57,9 @@ THRESHOLD_RGB = (200, 0, 0)
 LEGEND_AT = (-0.95, 0.75, 0.0)  # page units: the legend's first entry, above and left of the scans; the next below
 LEGEND_STEP = 0.075
 INFO_AT = (-0.95, 0.95, 0.0)  # the line that follows the run, above the legend
+RECORDING_ASPECT = 1.6  # the opening view's canvas, width over height: the recording fills the browser's window (no
+# panel beside it), 1.6-1.8 on a laptop or a monitor; framed as the page's docked canvas (1.1), the bunny's scans and
+# chart took under half of a 1280 x 720 window. A window narrower than 1.45 (1.6 less Fit view's margin) cuts the sides
 RECORDED_LEGEND = ("source", "target", "ICP", "annealing (SA)", "candidates", "local minimum")
 
 
@@ -145,6 +148,14 @@ def _legend(scene) -> None:
         at = (x, y - k * LEGEND_STEP, z)
         scene.add_icosphere(f"/legend/{k}/swatch", radius=0.018, color=rgb, position=at)
         scene.add_label(f"/legend/{k}/name", name, position=(x + 0.035, at[1], z), anchor="center-left")
+
+
+def _label_anchors() -> np.ndarray:
+    """(2, 3) page points: where the line that follows the run and the legend's last entry are anchored (their text
+    runs right from there), for the opening view to take in."""
+    n = sum(1 for e in LEGEND if e[0] in RECORDED_LEGEND)
+    x, y, z = LEGEND_AT
+    return np.array([INFO_AT, (x, y - (n - 1) * LEGEND_STEP, z)], np.float64)
 
 
 def event_line(run: RunToRecord, k: int) -> str:
@@ -246,10 +257,11 @@ def opening_view(run: RunToRecord, trail: Trail, terrain_box: np.ndarray | None 
 
     d = run.display
     extent = pair_extent(d, run.target, run.source, run.T_start)
-    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums, terrain_box)
+    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums, terrain_box, RECORDING_ASPECT)
     chart = chart_of(run, trail, eye, look_at, extent if terrain_box is None else np.r_[extent, terrain_box])
-    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums,
-                                chart.corners() if terrain_box is None else np.r_[terrain_box, chart.corners()])
+    framed = np.r_[chart.corners(), _label_anchors()] if terrain_box is None else \
+        np.r_[terrain_box, chart.corners(), _label_anchors()]
+    eye, look_at = default_view(d, run.target, run.source, run.T_start, run.frustums, framed, RECORDING_ASPECT)
     return eye, look_at, chart
 
 
@@ -284,6 +296,7 @@ def record(run: RunToRecord, frames: int = FRAMES, seconds: float = SECONDS, hol
         recorder = server.get_scene_serializer()
         # recorded after the snapshot: the camera messages are then part of the file
         server.initial_camera.up = (0.0, 1.0, 0.0)
+        server.initial_camera.fov = float(DEFAULT_FOV)  # the field of view the opening view was framed for
         server.initial_camera.position = tuple(eye)
         server.initial_camera.look_at = tuple(look_at)
         recorder.insert_sleep(hold)

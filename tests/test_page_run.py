@@ -129,6 +129,9 @@ def test_a_cancelled_run_leads_with_the_cancel_and_its_pose_so_far_not_with_a_fi
     assert m and int(m.group(1)) == int(counts.group(1)) + int(counts.group(2)) == len(tab.state.events), text
     assert float(m.group(2)) == pytest.approx(tab.state.result.error, rel=1e-3)
     assert "Finished" not in text and "trust no" not in text and "What to do" not in text, text
+    # the status's E row says so too (not "the result"), and the chart draws no result level
+    assert re.search(r"\nE = \S+ mm² \(cancelled, not a result\)", text) and "(the result)" not in text, text
+    assert np.isfinite(tab.run_panel.h.plot.data[-1]).sum() <= 1  # only the first value uPlot takes its range from
     page.close()
 
 

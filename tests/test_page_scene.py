@@ -341,7 +341,7 @@ def test_the_opening_view_frames_the_bunny_from_outside_its_frustums(data_bench,
     eye = np.asarray(tab.client.camera.position)
     assert not _inside_frusta(eye, st.display, st.T, st.frusta[tab.run_panel.settings().frustum])
     share, span = in_view(tab, shown_extent(st))
-    assert share == 1.0 and span > 0.35, (share, span)
+    assert share == 1.0 and span > 0.6, (share, span)  # framed for the field of view the browser draws with (75 deg)
     # the scans, not the frustum lines, are most of what is drawn
     px = canvas_rgb(page)
     from rangereg.app.figures import SOURCE_RGB, TARGET_RGB, faded

@@ -175,4 +175,34 @@ def test_the_bunny_recordings_opening_view_shows_the_scans_more_than_their_frust
     wait_for(drawn, 60, what="the scans in the recording")
     scans, pale = counts[-1]
     assert pale < scans, counts[-1]
+    # the scene fills the window: the scans' pixels span well over a third of its height (framed for a 50-degree
+    # camera beside a docked panel, they spanned a quarter of it), the legend and the line that follows the run in view
+    rows = np.nonzero(scan_pixel_rows(page.locator("canvas").first.screenshot()))[0]
+    assert np.ptp(rows) > 0.38 * 720, (rows.min(), rows.max())
     page.close()
+    # the labels (drawn in the canvas: no element to find) are anchored inside the opening view of that window
+    from rangereg.app.recording import _label_anchors, opening_view
+    from rangereg.app.tab.scene3d import DEFAULT_FOV
+    from rangereg.app.views import Trail
+
+    trail = Trail(bunny_run.display, bunny_run.events)
+    trail.update()
+    eye, look_at, _ = opening_view(bunny_run, trail)
+    ahead = (look_at - eye) / np.linalg.norm(look_at - eye)
+    right = np.cross(ahead, (0.0, 1.0, 0.0))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, ahead)
+    rel = _label_anchors() - eye
+    tan_v = np.tan(DEFAULT_FOV / 2)
+    x, y = rel @ right / (rel @ ahead) / (tan_v * 1280 / 720), rel @ up / (rel @ ahead) / tan_v
+    assert np.all(np.abs(x) < 1) and np.all(np.abs(y) < 1), (x, y)
+
+
+def scan_pixel_rows(png: bytes) -> np.ndarray:
+    """(H,) whether each row of a screenshot holds a good number of the scans' colours' pixels."""
+    from PIL import Image
+    from rangereg.app.figures import SOURCE_RGB, TARGET_RGB
+
+    px = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    scan = sum((np.abs(px - np.array(rgb)).sum(2) < 30) for rgb in (SOURCE_RGB, TARGET_RGB))
+    return scan.sum(1) >= 5

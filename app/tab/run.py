@@ -216,11 +216,12 @@ class RunPanel:
     def chart_data(self, trail: Trail, result=None) -> tuple[np.ndarray, ...]:
         """The chart's series (build_chart): Trail.chart's, then the result's E as a level over every iteration (a
         global run refines several candidates and may end on one it does not keep: the level shows which leg
-        reached the result). Every series starts with a number (uPlot takes a series' range from its first value);
-        a lone first point draws no line. An empty run gets an x range of [0, 1]."""
+        reached the result; a cancelled run has none). Every series starts with a number (uPlot takes a series' range
+        from its first value); a lone first point draws no line. An empty run gets an x range of [0, 1]."""
         st = self.state
         it, *series = trail.chart(st.E0, st.threshold)
-        ok = result is not None and result.error is not None and np.isfinite(result.error) and result.error > 0
+        ok = result is not None and result.error is not None and np.isfinite(result.error) and result.error > 0 \
+            and result.stop_reason is not StopReason.CANCELLED  # a cancelled run has no result to draw
         level = np.full(len(it), np.log10(result.error) if ok else np.nan)
         if not ok:
             level[0] = series[0][0]

@@ -49,8 +49,9 @@ FIT_MARGIN = 1.1  # Fit view leaves this much room round what it frames
 FRUSTUM_THICKNESS = 1.0  # screen pixels, in a pale version of the scan's colour (figures.faded): a frustum is
 # context, the scans are content; drawn 1.5 px in the scan's own colour, the bunny's two frustums (hundreds of
 # lines each, reaching far beyond the scans) were most of what the default view showed
-DEFAULT_FOV, DEFAULT_ASPECT = np.radians(50.0), 1.1  # the opening camera's (viser's default vertical field of view;
-# the canvas beside the docked panel: 1116 x 1000 px at a 1600 x 1000 page)
+DEFAULT_FOV, DEFAULT_ASPECT = np.radians(75.0), 1.1  # the opening camera's (viser's default vertical field of view,
+# three.js's, as the browser reports it; framed for 50 degrees, the opening views drew the scans 1.6 times smaller than
+# meant; the canvas beside the docked panel: 1116 x 1000 px at a 1600 x 1000 page)
 VIEW_ELEVATION = np.radians(20.0)  # the opening view looks down on the scans this much
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
@@ -326,10 +327,11 @@ def fit_distance(points: np.ndarray, way: np.ndarray, fov: float, aspect: float)
 
 
 def default_view(d: Display, target, source, T: np.ndarray, frusta, extra: np.ndarray | None = None,
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(eye, look_at) page points of the opening view: the scans framed (and the (K, 3) page points ``extra``), from
-    outside both drawn frustums (``frusta``: (source's, target's)), looking down VIEW_ELEVATION and from as near the
-    target sensor's side (where its scanned surface faces) as that allows."""
+                 aspect: float = DEFAULT_ASPECT) -> tuple[np.ndarray, np.ndarray]:
+    """(eye, look_at) page points of the opening view: the scans framed (and the (K, 3) page points ``extra``) in a
+    canvas ``aspect`` times as wide as high, from outside both drawn frustums (``frusta``: (source's, target's)),
+    looking down VIEW_ELEVATION and from as near the target sensor's side (where its scanned surface faces) as that
+    allows."""
     points = pair_extent(d, target, source, T)
     if extra is not None:
         points = np.r_[points, extra]
@@ -341,7 +343,7 @@ def default_view(d: Display, target, source, T: np.ndarray, frusta, extra: np.nd
         c, s_ = np.cos(turn), np.sin(turn)
         flat = np.array([c * sensor[0] + s_ * sensor[2], 0.0, -s_ * sensor[0] + c * sensor[2]])
         way = np.cos(VIEW_ELEVATION) * flat + np.array([0.0, np.sin(VIEW_ELEVATION), 0.0])
-        centre, distance = fit_distance(points, way, DEFAULT_FOV, DEFAULT_ASPECT)
+        centre, distance = fit_distance(points, way, DEFAULT_FOV, aspect)
         eye = centre + distance * way
         if not _inside_frusta(eye, d, T, frusta):
             return eye, centre

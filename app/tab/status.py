@@ -16,6 +16,7 @@ import numpy as np
 from rangereg.app.figures import fmt, squared_unit
 from rangereg.app.views import temperature_of
 from rangereg.core.events import Event
+from rangereg.core.result import StopReason
 
 ROW = "white-space:nowrap;overflow:hidden;text-overflow:ellipsis"
 
@@ -23,7 +24,8 @@ ROW = "white-space:nowrap;overflow:hidden;text-overflow:ellipsis"
 @dataclass(frozen=True)
 class Progress:
     """The run as the status shows it: counts (ICP iterations, SA moves, local minima, candidates), the last event
-    drawn, E on show and what it is ("initial", "event", "result"), the temperature and where its leg began (NaN:
+    drawn, E on show and what it is ("initial", "event", "result", "cancelled": a cancelled run's pose so far, not a
+    result), the temperature and where its leg began (NaN:
     none), E of the last local minimum (NaN: none), and the events drawn (``events[:n]``)."""
 
     n_icp: int = 0
@@ -46,7 +48,7 @@ def progress(trail, events: list, E0: float, result, running: bool) -> Progress:
     last = shown[-1] if shown else None
     n_icp, n_sa, n_min = trail.counts
     if result is not None and not running:  # one final E: the result's, as the Finished line and the export
-        E, kind = float(result.error), "result"
+        E, kind = float(result.error), "cancelled" if result.stop_reason is StopReason.CANCELLED else "result"
     elif last is not None:
         E, kind = float(last.error), "event"
     else:
@@ -78,7 +80,8 @@ def rows(p: Progress, *, pair: str, units: str, overlap: int, method: str, state
     phase = last.phase.upper() if last is not None else "-"
     counts = f"Iterations: ICP {p.n_icp}, SA {p.n_sa}" + (f", candidates {p.candidates}" if p.candidates else "")
     counts += f" · local minima {p.n_min}" + (f" (the last at E = {fmt(p.minimum_E)} {u})" if p.n_min else "")
-    E = f"E = {fmt(p.E)} {u}" + {"initial": " (initial)", "result": " (the result)", "event": ""}[p.E_kind]
+    E = f"E = {fmt(p.E)} {u}" + {"initial": " (initial)", "result": " (the result)", "event": "",
+                                     "cancelled": " (cancelled, not a result)"}[p.E_kind]
     if last is not None and last.phase == "sa" and not np.isfinite(p.temperature):
         temp = "temperature: set from the first simplex's spread of E"
     elif np.isfinite(p.temperature):

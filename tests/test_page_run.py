@@ -132,6 +132,7 @@ def test_a_cancelled_run_leads_with_the_cancel_and_its_pose_so_far_not_with_a_fi
     # the status's E row says so too (not "the result"), and the chart draws no result level
     assert re.search(r"\nE = \S+ mm² \(cancelled, not a result\)", text) and "(the result)" not in text, text
     assert np.isfinite(tab.run_panel.h.plot.data[-1]).sum() <= 1  # only the first value uPlot takes its range from
+    assert tab.pose.h.result.content.endswith("(cancelled: the pose so far, not trusted)")  # the Pose tab's line too
     page.close()
 
 

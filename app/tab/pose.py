@@ -15,6 +15,7 @@ from rangereg.app.figures import axis_label, fmt, unit_label
 from rangereg.app.tab import scene3d
 from rangereg.app.tab.fields import parse_number
 from rangereg.core.errors import InputError
+from rangereg.core.result import StopReason
 from rangereg.core.transforms import PARAM_NAMES, from_params, to_params
 
 
@@ -126,7 +127,9 @@ class PosePanel:
         if result is None:
             self.h.result.content = NO_RESULT
         else:
-            self.h.result.content = f"**{pose_text(result.transform, self.units)}**"
+            cancelled = result.stop_reason is StopReason.CANCELLED  # not a result: where the run was stopped
+            self.h.result.content = f"**{pose_text(result.transform, self.units)}**" + (
+                " (cancelled: the pose so far, not trusted)" if cancelled else "")
         self.h.from_result.disabled = result is None or self.state.running
 
     def start_from_result(self) -> None:

@@ -204,7 +204,8 @@ def slice_figure(sl: Slice, path_xy: np.ndarray | None, phases: list[str] | None
 
     minima = sl.minima() if minima is None else minima
     fig = go.Figure(go.Contour(x=sl.axis_a, y=sl.axis_b, z=log_values(sl).T, colorscale="Viridis", ncontours=25,
-                               colorbar=dict(title=f"log10 E ({squared_unit(units)})", thickness=12)))
+                               colorbar=dict(title=dict(text=f"log10 E ({squared_unit(units)})", side="right"),
+                                             thickness=12)))  # its title along the bar: the contour keeps the width
     if len(minima):
         fig.add_trace(go.Scatter(x=minima[:, 0], y=minima[:, 1], mode="markers", name="minima of the slice",
                                  marker=dict(symbol="circle-open", color="white", size=9, line=dict(width=2))))

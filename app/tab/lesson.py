@@ -34,6 +34,8 @@ STEPS = ("start", "icp", "stuck", "anneal", "lower", "icp-again", "below", "gave
 TITLES = {"start": "The start", "icp": "ICP runs", "stuck": "Stuck above the threshold",
           "anneal": "Annealing roams, temperature falling", "lower": "A lower point", "icp-again": "ICP again",
           "below": "Below the threshold", "gave-up": "Annealing gave up"}
+CONTOUR_TITLE = "Lesson: contour and path"
+CONTOUR_PANEL_WIDTH = 340  # pixels: a square contour beside the scene (the canvas keeps 460 px at 1280 x 720)
 NUMBERS = {"start": 0, "icp": 1, "stuck": 2, "anneal": 3, "lower": 4, "icp-again": 5, "below": 6, "gave-up": 6}
 
 
@@ -144,7 +146,7 @@ def sentence(step: str, f: Facts) -> str:
         chosen = "" if f.chosen is None else (
             f" (the Start's {fmt(f.chosen[0])} {f.units} is about the source's centre, the slice's about the overlap's)")
         return head + (f"On the slice the source (orange) starts at tx = {fmt(f.start[0])} {f.units} and ry = "
-                       f"{fmt(f.start[1])}°, the white dot on the contour{chosen}; Next runs ICP.")
+                       f"{fmt(f.start[1])}°, the white cross on the contour{chosen}; Next runs ICP.")
     if step == "icp":
         return head + ("Each iteration pairs every source point with the closest point on the target surface and "
                        "moves the scan to fit those pairs: downhill on E, the green path.")
@@ -213,8 +215,11 @@ class LessonPanel:
             again=gui.add_button("Start again", disabled=True, hint="back to the start, the slice kept"),
             terrain=gui.add_button("Look at the terrain", disabled=True,
                                    hint="the camera on the 3-D terrain alone (Fit view: the scans and the terrain)"))
-        # the contour with the path, under the sentence: the picture the sentences speak of
-        self.figure_folder = gui.add_folder("The slice through the truth: contour and path", visible=False)
+        # the contour with the path, the picture the sentences speak of, in a panel of its own docked left of the
+        # scene (made with the lesson's first slice): under the sentence, at 1280 x 720 it began 100 px below the fold
+        self.where = gui.add_markdown("The contour with the run's path is in the panel left of the scene.",
+                                      visible=False)
+        self.panel: viser.PanelHandle | None = None
         self.story: Story | None = None
         self.k = LESSON.shown
         self.run = None  # the lesson's run (a Run), once started
@@ -274,7 +279,7 @@ class LessonPanel:
         self.h.again.disabled, self.h.intro.visible = False, False
         self.h.terrain.disabled = view is None
         if self.h.plot is not None and view is not None:
-            self.h.plot.visible = self.figure_folder.visible = True
+            self.show_contour(True)
             self.tab.landscape.draw()  # the contour without the forgotten run's path
         self.show()
 
@@ -353,11 +358,21 @@ class LessonPanel:
         if view is not self.view:
             return
         if self.h.plot is None:
-            with self.figure_folder:
+            self.panel = self.tab.gui.add_panel()
+            with self.panel.add_tab(CONTOUR_TITLE):
                 self.h.plot = self.tab.gui.add_plotly(figure, aspect=1.0)
+            self.panel.dock_left()
+            self.panel.set_width(CONTOUR_PANEL_WIDTH)
         else:
             self.h.plot.figure = figure
-        self.h.plot.visible = self.figure_folder.visible = True
+        self.show_contour(True)
+
+    def show_contour(self, shown: bool) -> None:
+        """The contour's panel beside the scene, and the Lesson tab's line saying where it is."""
+        if self.panel is not None and self.panel.visible != shown:
+            self.panel.visible = shown
+        if self.where.visible != shown:
+            self.where.visible = shown
 
     def forget(self) -> None:
         """Another pair, pose or run was chosen outside the lesson: the lesson waits to be opened again."""
@@ -367,4 +382,4 @@ class LessonPanel:
         self.h.next.disabled = self.h.again.disabled = self.h.terrain.disabled = True
         self.h.text.content = ""
         self.h.intro.visible = True
-        self.figure_folder.visible = False
+        self.show_contour(False)

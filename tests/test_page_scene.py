@@ -369,3 +369,28 @@ def test_the_first_pair_is_seen_upright_from_the_opening_view_the_page_chose(dat
     up = project(tab, np.array([look_at, look_at + np.array([0.0, 0.2, 0.0])]))
     assert up[1, 1] < up[0, 1] - 20 and abs(up[1, 0] - up[0, 0]) < 1, up
     page.close()
+
+
+def test_the_gizmo_is_sized_to_the_scans_on_the_opening_view(data_bench, browser):
+    # its handles reach a small share of the scans' height on screen (a fixed size drew them half the bunny's height
+    # across from the closer opening view), and are still there to grab
+    from rangereg.app.tab.scene3d import shown_extent
+
+    page, tab = open_tab(data_bench, browser)
+    show_tab(page, "Scans")
+    page.get_by_role("button", name="Open files", exact=True).click()
+    wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
+    settled(page, tab)
+    st = tab.state
+    centre = project(tab, np.asarray(st.display.node_pose(st.T)[1], np.float64)[None])[0]
+    px = canvas_rgb(page)
+    r, g, b = px[..., 0], px[..., 1], px[..., 2]
+    crimson = (r > 220) & (g < 70) & (b > 80) & (b < 130)  # the gizmo's x handles: a colour no scan has
+    crimson[-120:, :120] = False  # the orientation axes in the corner
+    ys, xs = np.nonzero(crimson)
+    assert len(xs) > 20, "the gizmo is not on screen"
+    reach = float(np.hypot(xs - centre[0], ys - centre[1]).max())
+    _, span = in_view(tab, shown_extent(st))
+    scans = span * tab.client.camera.image_height
+    assert 25 < reach < 0.25 * scans, (reach, scans)
+    page.close()

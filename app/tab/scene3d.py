@@ -52,6 +52,9 @@ FRUSTUM_THICKNESS = 1.0  # screen pixels, in a pale version of the scan's colour
 DEFAULT_FOV, DEFAULT_ASPECT = np.radians(75.0), 1.1  # the opening camera's (viser's default vertical field of view,
 # three.js's, as the browser reports it; framed for 50 degrees, the opening views drew the scans 1.6 times smaller than
 # meant; the canvas beside the docked panel: 1116 x 1000 px at a 1600 x 1000 page)
+GIZMO_SHARE = 0.15  # the gizmo's size, a share of the diagonal of the scans' box: its handles reach a sixth of the way
+# across the scans the opening view frames (a fixed 0.3 page units, 0.29 of the bunny pair's diagonal, drew handles
+# half the bunny's height across from the closer opening view); still a 40-80 px handle to grab at 1280 x 720
 VIEW_ELEVATION = np.radians(20.0)  # the opening view looks down on the scans this much
 EMPTY_SEGMENTS = np.zeros((0, 2, 3), np.float32)
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
@@ -197,8 +200,8 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     frame = scene.add_frame(f"{root}/source", show_axes=False, wxyz=wxyz, position=pos)
     target = _cloud(scene, state, "target", d.points(tgt.points), size, frustum_kind, overlap)
     source = _cloud(scene, state, "source", d.source_local(src.points), size, frustum_kind, overlap)
-    gizmo = scene.add_transform_controls(f"{root}/gizmo", scale=0.3, wxyz=wxyz, position=pos, depth_test=False,
-                                         translation_limits=((-1e6, 1e6),) * 3)
+    gizmo = scene.add_transform_controls(f"{root}/gizmo", scale=gizmo_scale(d, tgt, src, state.T), wxyz=wxyz,
+                                         position=pos, depth_test=False, translation_limits=((-1e6, 1e6),) * 3)
     path = scene.add_line_segments(f"{root}/path", EMPTY_SEGMENTS, (0, 0, 0), thickness=3.0, thickness_units="screen")
     minima = scene.add_point_cloud(f"{root}/minima", EMPTY_POINTS, MINIMUM_RGB, point_size=MARKER, precision="float32",
                                    point_shape="circle")
@@ -209,6 +212,12 @@ def draw_pair(client: viser.ClientHandle, state: TabState, frustum_kind: str, ov
     # viser's opening pose), and the page showed the scans on their side
     client.camera.up_direction = UP
     return SceneNodes(frame, source, target, gizmo, path, minima)
+
+
+def gizmo_scale(d: Display, target, source, T: np.ndarray) -> float:
+    """The gizmo's size (page units): GIZMO_SHARE of the diagonal of the scans' box at pose ``T``."""
+    extent = pair_extent(d, target, source, T)
+    return GIZMO_SHARE * float(np.linalg.norm(extent.max(0) - extent.min(0)))
 
 
 def redraw_frustums(scene, nodes: SceneNodes, state: TabState, kind: str) -> None:

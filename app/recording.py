@@ -89,11 +89,17 @@ def client_html() -> str:
     return path.read_text(encoding="utf-8")
 
 
+# viser's client says in a notice at the window's top-left when WebGL runs in software (or is missing, or the browser
+# is old), where the recording's line and legend are (a 1000 x 700 window: the line and "source" under it): the
+# notices are moved to the bottom-left, under the legend and beside the scans, their text unchanged
+NOTICES_CSS = ".mantine-Notifications-root{top:auto!important;bottom:1em!important}"
+
+
 def embed(recording: bytes) -> bytes:
     """The HTML page playing ``recording`` (a .viser byte string) with no server."""
     page = client_html()
     data = base64.b64encode(recording).decode("ascii")
-    script = f'<script>window.__VISER_EMBED_DATA__ = "{data}";</script>\n'
+    script = f'<style>{NOTICES_CSS}</style>\n<script>window.__VISER_EMBED_DATA__ = "{data}";</script>\n'
     head = page.index("<script")
     return (page[:head] + script + page[head:]).encode("utf-8")
 

@@ -206,3 +206,40 @@ def scan_pixel_rows(png: bytes) -> np.ndarray:
     px = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
     scan = sum((np.abs(px - np.array(rgb)).sum(2) < 30) for rgb in (SOURCE_RGB, TARGET_RGB))
     return scan.sum(1) >= 5
+
+
+def test_the_notice_of_software_webgl_leaves_the_recordings_line_and_legend_readable(tmp_path, browser):
+    # viser's client notes software WebGL (headless Chromium's) in a notice at the top-left, where the recording's
+    # line and legend are; in a 1000 x 700 window it covered the line and the legend's first entry
+    from rangereg.app.recording import LEGEND_AT, _label_anchors, opening_view, recording_html
+    from rangereg.app.tab.scene3d import DEFAULT_FOV
+    from rangereg.app.views import Trail
+
+    run = corner_run()
+    path = tmp_path / "corner.html"
+    path.write_bytes(recording_html(run, frames=20, seconds=2.0, hold=30.0))
+    page = browser.new_page(viewport={"width": 1000, "height": 700})
+    page.goto(path.as_uri())
+    notice = page.locator(".mantine-Notification-root").first
+    notice.wait_for(timeout=60_000)
+    page.wait_for_timeout(1000)  # slid into place
+    box, canvas = notice.bounding_box(), page.locator("canvas").first.bounding_box()
+    trail = Trail(run.display, run.events)
+    trail.update()
+    eye, look_at, _ = opening_view(run, trail)
+    ahead = (look_at - eye) / np.linalg.norm(look_at - eye)
+    right = np.cross(ahead, (0.0, 1.0, 0.0))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, ahead)
+    # the line's, the legend's first and last entries': their text runs right from there
+    rel = np.r_[_label_anchors(), [LEGEND_AT]] - eye
+    tan_v = np.tan(DEFAULT_FOV / 2)
+    x = rel @ right / (rel @ ahead) / (tan_v * canvas["width"] / canvas["height"])
+    y = rel @ up / (rel @ ahead) / tan_v
+    px = canvas["x"] + (x + 1) / 2 * canvas["width"]
+    py = canvas["y"] + (1 - y) / 2 * canvas["height"]
+    # the words: from the swatches (a little left of the anchors) to 200 px right, a line's height above and below
+    left, right_, top, bottom = px.min() - 15, px.max() + 200, py.min() - 10, py.max() + 10
+    apart = (box["x"] > right_ or box["x"] + box["width"] < left or box["y"] > bottom or box["y"] + box["height"] < top)
+    assert apart, (box, (left, top, right_, bottom))
+    page.close()

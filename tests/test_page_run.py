@@ -125,15 +125,37 @@ def test_a_cancelled_run_leads_with_the_cancel_and_its_pose_so_far_not_with_a_fi
     text = status_text(page)
     counts = re.search(r"Iterations: ICP (\d+), SA (\d+)", text)
     result = text[text.index("Guess"):].split("\n", 1)[1]  # what follows the progress rows: the run's end
-    m = re.match(r"Cancelled at iteration (\d+): E = (\S+) mm², pose so far \(not trusted\)\n", result)
+    m = re.match(r"Cancelled at iteration (\d+): E = (\S+) mm², the best pose so far \(not trusted\)\n", result)
     assert m and int(m.group(1)) == int(counts.group(1)) + int(counts.group(2)) == len(tab.state.events), text
     assert float(m.group(2)) == pytest.approx(tab.state.result.error, rel=1e-3)
     assert "Finished" not in text and "trust no" not in text and "What to do" not in text, text
     # the status's E row says so too (not "the result"), and the chart draws no result level
-    assert re.search(r"\nE = \S+ mm² \(cancelled, not a result\)", text) and "(the result)" not in text, text
+    said = re.search(r"\nE = (\S+) mm² \(cancelled: the best pose so far, not a result\)", text)
+    assert said and "(the result)" not in text, text
     assert np.isfinite(tab.run_panel.h.plot.data[-1]).sum() <= 1  # only the first value uPlot takes its range from
-    assert tab.pose.h.result.content.endswith("(cancelled: the pose so far, not trusted)")  # the Pose tab's line too
+    assert tab.pose.h.result.content.endswith("(cancelled: the best pose so far, not trusted)")  # the Pose tab's too
+    # the replay's end tells the same story: the pose shown is the best so far, E the status's, and it says so (its
+    # last event, annealing's last move, is another pose with another E)
+    show_tab(page, "Landscape")
+    line = page.get_by_text(re.compile(r"^Event \d+ of \d+")).first
+    line.wait_for(timeout=10_000)
+    n = len(tab.state.events)
+    m = re.match(rf"Event {n} of {n}, the run's end: E = (\S+) mm² \(cancelled: the best pose so far, not a result\), "
+                 r"the pose shown\. Its last event: .* E = (\S+) mm²", line.inner_text())
+    assert m and m.group(1) == said.group(1), (line.inner_text(), text)
+    assert float(m.group(2)) == pytest.approx(tab.state.events[-1].error, rel=1e-3)
+    assert np.allclose(tab.state.T, tab.state.result.transform)  # the scene shows the pose both name
     page.close()
+
+
+UNCOVERED = """(el) => { const r = el.getBoundingClientRect();
+  if (r.width === 0 || r.top < 0 || r.left < 0 || r.bottom > innerHeight || r.right > innerWidth) return false;
+  // not scrolled out of its panel nor covered: near its corners (inside the panel's overlay scrollbar) and at its centre
+  // the page shows it
+  const dx = Math.min(12, r.width / 4), dy = Math.min(12, r.height / 4);
+  const at = [[r.left + dx, r.top + dy], [r.right - dx, r.top + dy], [r.left + dx, r.bottom - dy],
+              [r.right - dx, r.bottom - dy], [(r.left + r.right) / 2, (r.top + r.bottom) / 2]];
+  return at.every(([x, y]) => { const e = document.elementFromPoint(x, y); return e !== null && el.contains(e); }); }"""
 
 
 def uncovered(locator) -> bool:

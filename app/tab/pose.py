@@ -14,8 +14,8 @@ import viser
 from rangereg.app.figures import axis_label, fmt, unit_label
 from rangereg.app.tab import scene3d
 from rangereg.app.tab.fields import parse_number
+from rangereg.app.tab.status import E_LABEL, outcome
 from rangereg.core.errors import InputError
-from rangereg.core.result import StopReason
 from rangereg.core.transforms import PARAM_NAMES, from_params, to_params
 
 
@@ -127,9 +127,9 @@ class PosePanel:
         if result is None:
             self.h.result.content = NO_RESULT
         else:
-            cancelled = result.stop_reason is StopReason.CANCELLED  # not a result: where the run was stopped
+            kind = outcome(result)  # a cancelled run's pose is not a result: the best it had found, or the initial one
             self.h.result.content = f"**{pose_text(result.transform, self.units)}**" + (
-                " (cancelled: the pose so far, not trusted)" if cancelled else "")
+                "" if kind == "result" else f" ({E_LABEL[kind].replace('not a result', 'not trusted')})")
         self.h.from_result.disabled = result is None or self.state.running
 
     def start_from_result(self) -> None:

@@ -19,6 +19,7 @@ import time
 import numpy as np
 from rangereg.app.figures import fmt, squared_unit
 from rangereg.app.tab import scene3d
+from rangereg.app.tab.status import E_text, outcome
 from rangereg.app.views import temperature_of
 from rangereg.core.errors import InputError
 from rangereg.core.events import Event
@@ -145,11 +146,27 @@ class ReplayPanel:
                 " (the trace's own guess)" if self.start() is not self.state.T_init else "") + about
             return
         e = self.events[k - 1]
-        u = squared_unit(self.state.target.units)
+        units = self.state.target.units
+        u = squared_unit(units)
         temp = f"{fmt(temperature_of(e))} {u}" if np.isfinite(temperature_of(e)) else "-"
         mark = " · **local minimum**" if e.local_minimum else ""
-        self.info.content = (f"Event {k} of {n} · iteration {e.iteration} · phase **{e.phase.upper()}** (leg {e.leg}) · "
-                             f"E = {fmt(e.error)} {u} · temperature {temp}{mark}" + about)
+        event = (f"iteration {e.iteration} · phase **{e.phase.upper()}** (leg {e.leg}) · E = {fmt(e.error)} {u} · "
+                 f"temperature {temp}{mark}")
+        result = self.end_result() if k == n else None
+        if result is not None:  # the end shows the run's outcome, as the status does: its E and which pose it is
+            self.info.content = (f"Event {k} of {n}, the run's end: **{E_text(result.error, outcome(result), units)}**"
+                                 f", the pose shown. Its last event: {event}" + about)
+            return
+        self.info.content = f"Event {k} of {n} · {event}" + about
+
+    def end_result(self):
+        """The run's result (core Result) when the timeline is the tab's last run and it has one, else None: the end of
+        that timeline shows its pose (:meth:`show`), the status its E."""
+        with self.state.lock:
+            result = self.state.result
+        if self.trace is not None or result is None or result.transform is None:
+            return None
+        return result
 
     def start(self) -> np.ndarray:
         """Event 0's pose: the loaded trace's own guess (its header), else the page's initial guess."""
@@ -167,10 +184,10 @@ class ReplayPanel:
             if st.events is not self.events and list(st.events) != self.events:
                 return  # a new pair or a reset: nothing to replay
             T = self.start() if k == 0 else self.events[k - 1].T
-            if k == len(self.events) and st.result is not None and st.result.transform is not None:
-                T = st.result.transform  # the end of the timeline is the run's outcome (its best pose)
-            elif k == len(self.events) and self.trace is not None:
+            if k == len(self.events) and self.trace is not None:
                 T = self.trace.end  # a loaded trace's outcome: its closing result line
+            elif k == len(self.events) and st.result is not None and st.result.transform is not None:
+                T = st.result.transform  # the end of the timeline is the run's outcome (its best pose)
             st.T = T
         with tab.client.atomic():
             scene3d.move_source(tab.nodes, st, T, gizmo=False)

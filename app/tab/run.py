@@ -153,7 +153,7 @@ def cancelled_line(r, u: str, truth: str) -> str:
     not end), then its steps and time. The global method gives back its initial pose when cancelled (core.global_search),
     the paper's methods their best pose so far."""
     it = r.iterations
-    pose = "the initial pose kept" if r.found_by == "guess" else "pose so far"
+    pose = "the initial pose kept" if r.found_by == "guess" else "the best pose so far"  # as status.E_LABEL
     steps = f"ICP {it.icp}, SA {it.sa}" + (f", candidates {it.candidates}" if it.candidates else "")
     return (f"<b>Cancelled at iteration {it.total}</b>: E = {fmt(r.error)} {u}, {pose} (not trusted)"
             f"<br>{steps} · {r.seconds:.2f} s{truth}")

@@ -24,8 +24,8 @@ ROW = "white-space:nowrap;overflow:hidden;text-overflow:ellipsis"
 @dataclass(frozen=True)
 class Progress:
     """The run as the status shows it: counts (ICP iterations, SA moves, local minima, candidates), the last event
-    drawn, E on show and what it is ("initial", "event", "result", "cancelled": a cancelled run's pose so far, not a
-    result), the temperature and where its leg began (NaN:
+    drawn, E on show and what it is (a key of E_LABEL: "initial", "event", or the run's end, :func:`outcome`), the
+    temperature and where its leg began (NaN:
     none), E of the last local minimum (NaN: none), and the events drawn (``events[:n]``)."""
 
     n_icp: int = 0
@@ -41,6 +41,26 @@ class Progress:
     events: tuple = ()
 
 
+# what the E on show is, as the status's E row and the replay's end of the timeline name it (the same words in both)
+E_LABEL = {"initial": "initial", "event": "", "result": "the result",
+           "cancelled": "cancelled: the best pose so far, not a result",
+           "kept": "cancelled: the initial pose kept, not a result"}
+
+
+def outcome(result) -> str:
+    """Which pose a run's end shows, a key of E_LABEL: "result"; "cancelled", the best pose the run had found (the
+    paper's methods, core.search.cancelled); "kept", the initial pose a cancelled Run global gives back."""
+    if result.stop_reason is not StopReason.CANCELLED:
+        return "result"
+    return "kept" if result.found_by == "guess" else "cancelled"
+
+
+def E_text(E: float, kind: str, units: str) -> str:
+    """'E = 1.234 mm² (what it is)', as the status and the replay write it."""
+    label = E_LABEL[kind]
+    return f"E = {fmt(E)} {squared_unit(units)}" + (f" ({label})" if label else "")
+
+
 def progress(trail, events: list, E0: float, result, running: bool) -> Progress:
     """The Progress of ``events`` as far as ``trail`` has drawn them (under the state's lock)."""
     n = min(trail.n, len(events))
@@ -48,7 +68,7 @@ def progress(trail, events: list, E0: float, result, running: bool) -> Progress:
     last = shown[-1] if shown else None
     n_icp, n_sa, n_min = trail.counts
     if result is not None and not running:  # one final E: the result's, as the Finished line and the export
-        E, kind = float(result.error), "cancelled" if result.stop_reason is StopReason.CANCELLED else "result"
+        E, kind = float(result.error), outcome(result)
     elif last is not None:
         E, kind = float(last.error), "event"
     else:
@@ -80,8 +100,7 @@ def rows(p: Progress, *, pair: str, units: str, overlap: int, method: str, state
     phase = last.phase.upper() if last is not None else "-"
     counts = f"Iterations: ICP {p.n_icp}, SA {p.n_sa}" + (f", candidates {p.candidates}" if p.candidates else "")
     counts += f" · local minima {p.n_min}" + (f" (the last at E = {fmt(p.minimum_E)} {u})" if p.n_min else "")
-    E = f"E = {fmt(p.E)} {u}" + {"initial": " (initial)", "result": " (the result)", "event": "",
-                                     "cancelled": " (cancelled, not a result)"}[p.E_kind]
+    E = E_text(p.E, p.E_kind, units)
     if last is not None and last.phase == "sa" and not np.isfinite(p.temperature):
         temp = "temperature: set from the first simplex's spread of E"
     elif np.isfinite(p.temperature):

@@ -180,6 +180,43 @@ def _face_sensor(points, faces, viewpoint):
     return faces
 
 
+def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """For (N, 3) points ``p`` and the (N, 3) corners ``a``, ``b``, ``c`` of one triangle each: the (N, 3)
+    closest points on the triangles and their (N, 3) unit normals ((b - a) x (c - a), as Open3D's), in
+    float64 (Ericson, Real-Time Collision Detection, 5.1.5: the Voronoi region of a corner, an edge or the
+    face). A zero-area triangle gives NaN rows."""
+    ab, ac, ap = b - a, c - a, p - a
+    bp, cp = p - b, p - c
+
+    def dot(x, y):
+        return np.einsum("ij,ij->i", x, y)
+
+    d1, d2, d3, d4, d5, d6 = dot(ab, ap), dot(ac, ap), dot(ab, bp), dot(ac, bp), dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = 1.0 / (va + vb + vc)
+        v, w = vb * denom, vc * denom  # inside the face: the point is a + v ab + w ac
+        # the edges and corners as (v, w), the last assigned winning where regions meet (Ericson's order reversed)
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        ac_w, ab_v = d2 / (d2 - d6), d1 / (d1 - d3)
+        zero, one = np.zeros_like(v), np.ones_like(v)
+        for mask, rv, rw in (
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), 1 - t, t),  # edge bc
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), zero, ac_w),  # edge ac
+            ((d6 >= 0) & (d5 <= d6), zero, one),  # corner c
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), ab_v, zero),  # edge ab
+            ((d3 >= 0) & (d4 <= d3), one, zero),  # corner b
+            ((d1 <= 0) & (d2 <= 0), zero, zero),  # corner a
+        ):
+            v, w = np.where(mask, rv, v), np.where(mask, rw, w)
+        out = a + ab * v[:, None] + ac * w[:, None]
+        n = np.cross(ab, ac)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+    out[~np.isfinite(n).all(axis=1)] = np.nan
+    return out, n
+
+
 @dataclass(eq=False)
 class Surface:
     """A triangle mesh with fast closest-point queries (Open3D's RaycastingScene).
@@ -277,15 +314,26 @@ class Surface:
         return d2
 
     def closest_with_normals(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`closest`, and the unit normals (N, 3) float64 of the triangles the closest points lie on."""
+        """:meth:`closest`, and the unit normals (N, 3) float64 of the triangles the closest points lie on.
+
+        Embree (float32) picks each query's triangle; the point on it, its distance and the triangle's normal
+        are worked out again in float64 (:func:`closest_on_triangles`). Embree's own float32 point differs in
+        its last digits between processors (its kernels do), which moved E by 1e-4 and a golden trace's ICP
+        leg by 7 iterations between two machines; worked out here, E depends on the processor only where two
+        triangles tie for the closest."""
         import open3d as o3d
 
-        q = np.ascontiguousarray(query - self.offset, dtype=np.float32)
-        ans = self._scene.compute_closest_points(o3d.core.Tensor(q))
-        c = ans["points"].numpy().astype(np.float64)
-        d2 = np.einsum("ij,ij->i", c - q, c - q)
-        return c + self.offset, d2, ans["primitive_normals"].numpy().astype(np.float64)
-
+        q = np.asarray(query, dtype=np.float64) - self.offset
+        ans = self._scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(q, dtype=np.float32)))
+        tri = self.faces[ans["primitive_ids"].numpy().astype(np.int64)]
+        a, b, c = (self.vertices[tri[:, k]] - self.offset for k in range(3))
+        closest, normals = closest_on_triangles(q, a, b, c)
+        bad = ~np.isfinite(closest).all(axis=1)  # a degenerate (zero-area) triangle: Embree's point stands
+        if bad.any():
+            closest[bad] = ans["points"].numpy()[bad].astype(np.float64)
+            normals[bad] = ans["primitive_normals"].numpy()[bad].astype(np.float64)
+        d = q - closest
+        return closest + self.offset, np.einsum("ij,ij->i", d, d), normals
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(N,) distance along each unit ray to the first triangle hit (inf when none)."""
         import open3d as o3d

@@ -7,8 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rangereg.core.frustum import frustum_of, segment_overlap
 from rangereg.core.scan import Scan
-from rangereg.core.surface import EDGE_FACTOR, Surface, edge_lengths, local_spacing, triangulate
+from rangereg.core.surface import EDGE_FACTOR, Surface, closest_on_triangles, edge_lengths, local_spacing, triangulate
 from rangereg.core.transforms import apply, delta_between, from_params, invert, perturb, rotation_angle, rotation_matrix
+from scipy.spatial import Delaunay
 
 from tests.conftest import brute_closest
 
@@ -220,3 +221,43 @@ def test_distances_within_a_radius_are_exact_there_and_inf_only_beyond_it(scene)
         assert np.array_equal(d2[within], exact[within])  # exact (the same query) wherever it matters
         assert np.all(exact[np.isinf(d2)] > radius**2)  # inf only where the surface is surely farther
         assert np.all(np.isinf(d2) | (d2 == exact))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000))
+def test_the_closest_point_on_a_triangle_lies_on_it_and_no_point_of_it_is_nearer(seed):
+    rng = np.random.default_rng(seed)
+    a, b, c = (rng.normal(size=(200, 3)) for _ in range(3))
+    p = 2 * rng.normal(size=(200, 3))
+    got, normals = closest_on_triangles(p, a, b, c)
+    # on the triangle: barycentric coordinates in [0, 1]
+    m = np.stack([b - a, c - a], axis=2)
+    for k in range(len(p)):
+        uv = np.linalg.lstsq(m[k], got[k] - a[k], rcond=None)[0]
+        assert uv.min() >= -1e-9 and uv.sum() <= 1 + 1e-9
+    # nearer than every point of a dense barycentric grid (the grid's own spacing apart at most)
+    u, v = np.meshgrid(np.linspace(0, 1, 81), np.linspace(0, 1, 81))
+    keep = u + v <= 1
+    grid = a[:, None] + (b - a)[:, None] * u[keep][None, :, None] + (c - a)[:, None] * v[keep][None, :, None]
+    brute = np.min(np.sum((grid - p[:, None]) ** 2, axis=2), axis=1)
+    ours = np.sum((got - p) ** 2, axis=1)
+    assert np.all(ours <= brute + 1e-12)
+    assert np.all(np.sqrt(brute) - np.sqrt(ours) <= 0.05 * np.linalg.norm(b - a, axis=1) + 0.05 * np.linalg.norm(c - a, axis=1))
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
+
+
+def test_surface_distances_are_exact_in_float64_where_float32_would_round():
+    # a tilted plane a few units across, queries 0.1 mm above it: float32 points (7 digits) would misplace
+    # the closest point by ~1e-7 units, a relative error of ~1e-3 in the squared distance
+    x, y = np.meshgrid(np.linspace(-3, 3, 13), np.linspace(-3, 3, 13))
+    n = np.array([0.3, 0.2, -1.0]) / np.linalg.norm([0.3, 0.2, -1.0])
+    verts = np.column_stack([x.ravel(), y.ravel(), 0.3 * x.ravel() + 0.2 * y.ravel()]) + [1000.0, 2000.0, 500.0]
+    faces = Delaunay(verts[:, :2]).simplices.astype(np.int64)
+    surf = Surface(verts, faces)
+    rng = np.random.default_rng(1)
+    on = verts.mean(0) + rng.uniform(-2, 2, (50, 1)) * [1, 0, 0.3] + rng.uniform(-2, 2, (50, 1)) * [0, 1, 0.2]
+    h = rng.uniform(1e-5, 1e-4, 50)
+    q = on + h[:, None] * n
+    c, d2, normals = surf.closest_with_normals(q)
+    assert np.allclose(d2, h**2, rtol=1e-6, atol=0)  # float32 points: ~4e-3
+    assert np.allclose(np.abs(normals @ n), 1.0, atol=1e-12)

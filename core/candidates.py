@@ -83,6 +83,13 @@ class CandidateConfig:
     # deg), a refinement the pair threshold trusted took 6-39 iterations over both its legs (median 19); one
     # from a wrong candidate crawls on to the cap, each step costly (its points lie off the surface)
     refine_iterations: int = 40
+    # Source points of the error on the whole scans' legs of a thinned pair (core.global_search: thinned): there the
+    # pose's precision is made, and the minimum of E over 300 points of noisy depth is loose. Measured on the shared
+    # Kinect chain capture0001 -> 0002 -> 0003 from the legs' poses (5 deg about the sensor, seed 0): legs of 300
+    # points moved each pose a further 0.3-0.8 deg / 1-3 cm, each time elsewhere (the chain 0.67-0.97 deg off);
+    # of 3000, a second and third leg moved them < 0.2 deg / 5 mm (the chain 0.34-0.38 deg / 4-6 mm; 1000: 0.40-0.63
+    # deg / 1-3 cm). One ICP iteration of 3000 queries costs ~10 ms.
+    whole_sample: int = 3000
     normal_neighbours: int = NORMAL_NEIGHBOURS  # points a normal is fitted to (the pair threshold's angle)
     # The guess is refined alone first when its rotation is stated within this; a wider guess is scored
     # with KISS-Matcher's hypothesis first. Measured on the bunny sweep's starts only (the scenes have no
@@ -126,6 +133,8 @@ class CandidateConfig:
             raise InputError(f"the refinement needs at least 1 iteration a leg, got {self.refine_iterations}")
         if self.refine_patience < 1:
             raise InputError(f"the refinement's patience must be at least 1 iteration, got {self.refine_patience}")
+        if self.whole_sample < 10:
+            raise InputError(f"the whole scans' leg needs at least 10 points, got {self.whole_sample}")
         if self.normal_neighbours < 3:
             raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):

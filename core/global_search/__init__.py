@@ -24,8 +24,9 @@ pair's fixed basis.
                ``fallback_steps`` the hybrid's), counted from the end of the setup; seconds only when asked for
                (``time_limit``). No stage or leg starts once it is spent; a loaded machine ends at the same pose.
     thinned    a scan of more than core.candidates.SEARCH_POINTS points is searched on a thinned copy
-               (core.candidates.for_search); a pose trusted there is refined on the whole scans (one ICP leg
-               on the converged cut, the whole target's surface made on a thread meanwhile) and counts as
+               (core.candidates.for_search); a pose trusted there is refined on the whole scans (ICP legs on
+               the converged cut with a larger sample until they settle, refinement.py's WHOLE_LEGS notes; the
+               whole target's surface made on a thread meanwhile) and counts as
                trusted only where that pose is too, else the search goes on (measured on the shared Kinect
                frames capture0002 -> capture0001 from 15 deg: the guess's refinement on the thinned frames
                stopped 8 deg off, 33 % matched, misfit 2.5, trusted; on the whole frames it lost the trust);
@@ -51,14 +52,13 @@ from ..config import Config
 from ..errors import InputError
 from ..events import Cancelled, Listener
 from ..guess import Guess
-from ..icp import icp
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
 from ..surface import Surface
 from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
-from .refinement import Found, refine, search_stages
+from .refinement import SETTLED_DEG, SETTLED_SPACINGS, WHOLE_LEGS, Found, converge, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
 from .stages import Hypotheses, Stage
 from .stream import EventStream
@@ -105,20 +105,19 @@ def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None
 
 def _whole_leg(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray) -> np.ndarray | None:
     """Pose T found on the thinned scans, refined on the whole ones ``whole`` (source, target, its surface or
-    the Future making it): one ICP leg of the refinement's on the converged cut, not charged to the search's
-    budget. None when the whole scans have no overlap cut at T."""
+    the Future making it): the refinement's legs on the converged cut (core.global_search.refinement.converge)
+    with ``CandidateConfig.whole_sample`` source points until they settle (``SETTLED_*`` there), not charged to
+    the search's budget. None when the whole scans have no overlap cut at T."""
     source, target, surface = whole
     cfg = setup.config
     surface = surface.result() if isinstance(surface, Future) else surface
     surface = surface if surface is not None else Surface.from_scan(target)
-    icp_config = replace(cfg.icp, metric=cfg.candidates.refine_metric, patience=cfg.candidates.refine_patience,
-                         max_iterations=min(cfg.icp.max_iterations, cfg.candidates.refine_iterations))
+    sample = replace(cfg.problem, max_points=max(cfg.problem.max_points, cfg.candidates.whole_sample))
     try:
-        p = prepare(source, target, Guess.converged(T, cfg.search, target.size), cfg.problem, surface=surface,
-                    seed=cfg.seed)
+        return converge(source, target, surface, T, cfg, sample, lambda T_, E: run.emit("icp", T_, E, charge=False),
+                        setup.frame, WHOLE_LEGS, (SETTLED_DEG, SETTLED_SPACINGS * target.spacing))[0]
     except InputError:
         return None
-    return icp(p.error, T, icp_config, lambda T_, E: run.emit("icp", T_, E, charge=False), frame=setup.frame).T
 
 
 def _on_the_whole(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray, last_cut: Problem | None,

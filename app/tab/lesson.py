@@ -34,8 +34,10 @@ STEPS = ("start", "icp", "stuck", "anneal", "lower", "icp-again", "below", "gave
 TITLES = {"start": "The start", "icp": "ICP runs", "stuck": "Stuck above the threshold",
           "anneal": "Annealing roams, temperature falling", "lower": "A lower point", "icp-again": "ICP again",
           "below": "Below the threshold", "gave-up": "Annealing gave up"}
-CONTOUR_TITLE = "Lesson: contour and path"
-CONTOUR_PANEL_WIDTH = 340  # pixels: a square contour beside the scene (the canvas keeps 460 px at 1280 x 720)
+CONTOUR_TITLE = "Lesson: contour"  # the panel's tab strip cuts a longer title at 360 px
+CONTOUR_PANEL_WIDTH = 360  # pixels: the contour beside the scene (the canvas keeps 440 px at 1280 x 720)
+CONTOUR_ASPECT = 1.3  # height / width (viser draws a Plotly figure width x aspect high): room under the contour for its
+# legend (5 entries at the stuck step)
 NUMBERS = {"start": 0, "icp": 1, "stuck": 2, "anneal": 3, "lower": 4, "icp-again": 5, "below": 6, "gave-up": 6}
 
 
@@ -360,7 +362,7 @@ class LessonPanel:
         if self.h.plot is None:
             self.panel = self.tab.gui.add_panel()
             with self.panel.add_tab(CONTOUR_TITLE):
-                self.h.plot = self.tab.gui.add_plotly(figure, aspect=1.0)
+                self.h.plot = self.tab.gui.add_plotly(figure, aspect=CONTOUR_ASPECT)
             self.panel.dock_left()
             self.panel.set_width(CONTOUR_PANEL_WIDTH)
         else:

@@ -394,3 +394,33 @@ def test_the_gizmo_is_sized_to_the_scans_on_the_opening_view(data_bench, browser
     scans = span * tab.client.camera.image_height
     assert 25 < reach < 0.25 * scans, (reach, scans)
     page.close()
+
+
+def _icp_points_spread(page) -> float:
+    """The horizontal spread of the E chart's ICP points, as a share of its plotting canvas's width."""
+    from PIL import Image
+    from rangereg.app.figures import PHASE_RGB
+
+    canvas = page.locator(".uplot canvas").first
+    px = np.asarray(Image.open(io.BytesIO(canvas.screenshot())).convert("RGB")).astype(int)
+    green = np.abs(px - np.array(PHASE_RGB["icp"])).sum(2) < 40
+    xs = np.nonzero(green.any(0))[0]
+    return float(np.ptp(xs) / px.shape[1]) if len(xs) else 0.0
+
+
+def test_a_run_on_a_pair_in_other_units_is_charted_over_its_own_iterations(data_bench, browser):
+    # the chart's axes are in the scans' units: a pair in other units once re-labelled the old chart, and viser's
+    # client then read its kept x range against the new data (the lesson's 148 iterations, then a 72-iteration bunny
+    # run drawn on 0-10,000: every point in a column at 0)
+    page, tab = open_tab(data_bench, browser)
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    wait_finished(page)
+    show_tab(page, "Scans")
+    page.get_by_role("button", name="Open files", exact=True).click()  # the bunny, in metres
+    wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
+    show_tab(page, "Run")
+    page.get_by_role("button", name="Run ICP", exact=True).click()
+    wait_finished(page)
+    assert "log10 E (m²)" in str(tab.run_panel.h.plot.axes)
+    wait_for(lambda: _icp_points_spread(page) > 0.6, 10, what=f"the chart's x range ({_icp_points_spread(page):.2f})")
+    page.close()

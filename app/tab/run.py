@@ -78,10 +78,11 @@ def chart_axes(units: str = "") -> tuple:
 CHART_AXES = chart_axes()
 
 
-def build_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
+def build_chart(gui: viser.GuiApi, units: str = "", order: float | None = None) -> viser.GuiUplotHandle:
     """E against iteration, coloured by phase, with the threshold, the temperature (points: it has none during ICP,
-    and a line joined its legs across every ICP leg) and the result's level (:meth:`RunPanel.chart_data`)."""
-    return gui.add_uplot(
+    and a line joined its legs across every ICP leg) and the result's level (:meth:`RunPanel.chart_data`); its axes
+    in ``units``, at ``order`` among the panel's elements (None: after the last)."""
+    return gui.add_uplot(order=order,
         data=(np.arange(2.0), *(np.ones(2) for _ in PHASE_NAMES), np.ones(2), np.ones(2), np.ones(2)),
         # points, not lines: each phase leaves gaps where the others ran (one series per phase, Trail.plot)
         series=(uplot.Series(label="iteration"), *(_series(PHASE_LABEL[p], p, 5 if p == "icp" else 3)
@@ -91,7 +92,7 @@ def build_chart(gui: viser.GuiApi) -> viser.GuiUplotHandle:
                 _series("temperature", "", 2, TEMPERATURE_RGB),
                 uplot.Series(label="result", stroke=hex_colour(RESULT_RGB), width=1.0,
                              points=uplot.Series_Points(show=False))),
-        scales=CHART_SCALES, axes=CHART_AXES, title=CHART_TITLE, aspect=CHART_ASPECT,
+        scales=CHART_SCALES, axes=chart_axes(units), title=CHART_TITLE, aspect=CHART_ASPECT,
         legend=uplot.Legend(live=False), padding=(14, 12, 0, 0))
 
 

@@ -424,3 +424,18 @@ def test_a_run_on_a_pair_in_other_units_is_charted_over_its_own_iterations(data_
     assert "log10 E (m²)" in str(tab.run_panel.h.plot.axes)
     wait_for(lambda: _icp_points_spread(page) > 0.6, 10, what=f"the chart's x range ({_icp_points_spread(page):.2f})")
     page.close()
+
+
+def test_another_pair_takes_the_old_pairs_slice_off_the_landscape_tab(data_bench, browser):
+    page, tab = open_tab(data_bench, browser)
+    show_tab(page, "Landscape")
+    tab.landscape.h.steps.value = "5"
+    page.get_by_role("button", name="Compute slice", exact=True).click()
+    page.locator(".js-plotly-plot:visible").first.wait_for(timeout=120_000)
+    assert "scan2 → scan1" in page.locator(".js-plotly-plot:visible").first.inner_text()
+    show_tab(page, "Scans")
+    page.get_by_role("button", name="Open files", exact=True).click()
+    wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
+    show_tab(page, "Landscape")
+    wait_for(lambda: page.locator(".js-plotly-plot:visible").count() == 0, 10, what="the corner's contour")
+    page.close()

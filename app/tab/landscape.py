@@ -218,7 +218,15 @@ class LandscapePanel:
                 self.h.plot = self.tab.gui.add_plotly(fig, aspect=1.2, order=self.h.param_a.order - 0.5)
         else:
             self.h.plot.figure = fig
+            if not self.h.plot.visible:
+                self.h.plot.visible = True
         self.tab.lesson.slice_drawn(view, fig)
+
+    def forget(self) -> None:
+        """A new pair: the old pair's slice is gone (TabState.slice), and its picture with it (the corner's contour,
+        its path and the title naming its scans stayed on the Landscape tab beside the bunny)."""
+        if self.h.plot is not None and self.h.plot.visible:
+            self.h.plot.visible = False
 
     def update_terrain(self) -> None:
         """The 3-D terrain of the current slice with the path so far, when shown; gone otherwise."""

@@ -133,6 +133,7 @@ class Tab:
         self.model.forget()
         self.pairs.forget()
         self.replay.forget()
+        self.landscape.forget()
         self.landscape.update_terrain()
         self.model.residuals.refresh()
         self.apply_visibility()

@@ -9,6 +9,7 @@ also moves the points by about ``scale``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -118,15 +119,27 @@ def prepare(source: Scan, target: Scan, guess: Guess | np.ndarray | None = None,
     if cut is None:
         raise InputError(f"{source.name} and {target.name} do not overlap under the initial guess, even with "
                          f"its frustum opened by the rotation uncertainty ({guess.rotation_deg:g} deg)")
-    overlap, used = cut.overlap, cut.used
+    return _sampled(source, target, surface, guess, cut.overlap, cut.used, cut.name, config.max_points, seed)
+
+
+def resample(problem: Problem, max_points: int, seed: int | Sequence[int]) -> Problem:
+    """``problem`` with a new sample of at most ``max_points`` source points drawn with ``seed`` from the same
+    overlap cut (no cut is made again)."""
+    return _sampled(problem.source, problem.target, problem.surface, problem.guess, problem.overlap, problem.used,
+                    problem.cut, max_points, seed)
+
+
+def _sampled(source: Scan, target: Scan, surface: Surface, guess: Guess, overlap: Overlap, used: np.ndarray, cut: str,
+             max_points: int, seed: int | Sequence[int]) -> Problem:
+    """The Problem of the overlap cut ``used`` with its source sample drawn with ``seed``."""
     idx = np.flatnonzero(used)
-    rng = np.random.default_rng(seed)
-    if len(idx) > config.max_points:
-        idx = _sample(source, idx, config.max_points, rng)
+    if len(idx) > max_points:
+        idx = _sample(source, idx, max_points, np.random.default_rng(seed))
     points = source.points[idx]
     center = points.mean(0)
     scale = float(np.sqrt(np.mean(np.sum((points - center) ** 2, axis=1)))) or 1.0
-    return Problem(source, target, surface, guess, overlap, used, points, center, scale, r_unc, t_unc, cut.name)
+    r_unc, t_unc = guess.uncertainty(target.size)
+    return Problem(source, target, surface, guess, overlap, used, points, center, scale, r_unc, t_unc, cut)
 
 
 # A scene's sample (a panorama, an unstructured cloud): normal-space sampling (Rusinkiewicz and Levoy, "Efficient

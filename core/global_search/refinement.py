@@ -13,7 +13,7 @@ from ..config import Config
 from ..guess import Guess
 from ..icp import icp
 from ..lock import LockFrame
-from ..problem import Problem, ProblemConfig, prepare
+from ..problem import Problem, ProblemConfig, prepare, resample
 from ..region import offsets
 from ..result import Stop
 from ..scan import Scan
@@ -34,13 +34,15 @@ from .stream import EventStream
 RECUTS = 2
 
 # The whole scans' legs of a thinned pair (core.global_search: thinned) make its pose's precision: they go on until
-# a leg moves it less than SETTLED_DEG and SETTLED_SPACINGS of the target's point spacings, WHOLE_LEGS at most
-# (each leg cuts the whole scans' overlap again: ~0.1-0.3 s on a 250k-point Kinect frame). Measured on the shared
-# Kinect frames from the pose found on the thinned frames, against where further legs settle (5 legs of 60
-# iterations): capture0002 -> 0001 from 15 deg, five sample seeds: stopping once a leg stays inside half the cut's
-# uncertainty (1 deg, 1 % of the 3.9 m scene) ended a median 0.49 deg / 5.7 cm (max 0.64 deg / 7.2 cm) away,
-# this rule 0.07 deg / 3.7 mm (max 0.12 deg / 7.2 mm) in 2-4 legs; capture0003 -> 0001 from 5 deg: both 0.13-0.14
-# deg / 5-7 mm. A LiDAR frame (69k points) is not thinned, so this never runs there.
+# a leg moves it less than SETTLED_DEG and SETTLED_SPACINGS of the target's point spacings, WHOLE_LEGS at most, each
+# on a fresh sample of the cut (a new cut only where the pose left the old one's assumed uncertainty: a cut of a
+# 250k-point Kinect frame costs 0.3-0.4 s of CPU, a sample nothing). Measured on the shared Kinect frames from the
+# pose found on the thinned frames, five sample seeds, against where further legs settle (5 legs of 60 iterations):
+# capture0002 -> 0001 from 15 deg: stopping once a leg stays inside half the cut's uncertainty (1 deg, 1 % of the
+# 3.9 m scene) ended a median 0.49 deg / 5.7 cm (max 0.64 deg / 7.2 cm) away; this rule 0.06 deg / 5 mm (max 0.09
+# deg / 7.7 mm) in 2-6 legs; capture0003 -> 0001 and -> 0002 from 5 deg: 0.14 / 0.20 deg before, 0.08 / 0.19 deg
+# (max 0.14 / 0.37) now. A new cut for every leg was as precise at 1.1-1.6 x the CPU; legs on the same sample stop
+# where the first did (max 0.6 deg / 7 cm). A LiDAR frame (69k points) is not thinned, so this never runs there.
 WHOLE_LEGS = 6
 SETTLED_DEG = 0.1
 SETTLED_SPACINGS = 2.0
@@ -67,20 +69,27 @@ def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: C
 def converge(source: Scan, target: Scan, surface: Surface, T: np.ndarray, config: Config, problem: ProblemConfig,
              on_step=None, frame: LockFrame | None = None, legs: int = 1 + RECUTS,
              settled: tuple[float, float] | None = None) -> tuple[np.ndarray, Problem]:
-    """The refinement's ICP legs from pose T (4, 4), each on the overlap cut at the pose where it starts
-    (``problem``: its sample), until a leg moves the pose less than ``settled`` (degrees, units at the source's
-    centroid; default: half the uncertainty the cut assumes), ``legs`` at most. Returns the pose and the last cut;
+    """The refinement's ICP legs from pose T (4, 4) on the overlap cut at the pose (``problem``: its sample): each
+    leg on a new cut where the pose has moved half the uncertainty the cut assumes or more, else on a fresh sample of
+    the same cut, until a leg moves the pose less than ``settled`` (degrees, units at the source's centroid; default:
+    that half, so every leg but the first starts on a new cut), ``legs`` at most. Returns the pose and the last cut;
     raises InputError when there is no overlap at T."""
     cc = config.candidates
     icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience,
                          max_iterations=min(config.icp.max_iterations, cc.refine_iterations))
-    rot_ok, trans_ok = settled or (config.search.resegment_rotation_deg / 2,
-                                   config.search.resegment_translation * target.size / 2)
-    for _ in range(legs):
-        p = prepare(source, target, Guess.converged(T, config.search, target.size), problem, surface=surface,
-                    seed=config.seed)
-        T_cut, T = T, icp(p.error, T, icp_config, on_step, frame=frame).T
+    rot_half, trans_half = (config.search.resegment_rotation_deg / 2,
+                            config.search.resegment_translation * target.size / 2)
+    rot_ok, trans_ok = settled or (rot_half, trans_half)
+    p, T_cut = None, T
+    for leg in range(legs):
         rot, trans = pose_error(T, T_cut, source.centroid)
+        if p is None or rot >= rot_half or trans >= trans_half:  # the pose left what the cut assumed: cut again
+            p, T_cut = prepare(source, target, Guess.converged(T, config.search, target.size), problem,
+                               surface=surface, seed=config.seed), T
+        else:  # the cut holds: a fresh sample of it (the same one would stop where the last leg did)
+            p = resample(p, problem.max_points, [config.seed, leg])
+        T_start, T = T, icp(p.error, T, icp_config, on_step, frame=frame).T
+        rot, trans = pose_error(T, T_start, source.centroid)
         if rot < rot_ok and trans < trans_ok:
             break  # by default: the pose stayed well inside the uncertainty the cut assumed, so the cut holds at it
     return T, p

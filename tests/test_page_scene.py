@@ -418,6 +418,8 @@ def test_a_run_on_a_pair_in_other_units_is_charted_over_its_own_iterations(data_
     show_tab(page, "Scans")
     page.get_by_role("button", name="Open files", exact=True).click()  # the bunny, in metres
     wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
+    wait_for(lambda: "Method - · idle" in page.locator(".rangereg-status").inner_text(), 10,
+             what="the status's method (the corner's run is not the bunny's)")
     show_tab(page, "Run")
     page.get_by_role("button", name="Run ICP", exact=True).click()
     wait_finished(page)

@@ -103,8 +103,9 @@ class TabState:
             raise InputError("open two scans first")
 
     def reset_run(self, T: np.ndarray | None = None) -> None:
-        """Forget the last run (its events, result and finished line); the shown pose goes to ``T``. Under the lock."""
-        self.events, self.result, self.finished_text = [], None, ""
+        """Forget the last run (its method, events, result and finished line); the shown pose goes to ``T``. Under the
+        lock."""
+        self.events, self.result, self.finished_text, self.run_method = [], None, "", ""
         self.run_header = None
         self.residual_rgb = None
         if T is not None:

@@ -222,6 +222,8 @@ class LessonPanel:
         self.where = gui.add_markdown("The contour with the run's path is in the panel left of the scene.",
                                       visible=False)
         self.panel: viser.PanelHandle | None = None
+        self.panel_tab: viser.GuiTabHandle | None = None  # the panel's one tab: a line while the slice is computed, then
+        self.computing: viser.GuiMarkdownHandle | None = None  # the contour
         self.story: Story | None = None
         self.k = LESSON.shown
         self.run = None  # the lesson's run (a Run), once started
@@ -265,6 +267,7 @@ class LessonPanel:
         self.run = None
         self.h.again.disabled = False
         self.h.intro.visible = False  # room for the sentence under Next (at 1280 x 720, above the fold)
+        self.show_contour(True)
         self.show()
 
     def again(self) -> None:
@@ -360,17 +363,24 @@ class LessonPanel:
         if view is not self.view:
             return
         if self.h.plot is None:
-            self.panel = self.tab.gui.add_panel()
-            with self.panel.add_tab(CONTOUR_TITLE):
+            self.show_contour(True)
+            with self.panel_tab:
                 self.h.plot = self.tab.gui.add_plotly(figure, aspect=CONTOUR_ASPECT)
-            self.panel.dock_left()
-            self.panel.set_width(CONTOUR_PANEL_WIDTH)
+            self.computing.visible = False
         else:
             self.h.plot.figure = figure
         self.show_contour(True)
 
     def show_contour(self, shown: bool) -> None:
-        """The contour's panel beside the scene, and the Lesson tab's line saying where it is."""
+        """The contour's panel beside the scene (docked as the lesson opens, so that the terrain, when it appears, is
+        framed in the canvas left beside it), and the Lesson tab's line saying where it is."""
+        if self.panel is None and shown:
+            self.panel = self.tab.gui.add_panel()
+            self.panel_tab = self.panel.add_tab(CONTOUR_TITLE)
+            with self.panel_tab:
+                self.computing = self.tab.gui.add_markdown("Computing the slice through the truth...")
+            self.panel.dock_left()
+            self.panel.set_width(CONTOUR_PANEL_WIDTH)
         if self.panel is not None and self.panel.visible != shown:
             self.panel.visible = shown
         if self.where.visible != shown:

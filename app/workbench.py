@@ -183,7 +183,7 @@ class Workbench:
         tab = Tab(self, client)
         self.tabs[client.client_id] = tab
         try:
-            tab.load_pair(*self.first_pair)
+            tab.load_pair(*self.first_pair, scene="-" if self.options.source else self.options.scene)
             if self.trace is not None:
                 tab.replay.load_trace(*self.trace)
         except InputError as exc:

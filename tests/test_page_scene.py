@@ -413,6 +413,7 @@ def test_a_run_on_a_pair_in_other_units_is_charted_over_its_own_iterations(data_
     # client then read its kept x range against the new data (the lesson's 148 iterations, then a 72-iteration bunny
     # run drawn on 0-10,000: every point in a column at 0)
     page, tab = open_tab(data_bench, browser)
+    assert tab.scans.h.scene.value == "corner"  # the page opened on its bundled scene
     page.get_by_role("button", name="Run ICP", exact=True).click()
     wait_finished(page)
     show_tab(page, "Scans")
@@ -420,6 +421,7 @@ def test_a_run_on_a_pair_in_other_units_is_charted_over_its_own_iterations(data_
     wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
     wait_for(lambda: "Method - · idle" in page.locator(".rangereg-status").inner_text(), 10,
              what="the status's method (the corner's run is not the bunny's)")
+    assert tab.scans.h.scene.value == "-"  # the Scene dropdown no longer says "corner"
     show_tab(page, "Run")
     page.get_by_role("button", name="Run ICP", exact=True).click()
     wait_finished(page)

@@ -250,7 +250,7 @@ class LessonPanel:
         self.k = int(str(self.h.start.value).split(":")[0])
         source, target = tab.wb.scene_pair(self.lesson.scene)
         tab.run_panel.use_lesson_settings(seed=self.k)
-        tab.load_pair(source, target)
+        tab.load_pair(source, target, scene=self.lesson.scene)
         tab.set_initial(self.lesson.start(st.source, st.target, self.k))
         # the slice through the truth, on the overlap cut there: the error surface the registration ends on, as in
         # the paper's Fig. 3 and 7 (under the start's cut the same grid shows 5 of its minima against 11)

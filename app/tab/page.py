@@ -93,8 +93,9 @@ class Tab:
             self.notify("Something went wrong", f"{type(exc).__name__}: {exc}")
 
     # ---- a pair of scans ---------------------------------------------------------------------------
-    def load_pair(self, source: Scan, target: Scan, keep_pose: bool = False) -> None:
-        """Show a new pair; everything is checked before anything of the old pair is dropped."""
+    def load_pair(self, source: Scan, target: Scan, keep_pose: bool = False, scene: str | None = "-") -> None:
+        """Show a new pair; everything is checked before anything of the old pair is dropped. ``scene``: the bundled
+        scene it is, "-" for files (the Scans tab's Scene dropdown says so), None: the same pair again."""
         st = self.state
         st.require_idle()
         settings = self.run_panel.settings()
@@ -128,6 +129,8 @@ class Tab:
         self.chart_in(target.units)
         self.lesson.forget()
         self.scans.show_viewpoints(source, target)
+        if scene is not None:
+            self.scans.name_scene(scene)
         self.pose.lock(False)
         self.pose.name_units(target.units)
         self.model.forget()

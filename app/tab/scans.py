@@ -62,8 +62,8 @@ class ScansHandles:
 
 def build(gui: viser.GuiApi, wb) -> ScansHandles:
     served = wb.options.source is not None  # files were served: no bundled scene is open
-    scene = gui.add_dropdown("Scene", (["-", *wb.scene_names] if served else wb.scene_names),
-                             initial_value="-" if served else wb.options.scene)
+    scene = gui.add_dropdown("Scene", ["-", *wb.scene_names], initial_value="-" if served else wb.options.scene,
+                             hint="the bundled scene open ('-': files); choose one and Open scene")
     open_scene = gui.add_button("Open scene")
     files = data_choices(wb.data_dir, wb.data_files())
     file_source = file_target = open_files = None
@@ -156,7 +156,7 @@ class ScansPanel:
         self.tab, self.state, self.wb = tab, tab.state, tab.wb
         self.h = h = build(tab.gui, tab.wb)
         guarded = tab.guarded
-        h.open_scene.on_click(lambda e: guarded(lambda: tab.load_pair(*self.wb.scene_pair(h.scene.value))))
+        h.open_scene.on_click(lambda e: guarded(self.open_scene))
         if h.open_files is not None:
             h.open_files.on_click(lambda e: guarded(self.open_files))
         h.upload_source.on_upload(lambda e: guarded(self.uploaded, "source", e.target.value))
@@ -175,6 +175,19 @@ class ScansPanel:
         gizmo = not (self.state.running or self.tab.run_drawing or self.tab.pairs.picking)
         return Visibility(bool(s.frustums.value), bool(s.overlap.value), bool(s.surfaces.value), bool(s.path.value),
                           model, gizmo)
+
+    def open_scene(self) -> None:
+        name = str(self.h.scene.value)
+        if name == "-":
+            raise InputError("choose a scene to open ('-' stands for the files open)")
+        self.tab.load_pair(*self.wb.scene_pair(name), scene=name)
+
+    def name_scene(self, name: str) -> None:
+        """The Scene dropdown says which bundled scene is open ("-": files, uploads or a scene it does not offer):
+        with the bunny's files opened it still read 'corner', the scene the page opened on."""
+        name = name if name in self.h.scene.options else "-"
+        if self.h.scene.value != name:
+            self.h.scene.value = name
 
     def open_files(self) -> None:
         self.tab.load_pair(self.wb.load_data_file(self.h.file_source.value),
@@ -232,7 +245,7 @@ class ScansPanel:
         st.require_scans()
         self.tab.load_pair(with_viewpoint(st.source, self._viewpoint(self.h.vp_source, "source viewpoint")),
                            with_viewpoint(st.target, self._viewpoint(self.h.vp_target, "target viewpoint")),
-                           keep_pose=True)
+                           keep_pose=True, scene=None)
 
     def _viewpoint(self, field, what: str) -> np.ndarray:
         """A viewpoint field as (3,): the exact viewpoint while it reads as shown, else the numbers typed."""

@@ -299,7 +299,7 @@ def test_a_cancelled_runs_line_leads_with_the_cancel_not_a_verdict():
     cancel = Stop(StopReason.CANCELLED)
     hybrid = Result(np.eye(4), 5.0, Iterations(12, 30), 1, 50, 0.5, "hybrid", 1.0, cancel)
     line = result_line(hybrid, "mm", (1.0, 2.0))
-    assert line.startswith("<b>Cancelled at iteration 42</b>: E = 5 mm², pose so far (not trusted)<br>"), line
+    assert line.startswith("<b>Cancelled at iteration 42</b>: E = 5 mm², the best pose so far (not trusted)<br>"), line
     assert "ICP 12, SA 30" in line and "from the truth" in line
     assert "Finished" not in line and "trust" not in line.replace("not trusted", "") and "What to do" not in line
     low = Result(np.eye(4), 0.5, Iterations(3), 0, 3, 0.1, "icp", 1.0, cancel)  # below the threshold, still cancelled

@@ -80,9 +80,10 @@ def why_not(c: _Campaign, k: int, pairs: list[PairResult]) -> str:
 
 
 def rings(c: _Campaign, g: Graph, screened: Screened) -> tuple[Ring, ...]:
-    """The loops the final graph closes, longest first: per kept pair off the graph's spanning tree, the
-    scans round its cycle, and by how much it missed the tree's poses (the drift the loop had before the
-    graph optimised it as a loop) and misses the final poses."""
+    """The loops the final graph closes among the placed scans, longest first: per kept pair off the graph's
+    spanning tree, the scans round its cycle, and by how much it missed the tree's poses (the drift the loop
+    had before the graph optimised it as a loop) and misses the final poses. A loop inside a group of scans
+    not placed (the graph keeps its pairs, but it has no final poses) is not one of the model's."""
     keys = screened.usable
     es = merge_graph.edges(c, keys)
     tree_keys = [keys[e] for e in g.tree]
@@ -96,7 +97,7 @@ def rings(c: _Campaign, g: Graph, screened: Screened) -> tuple[Ring, ...]:
             continue
         i, j = keys[e]
         path = _path(adj, i, j)
-        if path is None:
+        if path is None or g.poses[i] is None or g.poses[j] is None:
             continue
         after = residual(es[e].T_i_j, g.poses[i], g.poses[j], c.centers[j])
         out.append(Ring(tuple(path), (i, j), tuple(g.cycle[e]), after))

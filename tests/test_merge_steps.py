@@ -186,6 +186,18 @@ def test_the_report_gives_typed_statuses_and_the_rings_closing_residual(camp):
 
 # ---- progress ----
 
+def test_a_loop_inside_a_group_not_placed_is_not_reported_as_a_ring(camp):
+    # scans 0-2 placed; 4, 5 and 6 a closed triangle of trusted pairs, joined to nothing placed: the graph
+    # keeps their pairs, but they have no final poses (a crop campaign's merge once failed here)
+    c = _campaign(camp)
+    for i, j in ((0, 1), (1, 2), (0, 2), (4, 5), (5, 6), (4, 6)):
+        _pair(c, camp, i, j)
+    g, screened = c.graph()
+    assert [k for k in range(8) if g.placed[k]] == [0, 1, 2]
+    loops = merge_report.rings(c, g, screened)
+    assert [set(r.order) for r in loops] == [{0, 1, 2}]
+
+
 def test_progress_counts_every_round_and_estimates_from_the_median_task():
     events: list[MergeProgress] = []
     counter = Counter(Step.PAIRS, events.append, t0=0.0, every=0.0)

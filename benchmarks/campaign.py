@@ -2,6 +2,8 @@
 10-scan campaign of 40k-point scans timed, and 1 worker against N side by side.
 
     python benchmarks/campaign.py --families           # every family below, ours and the peer
+    python benchmarks/campaign.py --families --only crops  # only the crop families
+    python benchmarks/campaign.py --crop-pairs         # what the pairwise engine can do on the crops (below)
     python benchmarks/campaign.py --large              # 10 scans of ~40k points, rough poses, timed
     python benchmarks/campaign.py                      # 24 scans, seed 0: 1 vs 2 workers, 3 runs each
     python benchmarks/campaign.py --scans 36 --workers 4 --pairs overlap
@@ -17,6 +19,14 @@ both shifted by 10 % of the object's size (as 25 mm is of the bunny's 0.25 m), s
 (no poses). Each on the whole scans and on crops (each scan replaced by its crop 0, app/crops.py).
 We are told the rotation (15 degrees per scan) and no translation; from identity poses nothing. A
 scan is right within 2 degrees and 2 mm of the truth relative to the first (benchmarks/campaign_runs.py).
+
+--crop-pairs (the diagnosis of the crop families): per crop scan, the share (core.merge_tasks.share_at)
+of it matching each other crop at the truth, its best partners; then each scan's 3 best partners at the
+truth (share >= 0.2) and its ring neighbours registered as a campaign's first registration would
+(core.merge_tasks.pair_task's engine, the pair's seed, no hybrid fallback) from each start: the "frame"
+and "axis" rough poses (twice 15 degrees, no translation) and no guess; per pair right (2 deg / 2 mm)
+or not, trusted or not and why not (misfit, what the matched overlap pins); per start the groups the
+right trusted pairs join, and those the right pairs join trusted or not.
 
 --large: 10 stops, a 310 x 310 range image (38.6k-44.2k points a scan), "frame" starts as above,
 written as files and merged by ``rangereg merge ... --init --rotation-uncertainty 15 --json`` in
@@ -104,6 +114,67 @@ def families(a) -> int:
     print(table(rows))
     print(f"\n{load()} after")
     return 0 if all(m.right == len(m.errors) for _, m, _ in rows) else 1
+
+
+def crop_pairs(a) -> int:
+    from dataclasses import replace
+
+    from rangereg.app.crops import crop
+    from rangereg.core.errors import InputError
+    from rangereg.core.guess import Guess
+    from rangereg.core.merge_tasks import Shared, built, pair_seed, scan_arrays, share_at, token
+    from rangereg.core.posegraph import components
+    from rangereg.core.register import Config, register
+
+    from benchmarks.campaign_runs import RIGHT_DEG, RIGHT_MM, load
+
+    camp = make_campaign(a.seed, TurntableConfig(scans=a.scans))
+    truth = [s.pose for s in camp.scans]
+    scans = [crop(s, 0) for s in camp.scans]
+    n = len(scans)
+    config = Config(method="global", seed=a.seed)
+    config = replace(config, candidates=replace(config.candidates, time_limit=None, fallback_steps=0))
+    shared = Shared(token(scans, config), tuple(scan_arrays(s) for s in scans), config, stated=Guess.identity(OFFSET_DEG))
+    rel = lambda P, i, j: invert(P[i]) @ P[j]  # noqa: E731
+    print(f"{camp!r}, crops 0 ({min(len(s.points) for s in scans)}-{max(len(s.points) for s in scans)} points); {load()}")
+    share = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            share[i, j] = share[j, i] = share_at(shared, i, j, rel(truth, i, j))
+    for i in range(n):
+        best = np.argsort(-share[i], kind="stable")[:4]
+        print(f"{scans[i].name}: best partners at the truth " + ", ".join(f"{j} {share[i, j]:.2f}" for j in best))
+    pairs = sorted({(min(i, int(j)), max(i, int(j))) for i in range(n) for j in np.argsort(-share[i], kind="stable")[:3]
+                    if share[i, j] >= 0.2} | {(min(i, (i + 1) % n), max(i, (i + 1) % n)) for i in range(n)})
+    starts = {f: rough_poses(truth, f, OFFSET_DEG, SHIFT_SHARE * camp.size, a.seed) for f in ("frame", "axis")}
+    for name, P in {**starts, "no guess": None}.items():
+        right, trusted_right, trusted_wrong = [], [], []
+        for i, j in pairs:
+            guess = Guess(np.eye(4), 180.0, None) if P is None else Guess(rel(P, i, j), 2 * OFFSET_DEG, None)
+            try:
+                res = register(built(shared, j)[0], built(shared, i)[0], guess, replace(config, seed=pair_seed(a.seed, i, j)))
+            except InputError as exc:  # as core.merge_tasks.pair_task: a pair that did not register
+                print(f"  {name} {i}-{j} share {share[i, j]:.2f}: not registered ({exc})")
+                continue
+            rot, move = pose_error(res.transform, rel(truth, i, j), scans[j].centroid)
+            ok = rot < RIGHT_DEG and move < RIGHT_MM
+            d = res.details
+            right += [(i, j)] if ok else []
+            (trusted_right if ok else trusted_wrong).extend([(i, j)] if res.below_threshold else [])
+            c = d.constraint
+            print(f"  {name} {i}-{j} share {share[i, j]:.2f}: {'right' if ok else 'WRONG'} {rot:.2f} deg / {move:.2f} mm, "
+                  f"{'trusted' if res.below_threshold else 'not trusted'}, misfit "
+                  f"{'-' if d.misfit is None else f'{d.misfit:.2f}'}, pins {'-' if c is None else f'{c.ratio:.4f}'}"
+                  f"{'' if c is None or c.rise is None else f' rise {c.rise:.2f}'}", flush=True)
+
+        def joined(keys):
+            label = components(n, keys)
+            return sorted((sorted(k for k in range(n) if label[k] == lab) for lab in set(label)), key=len, reverse=True)
+
+        print(f"{name}: {len(pairs)} pairs, {len(right)} right ({len(trusted_right)} trusted), {len(trusted_wrong)} "
+              f"wrong trusted; groups by right trusted pairs {joined(trusted_right)}; by right pairs {joined(right)}; "
+              f"{load()}")
+    return 0
 
 
 def large(a) -> int:
@@ -241,6 +312,8 @@ def main() -> int:
     p.add_argument("--smallest", action="store_true", help="6 scans, one run per setting, one threading")
     p.add_argument("--families", action="store_true", help="every family of starts, ours and Open3D's multiway")
     p.add_argument("--only", choices=("whole", "crops"), help="--families: only the whole scans, or only the crops")
+    p.add_argument("--crop-pairs", action="store_true", help="the crop families' diagnosis: overlaps at the truth, "
+                   "neighbour pairs registered from each start (module notes)")
     p.add_argument("--large", action="store_true", help="10 scans of ~40k points from rough poses, timed")
     p.add_argument("--run-workers", type=int, default=None, help="--families / --large: as merge --workers "
                    "(default: merge's own choice)")
@@ -254,6 +327,8 @@ def main() -> int:
         return uncalibrated(a)
     if a.families:
         return families(a)
+    if a.crop_pairs:
+        return crop_pairs(a)
     if a.large:
         return large(a)
     if a.smallest:

@@ -125,6 +125,8 @@ def prepare(source: Scan, target: Scan, guess: Guess | np.ndarray | None = None,
 def resample(problem: Problem, max_points: int, seed: int | Sequence[int]) -> Problem:
     """``problem`` with a new sample of at most ``max_points`` source points drawn with ``seed`` from the same
     overlap cut (no cut is made again)."""
+    if max_points < 3:
+        raise InputError(f"a sample needs at least 3 points, got {max_points}")
     return _sampled(problem.source, problem.target, problem.surface, problem.guess, problem.overlap, problem.used,
                     problem.cut, max_points, seed)
 

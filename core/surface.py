@@ -180,8 +180,12 @@ def _face_sensor(points, faces, viewpoint):
     return faces
 
 
-def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray]:
+# Queries worked out in float64 at once by Surface.closest_with_normals: ~0.6 kB of temporaries a query, so a
+# whole multi-million-point scan (fuse, the page's residuals) stays within ~120 MB
+CLOSEST_BLOCK = 200_000
+
+
+def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For (N, 3) points ``p`` and the (N, 3) corners ``a``, ``b``, ``c`` of one triangle each: the (N, 3)
     closest points on the triangles and their (N, 3) unit normals ((b - a) x (c - a), as Open3D's), in
     float64 (Ericson, Real-Time Collision Detection, 5.1.5: the Voronoi region of a corner, an edge or the
@@ -221,8 +225,9 @@ def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndar
 class Surface:
     """A triangle mesh with fast closest-point queries (Open3D's RaycastingScene).
 
-    vertices: (V, 3) float64; faces: (F, 3) int64. Queries run in float32 about the mesh's own
-    centre, which keeps millimetre precision for scenes far from the origin.
+    vertices: (V, 3) float64; faces: (F, 3) int64. Embree picks each query's triangle in float32 about the
+    mesh's own centre (millimetre precision for scenes far from the origin); the point on it, its distance and
+    normal are worked out in float64 (:meth:`closest_with_normals`).
     """
 
     vertices: np.ndarray
@@ -317,23 +322,32 @@ class Surface:
         """:meth:`closest`, and the unit normals (N, 3) float64 of the triangles the closest points lie on.
 
         Embree (float32) picks each query's triangle; the point on it, its distance and the triangle's normal
-        are worked out again in float64 (:func:`closest_on_triangles`). Embree's own float32 point differs in
-        its last digits between processors (its kernels do), which moved E by 1e-4 and a golden trace's ICP
-        leg by 7 iterations between two machines; worked out here, E depends on the processor only where two
-        triangles tie for the closest."""
+        are worked out again in float64 (:func:`closest_on_triangles`), in blocks of ``CLOSEST_BLOCK`` queries.
+        Embree's own float32 point differs in its last digits between processors (its kernels do), which moved E
+        by 1e-4 and a golden trace's ICP leg by 7 iterations between two machines; worked out here, the point and
+        its distance no longer do, but where several triangles are equally close (a query nearest an edge or a
+        vertex they share) which one Embree returns, and so the normal, may still differ. Where Embree finds no
+        triangle (a query at infinity, a mesh with no faces) or picks a zero-area one, its own answer stands."""
         import open3d as o3d
 
         q = np.asarray(query, dtype=np.float64) - self.offset
         ans = self._scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(q, dtype=np.float32)))
-        tri = self.faces[ans["primitive_ids"].numpy().astype(np.int64)]
-        a, b, c = (self.vertices[tri[:, k]] - self.offset for k in range(3))
-        closest, normals = closest_on_triangles(q, a, b, c)
-        bad = ~np.isfinite(closest).all(axis=1)  # a degenerate (zero-area) triangle: Embree's point stands
-        if bad.any():
-            closest[bad] = ans["points"].numpy()[bad].astype(np.float64)
-            normals[bad] = ans["primitive_normals"].numpy()[bad].astype(np.float64)
+        ids = ans["primitive_ids"].numpy().astype(np.int64)
+        found = ids < len(self.faces)  # Embree's INVALID_ID (2^32 - 1) where it found none
+        closest = np.empty_like(q)
+        normals = np.empty_like(q)
+        for k in range(0, len(q), CLOSEST_BLOCK):
+            rows = slice(k, k + CLOSEST_BLOCK)
+            tri = self.faces[np.where(found[rows], ids[rows], 0)]
+            a, b, c = (self.vertices[tri[:, m]] - self.offset for m in range(3))
+            closest[rows], normals[rows] = closest_on_triangles(q[rows], a, b, c)
+        own = ~found | ~np.isfinite(closest).all(axis=1)
+        if own.any():
+            closest[own] = ans["points"].numpy()[own].astype(np.float64)
+            normals[own] = ans["primitive_normals"].numpy()[own].astype(np.float64)
         d = q - closest
         return closest + self.offset, np.einsum("ij,ij->i", d, d), normals
+
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """(N,) distance along each unit ray to the first triangle hit (inf when none)."""
         import open3d as o3d

@@ -75,3 +75,20 @@ def test_a_guess_whose_uncertainty_allows_no_overlap_has_no_cut(corner):
     for distance in (1e4, 1e6):  # far beside the view: ~90 deg off its axis, far more than 1 deg beyond its side
         far = sideways(T, target, distance)
         assert overlap_cut(source, target, surface, far, "convex", False, np.radians(1), 10.0) is None
+
+
+def test_a_resample_keeps_the_cut_and_draws_another_sample_of_it(corner):
+    from rangereg.core.problem import ProblemConfig, prepare, resample
+
+    target, source, surface, T = corner
+    p = prepare(source, target, T, ProblemConfig(max_points=200), surface=surface, seed=0)
+    before = p.points.copy()
+    q = resample(p, 200, [0, 1])
+    assert np.array_equal(p.points, before)  # the input unchanged
+    assert q.used is p.used and q.guess is p.guess and q.cut == p.cut and q.overlap is p.overlap
+    assert (q.rotation_uncertainty, q.translation_uncertainty) == (p.rotation_uncertainty, p.translation_uncertainty)
+    inside = source.points[p.used]
+    assert len(q.points) == 200 and not np.array_equal(q.points, p.points)
+    assert np.all(np.isin(q.points.view([("", q.points.dtype)] * 3), inside.view([("", inside.dtype)] * 3)))
+    assert np.array_equal(resample(p, 200, [0, 1]).points, q.points)  # seeded
+    assert np.isclose(q.error(T), p.error(T), rtol=0.5)  # the same surface and overlap, another sample

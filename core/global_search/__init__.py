@@ -115,7 +115,8 @@ def _whole_leg(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray) -> n
     sample = replace(cfg.problem, max_points=max(cfg.problem.max_points, cfg.candidates.whole_sample))
     try:
         return converge(source, target, surface, T, cfg, sample, lambda T_, E: run.emit("icp", T_, E, charge=False),
-                        setup.frame, WHOLE_LEGS, (SETTLED_DEG, SETTLED_SPACINGS * target.spacing))[0]
+                        setup.frame, legs=WHOLE_LEGS,
+                        settled=(SETTLED_DEG, SETTLED_SPACINGS * target.spacing))[0]
     except InputError:
         return None
 

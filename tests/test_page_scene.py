@@ -50,6 +50,16 @@ def open_tab(bench, browser, viewport=(1600, 1000)):
     return page, tab
 
 
+def open_the_bunny(bench, browser):
+    """A tab with the served bunny pair (bun045 onto bun000) opened from the Scans tab and its scene settled."""
+    page, tab = open_tab(bench, browser)
+    show_tab(page, "Scans")
+    page.get_by_role("button", name="Open files", exact=True).click()
+    wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
+    settled(page, tab)
+    return page, tab
+
+
 def _camera_known(tab) -> bool:
     try:
         return tab.client.camera.image_height > 0
@@ -332,11 +342,7 @@ def test_pose_fields_are_the_initial_pose_in_4_digits_beside_the_runs_result(dat
 def test_the_opening_view_frames_the_bunny_from_outside_its_frustums(data_bench, browser):
     from rangereg.app.tab.scene3d import _inside_frusta, shown_extent
 
-    page, tab = open_tab(data_bench, browser)
-    show_tab(page, "Scans")
-    page.get_by_role("button", name="Open files", exact=True).click()
-    wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
-    settled(page, tab)
+    page, tab = open_the_bunny(data_bench, browser)
     st = tab.state
     eye = np.asarray(tab.client.camera.position)
     assert not _inside_frusta(eye, st.display, st.T, st.frusta[tab.run_panel.settings().frustum])
@@ -376,11 +382,7 @@ def test_the_gizmo_is_sized_to_the_scans_on_the_opening_view(data_bench, browser
     # across from the closer opening view), and are still there to grab
     from rangereg.app.tab.scene3d import shown_extent
 
-    page, tab = open_tab(data_bench, browser)
-    show_tab(page, "Scans")
-    page.get_by_role("button", name="Open files", exact=True).click()
-    wait_for(lambda: tab.state.target.name == "bun000", 120, what="the bunny pair")
-    settled(page, tab)
+    page, tab = open_the_bunny(data_bench, browser)
     st = tab.state
     centre = project(tab, np.asarray(st.display.node_pose(st.T)[1], np.float64)[None])[0]
     px = canvas_rgb(page)

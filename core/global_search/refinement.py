@@ -11,7 +11,7 @@ import numpy as np
 
 from ..config import Config
 from ..guess import Guess
-from ..icp import icp
+from ..icp import IcpConfig, icp
 from ..lock import LockFrame
 from ..problem import Problem, ProblemConfig, prepare, resample
 from ..region import offsets
@@ -49,6 +49,13 @@ SETTLED_DEG = 0.1
 SETTLED_SPACINGS = 2.0
 
 
+def _refine_icp(config: Config) -> IcpConfig:
+    """The refinement's ICP: ``config.candidates``' metric, patience and iterations on ``config.icp``."""
+    cc = config.candidates
+    return replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience,
+                   max_iterations=min(config.icp.max_iterations, cc.refine_iterations))
+
+
 def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: Config, on_step=None,
            frame: LockFrame | None = None, at_T: Problem | None = None) -> tuple[np.ndarray, Problem]:
     """ICP (``config.candidates.refine_metric``) on the robust E from the pose of ``guess`` (its stated
@@ -58,8 +65,7 @@ def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: C
     cc = config.candidates
     # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
     near = replace(config.problem, visibility=False)
-    icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience,
-                         max_iterations=min(config.icp.max_iterations, cc.refine_iterations))
+    icp_config = _refine_icp(config)
     T = guess.T_target_source
     p = at_T if at_T is not None else prepare(source, target, guess.narrowed(cc.refine_rotation_deg), near,
                                               surface=surface, seed=config.seed)
@@ -75,9 +81,7 @@ def converge(source: Scan, target: Scan, surface: Surface, T: np.ndarray, config
     the same cut, until a leg moves the pose less than ``settled`` (degrees, units at the source's centroid; default:
     that half, so every leg but the first starts on a new cut), ``legs`` at most. Returns the pose and the last cut;
     raises InputError when there is no overlap at T."""
-    cc = config.candidates
-    icp_config = replace(config.icp, metric=cc.refine_metric, patience=cc.refine_patience,
-                         max_iterations=min(config.icp.max_iterations, cc.refine_iterations))
+    icp_config = _refine_icp(config)
     rot_half, trans_half = (config.search.resegment_rotation_deg / 2,
                             config.search.resegment_translation * target.size / 2)
     rot_ok, trans_ok = settled or (rot_half, trans_half)

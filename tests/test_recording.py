@@ -43,6 +43,20 @@ def orange_centre(png: bytes) -> np.ndarray | None:
     return None if len(xs) < 200 else np.array([xs.mean(), ys.mean()])
 
 
+
+def opening_axes(run) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The recording's opening camera for ``run``: its eye (3,) and unit ahead, right and up (3,) (+y up)."""
+    from rangereg.app.recording import opening_view
+    from rangereg.app.views import Trail
+
+    trail = Trail(run.display, run.events)
+    trail.update()
+    eye, look_at, _ = opening_view(run, trail)
+    ahead = (look_at - eye) / np.linalg.norm(look_at - eye)
+    right = np.cross(ahead, (0.0, 1.0, 0.0))
+    right /= np.linalg.norm(right)
+    return eye, ahead, right, np.cross(right, ahead)
+
 def test_the_recording_plays_from_disk_and_the_scan_moves(tmp_path):
     if not CHROMIUM.exists():
         pytest.skip("Debian's chromium is not installed")
@@ -181,17 +195,10 @@ def test_the_bunny_recordings_opening_view_shows_the_scans_more_than_their_frust
     assert np.ptp(rows) > 0.38 * 720, (rows.min(), rows.max())
     page.close()
     # the labels (drawn in the canvas: no element to find) are anchored inside the opening view of that window
-    from rangereg.app.recording import _label_anchors, opening_view
+    from rangereg.app.recording import _label_anchors
     from rangereg.app.tab.scene3d import DEFAULT_FOV
-    from rangereg.app.views import Trail
 
-    trail = Trail(bunny_run.display, bunny_run.events)
-    trail.update()
-    eye, look_at, _ = opening_view(bunny_run, trail)
-    ahead = (look_at - eye) / np.linalg.norm(look_at - eye)
-    right = np.cross(ahead, (0.0, 1.0, 0.0))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, ahead)
+    eye, ahead, right, up = opening_axes(bunny_run)
     rel = _label_anchors() - eye
     tan_v = np.tan(DEFAULT_FOV / 2)
     x, y = rel @ right / (rel @ ahead) / (tan_v * 1280 / 720), rel @ up / (rel @ ahead) / tan_v
@@ -211,9 +218,8 @@ def scan_pixel_rows(png: bytes) -> np.ndarray:
 def test_the_notice_of_software_webgl_leaves_the_recordings_line_and_legend_readable(tmp_path, browser):
     # viser's client notes software WebGL (headless Chromium's) in a notice at the top-left, where the recording's
     # line and legend are; in a 1000 x 700 window it covered the line and the legend's first entry
-    from rangereg.app.recording import LEGEND_AT, _label_anchors, opening_view, recording_html
+    from rangereg.app.recording import LEGEND_AT, _label_anchors, recording_html
     from rangereg.app.tab.scene3d import DEFAULT_FOV
-    from rangereg.app.views import Trail
 
     run = corner_run()
     path = tmp_path / "corner.html"
@@ -224,13 +230,7 @@ def test_the_notice_of_software_webgl_leaves_the_recordings_line_and_legend_read
     notice.wait_for(timeout=60_000)
     page.wait_for_timeout(1000)  # slid into place
     box, canvas = notice.bounding_box(), page.locator("canvas").first.bounding_box()
-    trail = Trail(run.display, run.events)
-    trail.update()
-    eye, look_at, _ = opening_view(run, trail)
-    ahead = (look_at - eye) / np.linalg.norm(look_at - eye)
-    right = np.cross(ahead, (0.0, 1.0, 0.0))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, ahead)
+    eye, ahead, right, up = opening_axes(run)
     # the line's, the legend's first and last entries': their text runs right from there
     rel = np.r_[_label_anchors(), [LEGEND_AT]] - eye
     tan_v = np.tan(DEFAULT_FOV / 2)

@@ -1,15 +1,22 @@
 """The merge's groups step (core.merge): scans the used pairs do not join to the reference, joined.
 
-For each group of them (joined among themselves, or alone), the pairs across to the placed scans that
-could join it, likeliest first:
+For each group of them (joined among themselves, or alone), the pairs across to the placed scans and to
+the scans of the other groups apart that could join it, likeliest first (two groups apart joined to each
+other reach the reference together, or are one larger group the next round reaches: on the 24-stop
+turntable's crops from no poses, round 1 joined only scans 0-1 to the reference while the groups 13-14,
+15-16, 18-21 and 22-23 were trusted, right and apart; tried only against scans 0 and 1, they stayed apart):
 
 1. by a turntable's order: where the group's poses and the placed scans' share an axis (core.turntable),
    the scans at the ends of each one's arc are where the two meet (a ring missing a link: the ends'
    pairs are the link), with no guess;
 2. by the rough poses: pairs that overlap under them, in the stated region about them;
 3. by the features' cue (core.merge_cue): each scan of the group with its likeliest partners among the
-   placed scans, with no guess; a pair tried only from the rough poses gets one try with no guess (a
+   scans outside it, with no guess; a pair tried only from the rough poses gets one try with no guess (a
    rough pose may be further off than stated).
+
+A pair between two groups apart is one task a round, not one per group. What joining groups can add,
+a scan at the end of a long open chain of pairs whose errors add up, the graph step does not place
+(core.merge_graph.drift).
 
 ``reach_partners`` of them a round per group, round after round while the group stays apart and
 untried pairs that could join it remain (``join_partners`` by the cue per scan of it): a scan is left
@@ -62,26 +69,32 @@ def join_tasks(c: _Campaign, g: Graph, used: list[tuple[int, int]]) -> list[Pair
     placed = [m for m in range(c.n) if g.placed[m]]
     rot, trans = c.region()
     tasks = []
+    taken: set[tuple[int, int]] = set()  # this round's pairs (a pair between two groups apart is one task)
+    c.join_left = {}  # this round's groups only (an earlier round's may have joined since)
     for inside in groups(c, g, used):
+        # the scans it could join: the placed ones, and those of the other groups apart (two groups joined
+        # to each other join the reference together, or are one larger group the next round can reach)
+        others = [m for m in range(c.n) if m not in inside]
         by_ring = ring_pairs(c, g, inside, placed)
-        reach = [key(u, m) for u in inside for m in placed]
+        reach = [key(u, m) for u in inside for m in others]
         rough = sorted((p for p in reach if p not in c.pairs and c.init_overlap.get(p, 0.0) >= c.mc.min_overlap_any),
                        key=lambda p: -c.init_overlap[p])
         by_cue = set()
         for u in inside:
-            if any(untried(c, key(u, m), Start.NO_GUESS) for m in placed):  # the cue's features only when needed
-                best = c.cue.rank(u, among=placed)[:c.mc.join_partners]
+            if any(untried(c, key(u, m), Start.NO_GUESS) for m in others):  # the cue's features only when needed
+                best = c.cue.rank(u, among=others)[:c.mc.join_partners]
                 by_cue |= {key(u, m) for m in best}
         order = ([(p, Start.NO_GUESS) for p in by_ring] + [(p, Start.ROUGH_POSES) for p in rough]
                  + [(p, Start.NO_GUESS) for p in sorted(by_cue, key=lambda p: (-c.cue.score(*p), p))])
         picks, seen = [], set()
         for p, start in order:
-            if p in seen or not untried(c, p, start):
+            if p in seen or p in taken or not untried(c, p, start):
                 continue
             seen.add(p)
             picks.append((p, start))
-        c.join_left[tuple(inside)] = len(picks)
+        c.join_left[tuple(inside)] = max(0, len(picks) - c.mc.reach_partners)  # left after this round's
         for (i, j), start in picks[:c.mc.reach_partners]:
+            taken.add((i, j))
             by_pose = start is Start.ROUGH_POSES
             tasks.append(PairTask(i, j, c.rel(i, j), rot if by_pose else 180.0, trans if by_pose else None,
                                   attempt=c.tried.get((i, j), 0), start=start))

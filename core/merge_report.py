@@ -29,9 +29,12 @@ def pair_statuses(c: _Campaign, g: Graph, screened: Screened) -> list[PairResult
             kind, reason = screened.why[key]
         elif e in g.rejected:
             kind, reason = Rejection.DOES_NOT_CLOSE, g.rejected[e]
-        elif g.poses[p.i] is None:
-            kind, reason = Rejection.NOT_JOINED, (f"its scans are not joined to {c.scans[c.reference].name} "
-                                                  "(the frame of the poses) by used pairs")
+        elif g.poses[p.i] is None or g.poses[p.j] is None:
+            loose = [c.scans[k].name for k in (p.i, p.j) if k in c.loose]
+            kind, reason = Rejection.NOT_JOINED, (
+                f"{' and '.join(loose)} not placed: too uncertain where the chain of pairs that joins it ends"
+                if loose else f"its scans are not joined to {c.scans[c.reference].name} (the frame of the poses) "
+                              "by used pairs")
         else:
             status, reason = PairStatus.USED, screened.corroborated.get(key, "")
         if status is PairStatus.REJECTED and c.tried[key] == 1 and c.shares.get(key, 1.0) < c.mc.min_overlap:
@@ -67,6 +70,8 @@ def reason_of(c: _Campaign, p: PairResult) -> str:
 
 def why_not(c: _Campaign, k: int, pairs: list[PairResult]) -> str:
     """Why scan k is not placed, naming what was tried to join it."""
+    if k in c.loose:
+        return c.loose[k]
     mine = [p for p in pairs if k in (p.i, p.j)]
     left = next((n for group, n in c.join_left.items() if k in group), 0)
     tail = "" if left == 0 else f"; {left} more pairs could join it but the rounds ran out"

@@ -241,24 +241,31 @@ def optimise(n: int, edges: list[Edge], kept: list[int], tree: list[int], poses:
     order = [k for k in kept if label[edges[k].i] == label[reference]]
     if all(k in tree for k in order):  # a tree alone: nothing to reconcile
         return poses, set()
+    # the reference's component only: Open3D optimises nothing, and says only "Invalid PoseGraph - graph is not
+    # connected" as a warning, when the graph holds a node no edge reaches (a scan not placed). With every scan a
+    # node, a campaign that left any scan out kept its spanning tree's poses, its loops never reconciled
+    # (measured, the 24-stop turntable's crops: each of them)
+    nodes = [k for k in range(n) if label[k] == label[reference]]
+    at = {k: a for a, k in enumerate(nodes)}
     graph = reg.PoseGraph()
-    for P in poses:
-        graph.nodes.append(reg.PoseGraphNode(np.eye(4) if P is None else P))
+    for k in nodes:
+        graph.nodes.append(reg.PoseGraphNode(poses[k]))
     for k in order:
         e = edges[k]
         info = np.eye(6) if e.info is None else e.info
         # Open3D's edge convention: the transformation maps source (j) into target (i)
-        graph.edges.append(reg.PoseGraphEdge(e.j, e.i, e.T_i_j, info, uncertain=k not in tree))
+        graph.edges.append(reg.PoseGraphEdge(at[e.j], at[e.i], e.T_i_j, info, uncertain=k not in tree))
     option = reg.GlobalOptimizationOption(max_correspondence_distance=max_distance, edge_prune_threshold=EDGE_PRUNE,
-                                          reference_node=reference)
+                                          reference_node=at[reference])
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         reg.global_optimization(graph, reg.GlobalOptimizationLevenbergMarquardt(),
                                 reg.GlobalOptimizationConvergenceCriteria(), option)
-    left = {(e.target_node_id, e.source_node_id) for e in graph.edges}
+    left = {(nodes[e.target_node_id], nodes[e.source_node_id]) for e in graph.edges}
     pruned = {k for k in order if (edges[k].i, edges[k].j) not in left}
-    P0 = invert(np.asarray(graph.nodes[reference].pose))
-    out = [P0 @ np.asarray(node.pose) if label[k] == label[reference] else poses[k]
-           for k, node in enumerate(graph.nodes)]
+    P0 = invert(np.asarray(graph.nodes[at[reference]].pose))
+    out = list(poses)
+    for k in nodes:
+        out[k] = P0 @ np.asarray(graph.nodes[at[k]].pose)
     return out, pruned
 
 
@@ -375,3 +382,93 @@ def information(points: np.ndarray) -> np.ndarray:
     G = np.stack([np.stack([zero, z, -y, one, zero, zero], 1), np.stack([-z, zero, x, zero, one, zero], 1),
                   np.stack([y, -x, zero, zero, zero, one], 1)], 1)  # (K, 3, 6)
     return np.einsum("kri,krj->ij", G, G)
+
+
+def plane_information(source_points: np.ndarray, target: Scan, normals: np.ndarray, max_distance: float,
+                      T_target_source: np.ndarray) -> np.ndarray:
+    """(6, 6) point-to-plane information of a pair (rotation first, then translation, in the target's frame,
+    as :func:`information`): the sum of g g^T / s^2 over the source points (K, 3) matched within
+    ``max_distance`` to the target's points, g = [q x n, n] at the matched target point q with its normal n
+    (``normals``, (Nt, 3)), s^2 the mean squared point-to-plane residual there. Unlike point-to-point, it
+    sees a pair pinned only across its surfaces: a crop of a smooth region is loose along its slide, and
+    its inverse (the covariance) says how loose. Fewer than 6 matches: zeros (the pair pins nothing)."""
+    moved = apply(T_target_source, source_points)
+    d, idx = target.tree.query(moved, distance_upper_bound=max_distance)
+    ok = np.isfinite(d)
+    if ok.sum() < 6:
+        return np.zeros((6, 6))
+    q, n = target.points[idx[ok]], normals[idx[ok]]
+    r = np.einsum("ij,ij->i", n, moved[ok] - q)
+    s2 = max(float(np.mean(r ** 2)), (1e-6 * max_distance) ** 2)
+    G = np.concatenate([np.cross(q, n), n], axis=1)
+    return np.einsum("ki,kj->ij", G, G) / s2
+
+
+def _adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) the adjoint of T (4, 4) on twists (rotation, translation): a small motion exp(xi) in T's source
+    frame is exp(Ad_T xi) in its target frame."""
+    R, t = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = A[3:, 3:] = R
+    A[3:, :3] = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+    return A
+
+
+def covariances(n: int, edges: list[Edge], infos: list[np.ndarray], poses: list, reference: int = 0) -> list:
+    """The uncertainty the pose graph propagates to each placed scan: (6, 6) covariance of its pose relative
+    to the reference's (a small motion exp(xi) P of its pose P, xi = (rotation, translation) in the
+    reference's frame at its origin), or None (not placed, or the reference). ``edges``: the kept edges;
+    ``infos``: each one's information (:func:`plane_information`); ``poses``: T_reference_scan (None: not
+    placed). The graph's information, linearised at the poses, is the sum over the edges of A^T L A with
+    A = Ad(inv(P_i)) [-I, I] (the edge's motion in scan i's frame); its inverse, the reference held, is
+    the joint covariance: a scan reached by a long open chain has the chain's uncertainties added up, a
+    loop that closes takes them down. A direction nothing pins (a pair's information singular there) comes
+    out as a huge variance, not an error."""
+    free = [k for k in range(n) if poses[k] is not None and k != reference]
+    at = {k: a for a, k in enumerate(free)}
+    M = np.zeros((6 * len(free), 6 * len(free)))
+    for e, L in zip(edges, infos):
+        if poses[e.i] is None or poses[e.j] is None:
+            continue
+        A = _adjoint(invert(poses[e.i]))
+        blocks = [(at[k], s * A) for k, s in ((e.i, -1.0), (e.j, 1.0)) if k in at]
+        for a, Ba in blocks:
+            for b, Bb in blocks:
+                M[6 * a:6 * a + 6, 6 * b:6 * b + 6] += Ba.T @ L @ Bb
+    out: list = [None] * n
+    if not free:
+        return out
+    # a ridge far below any pinned direction keeps the solve finite where a direction is pinned by nothing
+    ridge = 1e-12 * max(float(np.abs(np.diag(M)).max()), 1e-300)
+    S = np.linalg.inv(M + ridge * np.eye(len(M)))
+    for k, a in at.items():
+        out[k] = S[6 * a:6 * a + 6, 6 * a:6 * a + 6]
+    return out
+
+
+def disagreement(edges: list[Edge], infos: list[np.ndarray], poses: list) -> list[float]:
+    """Per edge, how far it misses the poses in its own standard deviations: chi^2 / 6 of the motion
+    ``log(inv(P_i) P_j inv(T_i_j))`` (in scan i's frame, the frame of its information ``infos``) under
+    ``poses``; 0 for an edge with a scan not placed. About 1 where the pairs err as their information
+    says; an edge on no loop (a bridge) is met exactly (0): only loops can show a pair's error."""
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    for e, L in zip(edges, infos):
+        if poses[e.i] is None or poses[e.j] is None:
+            out.append(0.0)
+            continue
+        D = invert(poses[e.i]) @ poses[e.j] @ invert(e.T_i_j)
+        eta = np.r_[Rotation.from_matrix(D[:3, :3]).as_rotvec(), D[:3, 3]]
+        out.append(float(eta @ L @ eta) / 6.0)
+    return out
+
+
+def spread(cov: np.ndarray, point: np.ndarray) -> tuple[float, float]:
+    """(degrees, units): the largest standard deviation of a pose's rotation, and of where it puts
+    ``point`` (3,) (the reference's frame), under the covariance ``cov`` (6, 6) of :func:`covariances`."""
+    x, y, z = point
+    J = np.array([[0, z, -y, 1, 0, 0], [-z, 0, x, 0, 1, 0], [y, -x, 0, 0, 0, 1]], dtype=np.float64)
+    rot = float(np.linalg.eigvalsh(cov[:3, :3]).max())
+    move = float(np.linalg.eigvalsh(J @ cov @ J.T).max())
+    return float(np.degrees(np.sqrt(max(rot, 0.0)))), float(np.sqrt(max(move, 0.0)))

@@ -165,6 +165,54 @@ def test_a_group_apart_is_tried_first_by_the_ends_of_the_rings_arcs(camp):
     assert {(t.i, t.j) for t in tasks} <= set(ends) and len(tasks) == c.mc.reach_partners
 
 
+def test_groups_apart_are_paired_with_each_other_not_only_with_the_placed_scans(camp):
+    # no poses; 0-1 joined to the reference, 3-4 and 5-6 joined among themselves, 2 and 7 alone: a group apart
+    # may be joined to another group apart first (the two then reach the reference together), as on the crops
+    # of the 24-stop turntable from no poses, where 0-1 alone reached the reference and the groups 13-14,
+    # 15-16, 18-21 and 22-23, each right and trusted, were tried only against scans 0 and 1
+    c = _campaign(camp, reach_partners=8)
+    for i, j in ((0, 1), (3, 4), (5, 6)):
+        _pair(c, camp, i, j)
+    g, screened = c.graph()
+    assert [k for k in range(8) if g.placed[k]] == [0, 1]
+    tasks = merge_groups.join_tasks(c, g, sorted(screened.usable[k] for k in g.kept))
+    keys = [(t.i, t.j) for t in tasks]
+    assert len(set(keys)) == len(keys)  # a pair between two groups is one task, not one per group
+    apart = [k for k in keys if not g.placed[k[0]] and not g.placed[k[1]]]
+    assert apart and all(t.start is Start.NO_GUESS for t in tasks)
+    # the pair of neighbours across two groups apart is among them (4-5: the cue's likeliest)
+    assert (4, 5) in keys
+
+
+def test_a_scan_at_the_end_of_a_long_open_chain_is_not_placed_and_a_closing_pair_places_it(camp):
+    # every pair right, but each pins its scans only so far: along the open chain 0-1-...-7 the uncertainty
+    # adds up, and the scans far from the reference are said not placed (why: their pose's uncertainty);
+    # the pair 0-7 closes the ring and takes it down, so every scan is placed
+    # (8 whole scans 45 deg apart: a pair's 0.09 deg, one sd; 3 sd at scan 4-7 0.53-0.62 deg, at most 0.30 on the ring)
+    tight = dict(drift_sigmas=3.0, drift_rotation_deg=0.5, drift_translation=0.01)
+    c = _campaign(camp, **tight)
+    for i in range(7):
+        _pair(c, camp, i, i + 1)
+    g, screened = c.graph()
+    assert all(g.placed)  # the rounds plan on every joined scan
+    g = merge_graph.drift(c, g, screened.usable)
+    far = [k for k in range(8) if not g.placed[k]]
+    assert g.placed[:2] == [True, True] and far and max(far) == 7 and far == list(range(min(far), 8))
+    pairs = merge_report.pair_statuses(c, g, screened)
+    reports = merge_report.scan_reports(c, g, pairs)
+    assert all("uncertain" in reports[k].why for k in far)
+    assert any(p.rejection is Rejection.NOT_JOINED and "uncertain" in p.reason for p in pairs)
+    _pair(c, camp, 0, 7)
+    g, screened = c.graph()
+    assert all(merge_graph.drift(c, g, screened.usable).placed) and not c.loose
+    # with the defaults every scan of the open chain of whole scans is placed
+    c = _campaign(camp)
+    for i in range(7):
+        _pair(c, camp, i, i + 1)
+    g, screened = c.graph()
+    assert all(merge_graph.drift(c, g, screened.usable).placed)
+
+
 # ---- report ----
 
 def test_the_report_gives_typed_statuses_and_the_rings_closing_residual(camp):

@@ -8,13 +8,18 @@ from rangereg.core.posegraph import (
     Edge,
     Tolerance,
     consensus,
+    covariances,
     cycles,
+    disagreement,
     information,
     information_matrix,
+    plane_information,
     residual,
     solve,
     spanning_tree,
+    spread,
 )
+from rangereg.core.scan import Scan
 from rangereg.core.transforms import apply, from_params, invert, pose_error
 
 TOL = Tolerance(2.0, 2.0)  # degrees, units (the scans below are ~100 units across, 1000 units away)
@@ -174,3 +179,90 @@ def test_wrong_edges_at_the_reference_leave_the_rest_placed_and_none_wrong():
     g = solve(n, edges, centers, TOL, max_distance=30.0)
     assert set(bad) <= set(g.rejected)
     assert all(g.placed) and _worst(g.poses, truth) < 0.5
+
+
+def test_the_uncertainty_adds_up_along_an_open_chain_and_a_closing_pair_takes_it_down():
+    # 8 scans at the identity, each pair pinning every direction alike (information I): along the open chain
+    # 0-1-...-7 scan k is k pairs' uncertainty from the reference (covariance k I); closed into a ring by 7-0,
+    # the two ways round it are two measurements in parallel: k (8 - k) / 8 I (a random walk pinned at both ends)
+    n = 8
+    poses = [np.eye(4)] * n
+    chain = [Edge(k, k + 1, np.eye(4)) for k in range(n - 1)]
+    open_cov = covariances(n, chain, [np.eye(6)] * len(chain), poses)
+    ring = chain + [Edge(n - 1, 0, np.eye(4))]
+    ring_cov = covariances(n, ring, [np.eye(6)] * len(ring), poses)
+    assert open_cov[0] is None and ring_cov[0] is None  # the reference
+    for k in range(1, n):
+        assert np.allclose(open_cov[k], k * np.eye(6), rtol=1e-9)
+        assert np.allclose(ring_cov[k], k * (n - k) / n * np.eye(6), rtol=1e-9)
+    # a scan not placed has none; the largest standard deviations in degrees and at a point
+    poses_apart = poses[:4] + [None] * 4
+    assert covariances(n, chain, [np.eye(6)] * len(chain), poses_apart)[5] is None
+    rot, move = spread(np.diag([1e-4, 4e-4, 1e-4, 1.0, 1.0, 1.0]), np.zeros(3))
+    assert rot == pytest.approx(np.degrees(0.02)) and move == pytest.approx(1.0)
+    # away from the origin the rotation's uncertainty moves the point too: 0.02 rad about z at 100 units along x
+    assert spread(np.diag([0, 0, 4e-4, 0, 0, 0]), np.array([100.0, 0, 0]))[1] == pytest.approx(2.0)
+
+
+def test_an_edge_posed_elsewhere_carries_its_uncertainty_in_its_own_frame():
+    # one edge from the reference to scan 1 placed 90 deg about z and 100 units along x: the edge's
+    # information is in scan 0's frame (its target), so scan 1's covariance is that information's inverse
+    P1 = from_params(np.r_[100.0, 0, 0, 0, 0, np.pi / 2])
+    L = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    (_, cov) = covariances(2, [Edge(0, 1, P1)], [L], [np.eye(4), P1])
+    assert np.allclose(cov, np.linalg.inv(L))
+    # the same edge written the other way round (1 -> 0, its information in scan 1's frame) agrees once turned
+    A = np.zeros((6, 6))
+    A[:3, :3] = A[3:, 3:] = P1[:3, :3]
+    A[3:, :3] = np.array([[0, 0, 0], [0, 0, -100.0], [0, 100.0, 0]]) @ P1[:3, :3]
+    L1 = A.T @ L @ A  # the information of the motion seen from scan 1
+    (_, back) = covariances(2, [Edge(1, 0, invert(P1))], [L1], [np.eye(4), P1])
+    assert np.allclose(back, np.linalg.inv(L), rtol=1e-6, atol=1e-9)
+
+
+def test_point_to_plane_information_sees_that_a_flat_patch_slides():
+    # a flat patch matched onto itself pins the motion across it (z, and tilts about x and y), and nothing
+    # along it: point-to-point information pins all three translations alike and cannot tell
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(-50, 50, (400, 2)), rng.normal(0, 0.1, 400)]
+    target = Scan(pts, np.array([0.0, 0.0, 500.0]))
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
+    L = plane_information(pts, target, normals, 2.0, np.eye(4))
+    assert np.allclose(L, L.T)
+    eig = np.linalg.eigvalsh(L)
+    assert eig[:3].max() < 1e-9 * eig.max()  # x, y and the turn about z: free
+    assert L[5, 5] > 1e3 and L[3, 3] < 1e-9 * L[5, 5] and L[4, 4] < 1e-9 * L[5, 5]
+    P = information(pts)
+    assert P[3, 3] == P[4, 4] == P[5, 5] == len(pts)
+    # nothing matched within the distance: no information
+    assert not plane_information(pts + [0, 0, 10.0], target, normals, 2.0, np.eye(4)).any()
+
+
+def test_an_edge_that_misses_the_poses_shows_it_in_its_own_standard_deviations():
+    # poses at the truth; edge 0-1 off by 0.01 rad about z and 0.5 units along x (in scan 0's frame), edge
+    # 1-2 exact: chi^2 / 6 is the miss weighed by the edge's information, 0 for the exact one
+    P = [from_params(np.r_[100.0 * k, 0, 0, 0, 0, 0.3 * k]) for k in range(3)]
+    off = from_params(np.r_[0.5, 0, 0, 0, 0, 0.01])
+    L = np.diag([1e4, 1e4, 1e4, 4.0, 4.0, 4.0])
+    edges = [Edge(0, 1, invert(off) @ invert(P[0]) @ P[1]), Edge(1, 2, invert(P[1]) @ P[2])]
+    chi = disagreement(edges, [L, L], P)
+    assert chi[0] == pytest.approx((1e4 * 0.01 ** 2 + 4.0 * 0.5 ** 2) / 6, rel=1e-3) and chi[1] < 1e-12
+    assert disagreement(edges, [L, L], [P[0], P[1], None])[1] == 0.0  # a scan not placed: nothing to miss
+
+
+def test_a_scan_not_placed_does_not_stop_the_others_loops_from_being_optimised():
+    # a ring of 8 scans with noisy edges, optimised alone and beside a ninth scan that no edge reaches: Open3D
+    # optimises nothing in a graph that is not connected (it only warns), so the ring kept its spanning tree's
+    # poses whenever a campaign left a scan out; now the ring's poses are the same either way
+    n = 8
+    truth, centers = _truth(n, seed=2)
+    rng = np.random.default_rng(2)
+    edges = [_edge(truth, i, (i + d) % n, rng) for i in range(n) for d in (1, 2)]
+    alone = solve(n, edges, centers, TOL, max_distance=30.0)
+    beside = solve(n + 1, edges, centers + [centers[0]], TOL, max_distance=30.0)
+    assert all(alone.placed) and beside.placed == [True] * n + [False]
+    tree = spanning_tree(n, edges, list(range(len(edges))))
+    assert not alone.tree or set(alone.tree) != set(range(len(edges)))  # loops: there is something to reconcile
+    for P, Q in zip(alone.poses, beside.poses):
+        assert np.allclose(P, Q, atol=1e-9)
+    assert len(tree) == n - 1 and _worst(beside.poses[:n], truth) < 0.5

@@ -88,8 +88,12 @@ class CandidateConfig:
     # Kinect chain capture0001 -> 0002 -> 0003 from the legs' poses (5 deg about the sensor, seed 0): legs of 300
     # points moved each pose a further 0.3-0.8 deg / 1-3 cm, each time elsewhere (the chain 0.67-0.97 deg off);
     # of 3000, a second and third leg moved them < 0.2 deg / 5 mm (the chain 0.34-0.38 deg / 4-6 mm; 1000: 0.40-0.63
-    # deg / 1-3 cm). One ICP iteration of 3000 queries costs ~10 ms.
-    whole_sample: int = 3000
+    # deg / 1-3 cm). With the legs walking every step (core.global_search.refinement: STEP_DEG), the sample's own
+    # noise shows: on the sensor sweep's Kinect family (42 chains: triples 1-2-3, 2-3-4, 3-4-5, every start) 3000
+    # points closed 39 (the triple 2-3-4 at 0.66-1.10 deg), 6000 closed 41 (2-3-4 at 0.69-0.84 deg, the one miss a
+    # wrong pose said "trust no"); the fragments family the same with 6000 (32 of 42, every miss sim-fragments-0,
+    # which no peer gets either). One ICP iteration of 6000 queries costs ~20 ms.
+    whole_sample: int = 6000
     normal_neighbours: int = NORMAL_NEIGHBOURS  # points a normal is fitted to (the pair threshold's angle)
     # The guess is refined alone first when its rotation is stated within this; a wider guess is scored
     # with KISS-Matcher's hypothesis first. Measured on the bunny sweep's starts only (the scenes have no

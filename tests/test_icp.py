@@ -7,7 +7,7 @@ import pytest
 from rangereg.core import prepare
 from rangereg.core.errors import InputError
 from rangereg.core.icp import IcpConfig, icp
-from rangereg.core.transforms import apply, pose_error
+from rangereg.core.transforms import apply, invert, pose_error
 
 
 def test_icp_converges_from_a_small_offset(scene_start):
@@ -68,6 +68,33 @@ def test_icp_config_refuses_nonsense(bad):
     IcpConfig().validate()
     with pytest.raises(InputError, match="metric must be one of point, plane"):
         IcpConfig(metric="planes").validate()
+
+
+@pytest.mark.parametrize("bad", [(0.0, 1.0), (1.0, -1.0), (float("nan"), 1.0), (1.0,)])
+def test_icp_config_refuses_a_nonsense_step_tolerance(bad):
+    with pytest.raises(InputError, match="step tolerance must be two numbers > 0"):
+        IcpConfig(step_tolerance=bad).validate()
+    IcpConfig(step_tolerance=(0.01, 0.1)).validate()
+
+
+@pytest.mark.parametrize("metric", ["point", "plane"])
+def test_the_papers_walk_takes_every_step_until_one_is_below_its_tolerance(scene_start, metric):
+    """Every step is taken (E may rise on one), the last pose is returned, and the walk ends on the first step
+    that turns the pose less than the degrees and moves the sample's centroid less than the units."""
+    a, b, Tt, T0 = scene_start("corner", 0.5, 5.0)
+    p = prepare(b, a, T0)
+    seen = [T0]
+    res = icp(p.error, T0, IcpConfig(metric=metric, step_tolerance=(0.01, 0.01), max_iterations=200),
+              lambda T, E: seen.append(T))
+    assert res.iterations == len(seen) - 1 < 200
+    assert res.T is seen[-1] and res.error == pytest.approx(p.error(res.T))
+    # each step measured at the sample's centroid where the step starts (source frame)
+    moves = [pose_error(T1, T0_, apply(invert(T0_), p.error.terms(T0_).moved.mean(0)[None])[0])
+             for T0_, T1 in zip(seen[:-1], seen[1:])]
+    assert moves[-1][0] < 0.01 and moves[-1][1] < 0.01
+    assert all(r >= 0.01 or t >= 0.01 for r, t in moves[:-1])
+    rot, tr = pose_error(res.T, Tt, b.points.mean(0))
+    assert rot < 0.3 and tr < 2.0, (rot, tr)
 
 
 def test_locked_icp_turns_about_the_turntable_axis_only_and_lowers_e(scene):

@@ -58,7 +58,7 @@ from ..scan import Scan
 from ..surface import Surface
 from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
-from .refinement import SETTLED_DEG, SETTLED_SPACINGS, WHOLE_LEGS, Found, converge, refine, search_stages
+from .refinement import SETTLED_DEG, SETTLED_SPACINGS, STEP_DEG, STEP_SPACINGS, WHOLE_LEGS, Found, converge, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
 from .stages import Hypotheses, Stage
 from .stream import EventStream
@@ -116,7 +116,8 @@ def _whole_leg(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray) -> n
     try:
         return converge(source, target, surface, T, cfg, sample, lambda T_, E: run.emit("icp", T_, E, charge=False),
                         setup.frame, legs=WHOLE_LEGS,
-                        settled=(SETTLED_DEG, SETTLED_SPACINGS * target.spacing))[0]
+                        settled=(SETTLED_DEG, SETTLED_SPACINGS * target.spacing),
+                        every_step=(STEP_DEG, STEP_SPACINGS * target.spacing))[0]
     except InputError:
         return None
 

@@ -53,6 +53,55 @@ FPFH_FINER_BELOW = 500
 
 
 @dataclass(frozen=True)
+class WholeLegs:
+    """The legs of ICP on the whole scans that make a thinned pair's pose (core.global_search: thinned; the legs:
+    core.global_search.refinement.converge): each on a fresh ``sample`` of the converged cut (a new cut only where
+    the pose left half the old one's assumed uncertainty: a cut of a 250k-point Kinect frame costs 0.3-0.4 s of CPU),
+    each walking every step (core.icp: step_tolerance) until a step is under ``step_deg`` and ``step_spacings`` of
+    the target's point spacings; the legs go on until one moves the pose less than ``settled_deg`` and
+    ``settled_spacings``, ``legs`` at most. Not charged to the search's budget."""
+
+    # Source points of the error on each leg: there the pose's precision is made, and the minimum of E over 300
+    # points of noisy depth is loose. Measured on the shared Kinect chain capture0001 -> 0002 -> 0003 from the legs'
+    # poses (5 deg about the sensor, seed 0): legs of 300 points moved each pose a further 0.3-0.8 deg / 1-3 cm, each
+    # time elsewhere (the chain 0.67-0.97 deg off); of 3000, a second and third leg moved them < 0.2 deg / 5 mm (the
+    # chain 0.34-0.38 deg / 4-6 mm; 1000: 0.40-0.63 deg / 1-3 cm). With the legs walking every step the sample's own
+    # noise shows: on the sensor sweep's Kinect family (42 chains: triples 1-2-3, 2-3-4, 3-4-5, every start) 3000
+    # points closed 39 (the triple 2-3-4 at 0.66-1.10 deg), 6000 closed 41 (2-3-4 at 0.69-0.84 deg, the one miss a
+    # wrong pose said "trust no"); the fragments family the same with 6000 (32 of 42, every miss sim-fragments-0,
+    # which no peer gets either). One ICP iteration of 6000 queries costs ~20 ms.
+    sample: int = 6000
+    # When the legs stop. Measured on the shared Kinect frames from the pose found on the thinned frames, five sample
+    # seeds, against where further legs settle (5 legs of 60 iterations): capture0002 -> 0001 from 15 deg: stopping
+    # once a leg stays inside half the cut's uncertainty (1 deg, 1 % of the 3.9 m scene) ended a median 0.49 deg /
+    # 5.7 cm (max 0.64 deg / 7.2 cm) away; this rule 0.06 deg / 5 mm (max 0.09 deg / 7.7 mm) in 2-6 legs; capture0003
+    # -> 0001 and -> 0002 from 5 deg: 0.14 / 0.20 deg before, 0.08 / 0.19 deg (max 0.14 / 0.37) with it. A new cut
+    # for every leg was as precise at 1.1-1.6 x the CPU; legs on the same sample stop where the first did (max 0.6
+    # deg / 7 cm). (Measured with descent legs, before the walk below.)
+    legs: int = 6
+    settled_deg: float = 0.1
+    settled_spacings: float = 2.0
+    # When a leg's walk stops: the descent's steps creep near E's minimum on noisy depth (the notes in core.icp).
+    # Measured on the shared Kinect triple capture0002-0003-0004 (each pair's pose from five starts, legs on one cut
+    # of 10000 source points): stopped where a step was under 0.002 deg, the walk took 9-44 steps and the five
+    # starts' ends lay within 0.08 deg of one another; these bounds (0.1 mm on the Kinect frames) end it in 2-38
+    # steps, no farther from it than the sample's own noise (0.1-0.2 deg at 6000 points). The sensor sweep's Kinect
+    # family: 41 of 42 chains close (38 with descent legs). Denser spinning LiDARs (64-128 rings, 114-131k points:
+    # benchmarks/other_lidars.py) take this path too and land within 0.05 deg / 2 mm.
+    step_deg: float = 0.005
+    step_spacings: float = 0.025
+
+    def validate(self) -> None:
+        if self.sample < 10:
+            raise InputError(f"the whole scans' leg needs at least 10 points, got {self.sample}")
+        if self.legs < 1:
+            raise InputError(f"the whole scans need at least 1 leg, got {self.legs}")
+        for name in ("settled_deg", "settled_spacings", "step_deg", "step_spacings"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(f"the whole scans' {name} must be > 0, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
 class CandidateConfig:
     """The ``global`` method's knobs (core.global_search): where candidates come from, how many are
     refined and how, and how long the search may go on when nothing is trusted."""
@@ -83,17 +132,7 @@ class CandidateConfig:
     # deg), a refinement the pair threshold trusted took 6-39 iterations over both its legs (median 19); one
     # from a wrong candidate crawls on to the cap, each step costly (its points lie off the surface)
     refine_iterations: int = 40
-    # Source points of the error on the whole scans' legs of a thinned pair (core.global_search: thinned): there the
-    # pose's precision is made, and the minimum of E over 300 points of noisy depth is loose. Measured on the shared
-    # Kinect chain capture0001 -> 0002 -> 0003 from the legs' poses (5 deg about the sensor, seed 0): legs of 300
-    # points moved each pose a further 0.3-0.8 deg / 1-3 cm, each time elsewhere (the chain 0.67-0.97 deg off);
-    # of 3000, a second and third leg moved them < 0.2 deg / 5 mm (the chain 0.34-0.38 deg / 4-6 mm; 1000: 0.40-0.63
-    # deg / 1-3 cm). With the legs walking every step (core.global_search.refinement: STEP_DEG), the sample's own
-    # noise shows: on the sensor sweep's Kinect family (42 chains: triples 1-2-3, 2-3-4, 3-4-5, every start) 3000
-    # points closed 39 (the triple 2-3-4 at 0.66-1.10 deg), 6000 closed 41 (2-3-4 at 0.69-0.84 deg, the one miss a
-    # wrong pose said "trust no"); the fragments family the same with 6000 (32 of 42, every miss sim-fragments-0,
-    # which no peer gets either). One ICP iteration of 6000 queries costs ~20 ms.
-    whole_sample: int = 6000
+    whole: WholeLegs = field(default_factory=WholeLegs)  # a thinned pair's legs on the whole scans
     normal_neighbours: int = NORMAL_NEIGHBOURS  # points a normal is fitted to (the pair threshold's angle)
     # The guess is refined alone first when its rotation is stated within this; a wider guess is scored
     # with KISS-Matcher's hypothesis first. Measured on the bunny sweep's starts only (the scenes have no
@@ -137,8 +176,7 @@ class CandidateConfig:
             raise InputError(f"the refinement needs at least 1 iteration a leg, got {self.refine_iterations}")
         if self.refine_patience < 1:
             raise InputError(f"the refinement's patience must be at least 1 iteration, got {self.refine_patience}")
-        if self.whole_sample < 10:
-            raise InputError(f"the whole scans' leg needs at least 10 points, got {self.whole_sample}")
+        self.whole.validate()
         if self.normal_neighbours < 3:
             raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):

@@ -55,6 +55,17 @@ def test_candidate_config_refuses_nonsense(bad, message):
     assert CandidateConfig().refine_metric == "plane" and IcpConfig().metric == "point"  # the paper's ICP stays Horn's
 
 
+@pytest.mark.parametrize("bad, message", [(dict(sample=5), "at least 10 points"), (dict(legs=0), "at least 1 leg"),
+                                          (dict(settled_deg=0.0), "settled_deg must be > 0"),
+                                          (dict(step_spacings=float("nan")), "step_spacings must be > 0")])
+def test_the_whole_scans_legs_refuse_nonsense(bad, message):
+    from rangereg.core.candidates import CandidateConfig, WholeLegs
+
+    with pytest.raises(InputError, match=message):
+        Config(candidates=CandidateConfig(whole=WholeLegs(**bad))).validate()
+    Config(candidates=CandidateConfig(whole=WholeLegs(sample=10, legs=1))).validate()
+
+
 @pytest.mark.parametrize("bad", [dict(seed=-1), dict(simplex_scale=0.0), dict(restarts=0)])
 def test_run_config_refuses_nonsense(bad):
     with pytest.raises(InputError):

@@ -25,7 +25,7 @@ pair's fixed basis.
                (``time_limit``). No stage or leg starts once it is spent; a loaded machine ends at the same pose.
     thinned    a scan of more than core.candidates.SEARCH_POINTS points is searched on a thinned copy
                (core.candidates.for_search); a pose trusted there is refined on the whole scans (ICP legs on
-               the converged cut with a larger sample until they settle, refinement.py's WHOLE_LEGS notes; the
+               the converged cut with a larger sample until they settle, core.candidates.WholeLegs' notes; the
                whole target's surface made on a thread meanwhile) and counts as
                trusted only where that pose is too, else the search goes on (measured on the shared Kinect
                frames capture0002 -> capture0001 from 15 deg: the guess's refinement on the thinned frames
@@ -58,7 +58,7 @@ from ..scan import Scan
 from ..surface import Surface
 from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
-from .refinement import SETTLED_DEG, SETTLED_SPACINGS, STEP_DEG, STEP_SPACINGS, WHOLE_LEGS, Found, converge, refine, search_stages
+from .refinement import Found, converge, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
 from .stages import Hypotheses, Stage
 from .stream import EventStream
@@ -106,18 +106,19 @@ def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None
 def _whole_leg(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray) -> np.ndarray | None:
     """Pose T found on the thinned scans, refined on the whole ones ``whole`` (source, target, its surface or
     the Future making it): the refinement's legs on the converged cut (core.global_search.refinement.converge)
-    with ``CandidateConfig.whole_sample`` source points until they settle (``SETTLED_*`` there), not charged to
+    as ``CandidateConfig.whole`` says (core.candidates.WholeLegs), not charged to
     the search's budget. None when the whole scans have no overlap cut at T."""
     source, target, surface = whole
     cfg = setup.config
     surface = surface.result() if isinstance(surface, Future) else surface
     surface = surface if surface is not None else Surface.from_scan(target)
-    sample = replace(cfg.problem, max_points=max(cfg.problem.max_points, cfg.candidates.whole_sample))
+    whole_legs = cfg.candidates.whole
+    sample = replace(cfg.problem, max_points=max(cfg.problem.max_points, whole_legs.sample))
     try:
         return converge(source, target, surface, T, cfg, sample, lambda T_, E: run.emit("icp", T_, E, charge=False),
-                        setup.frame, legs=WHOLE_LEGS,
-                        settled=(SETTLED_DEG, SETTLED_SPACINGS * target.spacing),
-                        every_step=(STEP_DEG, STEP_SPACINGS * target.spacing))[0]
+                        setup.frame, legs=whole_legs.legs,
+                        settled=(whole_legs.settled_deg, whole_legs.settled_spacings * target.spacing),
+                        every_step=(whole_legs.step_deg, whole_legs.step_spacings * target.spacing))[0]
     except InputError:
         return None
 

@@ -33,30 +33,6 @@ from .stream import EventStream
 # so about one leg in five is cut again; the sweep stayed 95 of 95 right and trusted with it.
 RECUTS = 2
 
-# The whole scans' legs of a thinned pair (core.global_search: thinned) make its pose's precision: they go on until
-# a leg moves it less than SETTLED_DEG and SETTLED_SPACINGS of the target's point spacings, WHOLE_LEGS at most, each
-# on a fresh sample of the cut (a new cut only where the pose left half the old one's assumed uncertainty: a cut of
-# a 250k-point Kinect frame costs 0.3-0.4 s of CPU, a single view's sample nothing). Measured on the shared Kinect
-# frames from the pose found on the thinned frames, five sample seeds, against where further legs settle (5 legs of
-# 60 iterations): capture0002 -> 0001 from 15 deg: stopping once a leg stays inside half the cut's uncertainty (1
-# deg, 1 % of the 3.9 m scene) ended a median 0.49 deg / 5.7 cm (max 0.64 deg / 7.2 cm) away; this rule 0.06 deg / 5
-# mm (max 0.09 deg / 7.7 mm) in 2-6 legs; capture0003 -> 0001 and -> 0002 from 5 deg: 0.14 / 0.20 deg before, 0.08 /
-# 0.19 deg (max 0.14 / 0.37) now. A new cut for every leg was as precise at 1.1-1.6 x the CPU; legs on the same
-# sample stop where the first did (max 0.6 deg / 7 cm). A LiDAR frame (69k points) is not thinned, so this never
-# runs there.
-WHOLE_LEGS = 6
-SETTLED_DEG = 0.1
-SETTLED_SPACINGS = 2.0
-# Each whole-scans leg walks as the paper's ICP does, every step taken (core.icp: step_tolerance), until a step is
-# below STEP_DEG and STEP_SPACINGS target spacings: the descent's steps creep there (the notes in core.icp). Measured
-# on the shared Kinect triple capture0002-0003-0004 (each pair's pose from five starts, legs on one cut of 10000
-# source points): stopped where a step was under 0.002 deg, the walk took 9-44 steps and the five starts' ends lay
-# within 0.08 deg of one another; these bounds (0.1 mm on the Kinect frames) end it in 2-38 steps, no farther
-# from it than the sample's own noise (0.1-0.2 deg at 6000 points). The sensor sweep's Kinect family: 41 of 42
-# chains close (38 with descent legs), its seconds the same within the load's noise.
-STEP_DEG = 0.005
-STEP_SPACINGS = 0.025
-
 
 def _refine_icp(config: Config) -> IcpConfig:
     """The refinement's ICP: ``config.candidates``' metric, patience and iterations on ``config.icp``."""

@@ -8,7 +8,10 @@ from .problem import ProblemConfig, prepare, relative_guess
 from .register import METHODS, Config, Result, register
 from .scan import Scan, ScanKind
 from .surface import Surface
+from .threads import one_blas_thread
 from .unstructured import TangentPlanes  # noqa: F401 (imported, tangent planes enter the table too)
+
+one_blas_thread()  # before any work: core.threads says why
 
 __all__ = ["Cancelled", "Config", "Event", "InputError", "METHODS", "ProblemConfig", "Result", "Scan", "ScanKind",
            "Surface", "load_conf", "load_scan", "prepare", "read_transform", "register", "relative_guess",

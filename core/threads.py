@@ -1,0 +1,30 @@
+"""BLAS on one thread, unless the user's environment says otherwise.
+
+The engine's products are tall and thin (an (N, 3) cloud times a 3 x 3 rotation, 6 x 6 normal equations):
+OpenBLAS splits them over its threads, which then wait for one another and for the engine's own threads (the
+surface built beside the search, Open3D's queries, KISS-Matcher's child). Measured on these 2 cores with other
+work running (load 2-4): a 250k x 3 times 3 x 3 product took 96 ms on OpenBLAS's two threads and 3.3 ms on one;
+files to pose, the whole ``register --json`` command in turn, 5 pairs of runs: the shared LiDAR pair 0.82 x the
+wall and CPU time with one thread, the Kinect pair capture0002 -> 0001 0.72 x, the same pose to the last digit.
+Where OPENBLAS_NUM_THREADS, OMP_NUM_THREADS or MKL_NUM_THREADS is set (as Dask's nanny sets it on a worker),
+that choice stands.
+"""
+
+from __future__ import annotations
+
+import os
+
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread() -> bool:
+    """Limit every BLAS library loaded (numpy's and scipy's) to one thread, unless an environment variable of
+    ``BLAS_THREAD_VARIABLES`` is set. Returns whether it did."""
+    if any(os.environ.get(name) for name in BLAS_THREAD_VARIABLES):
+        return False
+    import numpy  # noqa: F401 (both BLAS copies loaded first: threadpoolctl limits the libraries it finds)
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+    return True

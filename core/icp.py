@@ -194,14 +194,10 @@ def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig
     it = improved_at = 0
     previous = None
     while it < config.max_iterations:
-        w = (terms.d2 < terms.t).astype(float) if config.unweighted else terms.weights
-        if np.count_nonzero(w) < 3:
-            w = terms.weights
-        if np.count_nonzero(w) < 3:  # fewer than three pairs carry weight: no rigid step is defined
+        proposed = _propose(steps, terms, config, inside)
+        if proposed is None:
             break
-        v, T_new = steps.propose(terms, w)
-        if inside is not None and not inside(T_new):
-            break
+        v, T_new, w = proposed
         new = error.terms(T_new)
         taken = 1.0
         if isinstance(steps, _PlaneSteps) and new.error >= terms.error:
@@ -248,6 +244,20 @@ def icp(error: ErrorFunction, T_start: np.ndarray, config: IcpConfig = IcpConfig
     return IcpResult(best_T, best_E, it)
 
 
+def _propose(steps, terms, config: IcpConfig, inside: Callable[[np.ndarray], bool] | None):
+    """The next step from ``terms`` (the step vector, the pose, the weights used), or None where ICP ends: fewer
+    than three pairs carry weight (no rigid step is defined), or the step leaves the region ``inside``."""
+    w = (terms.d2 < terms.t).astype(float) if config.unweighted else terms.weights
+    if np.count_nonzero(w) < 3:
+        w = terms.weights
+    if np.count_nonzero(w) < 3:
+        return None
+    v, T_new = steps.propose(terms, w)
+    if inside is not None and not inside(T_new):
+        return None
+    return v, T_new, w
+
+
 def _every_step(error: ErrorFunction, steps, config: IcpConfig,
                 on_iteration: Callable[[np.ndarray, float], None] | None,
                 inside: Callable[[np.ndarray], bool] | None) -> IcpResult:
@@ -257,14 +267,10 @@ def _every_step(error: ErrorFunction, steps, config: IcpConfig,
     terms = error.terms(steps.T)
     it = 0
     while it < config.max_iterations:
-        w = (terms.d2 < terms.t).astype(float) if config.unweighted else terms.weights
-        if np.count_nonzero(w) < 3:
-            w = terms.weights
-        if np.count_nonzero(w) < 3:  # fewer than three pairs carry weight: no rigid step is defined
+        proposed = _propose(steps, terms, config, inside)
+        if proposed is None:
             break
-        _, T_new = steps.propose(terms, w)
-        if inside is not None and not inside(T_new):
-            break
+        T_new = proposed[1]
         dT = T_new @ invert(steps.T)
         center = terms.moved.mean(0)
         turn = np.degrees(np.linalg.norm(Rotation.from_matrix(dT[:3, :3]).as_rotvec()))

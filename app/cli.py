@@ -86,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("info", help="describe a scan file", description="Describe a scan: points, bounds, units, "
                        "viewpoint, range grid, surface triangles, point spacing.")
-    s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .obj .stl .off .e57 .las .laz); an .e57 "
+    s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .pts .obj .stl .off .e57 .las .laz, KITTI or "
+                   "nuScenes LiDAR .bin); an .e57 "
                    "alone lists its scans, FILE.e57#K (K from 0) or FILE.e57#NAME describes one")
     s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated)")
     scan_kind(s)

@@ -20,13 +20,13 @@ from pathlib import Path
 from rangereg.core.e57 import split_selection
 from rangereg.core.errors import InputError
 from rangereg.core.files import TRACE_LIMIT, read_bytes, stat_regular
-from rangereg.core.io import load_scan
+from rangereg.core.io import FORMATS, load_scan
 from rangereg.core.scan import Scan
 from rangereg.core.scenes import scene_paths
 from rangereg.core.simulate import SCENES
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts", ".obj", ".stl", ".off", ".e57", ".las", ".laz")
+SCAN_SUFFIXES = FORMATS  # every format core.io reads
 MAX_LISTED_FILES = 500
 PANEL_WIDTH = 480  # pixels of the page the docked panel takes: room for the E chart and the contour (the floating
 # "large" panel was ~400; at 480 the contour's axes and colour bar fit, docs/landscape.png)

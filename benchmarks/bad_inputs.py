@@ -153,6 +153,9 @@ CASES: list[Case] = [
     C("scan empty xyz", "info empty.xyz", "empty"),
     C("scan unsupported suffix", "info scan.foo", "unsupported format"),
     C("scan no suffix", "info noext", "unsupported format"),
+    C("bin not whole records", "info cut.bin", "not a whole number of 16-byte records"),
+    C("bin bytes of another kind", "info binary.bin", "not a KITTI Velodyne file"),
+    C("bin nuscenes not whole records", "register cut.pcd.bin tgt.ply", "not a whole number of 20-byte records"),
     C("ply text garbage", "info garbage.ply", "garbage.ply"),
     C("ply random bytes", "info random.ply", "random.ply"),
     C("ply truncated binary", "info truncated.ply", "truncated.ply"),
@@ -471,6 +474,8 @@ def write_fixtures(folder: Path) -> None:
     (f / "scan.foo").write_text("1 2 3\n")
     (f / "noext").write_text("1 2 3\n")
     (f / "binary.bin").write_bytes(bytes(range(256)) * 4)
+    (f / "cut.bin").write_bytes(bytes(100))
+    (f / "cut.pcd.bin").write_bytes(bytes(96))
     (f / "garbage.ply").write_text("hello, this is not a scan\n")
     (f / "random.ply").write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
     rng = np.random.default_rng(1)

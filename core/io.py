@@ -1,5 +1,6 @@
 """Loading and saving scans: PLY (with Stanford range grids), PCD (its VIEWPOINT, an organised cloud's
-grid), XYZ/TXT/CSV, OBJ/STL/OFF meshes, E57 (core.e57) and LAS/LAZ (core.las), Stanford ``.conf`` poses
+grid), XYZ/TXT/CSV, OBJ/STL/OFF meshes, E57 (core.e57), LAS/LAZ (core.las), KITTI Velodyne and nuScenes LiDAR
+``.bin`` frames (float32 records, metres), Stanford ``.conf`` poses
 and our JSON sidecar (viewpoint, units, kind, ground truth). The readers return what the file holds
 (core.assemble.RawScan); core.assemble makes the Scan by one precedence rule."""
 
@@ -36,7 +37,8 @@ from .sidefiles import (  # noqa: F401  (callers read side files through core.io
 
 POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
 MESH_FORMATS = (".obj", ".stl", ".off")
-SCANNER_FORMATS = (E57_SUFFIX, *LAS_SUFFIXES)  # files that carry their own units, poses or sensor origins
+BIN_SUFFIX = ".bin"  # KITTI's Velodyne frames (velodyne/*.bin) and nuScenes' LiDAR sweeps (*.pcd.bin)
+SCANNER_FORMATS = (E57_SUFFIX, *LAS_SUFFIXES, BIN_SUFFIX)  # files that carry their own units, poses or origins
 FORMATS = POINT_FORMATS + MESH_FORMATS + SCANNER_FORMATS
 
 
@@ -71,6 +73,8 @@ def read_raw(path: str | Path, selector: str | None = None) -> RawScan:
             return _load_pcd(path)
         if suffix in MESH_FORMATS:
             return _load_mesh(path)
+        if suffix == BIN_SUFFIX:
+            return _load_bin(path)
         return RawScan(_load_text(path), what, path.stem, sidecar=path)
     except InputError:
         raise
@@ -93,7 +97,8 @@ def check_scan_file(path: str | Path) -> None:
     if st.st_size == 0:
         raise InputError(f"{what}: the file is empty")
     # E57 and LAS hold binary records; a LAZ decompresses about as much as text parses
-    check_memory(st.st_size, BINARY_FACTOR if suffix in (".ply", ".pcd", ".stl", ".e57", ".las") else TEXT_FACTOR, what, st)
+    binary = (".ply", ".pcd", ".stl", ".e57", ".las", BIN_SUFFIX)
+    check_memory(st.st_size, BINARY_FACTOR if suffix in binary else TEXT_FACTOR, what, st)
 
 
 def _load_ply(path: Path) -> RawScan:
@@ -280,6 +285,32 @@ def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> 
     if n and not len(pts):
         raise InputError(f"{path}: the compressed data is corrupt (it does not decompress as LZF)")
     return pts
+
+
+# A KITTI Velodyne frame is nothing but records of four little-endian float32 (x, y, z in metres, reflectance); a
+# nuScenes LiDAR sweep (``*.pcd.bin``) of five (x, y, z, intensity, ring). The file says nothing else, so what would
+# tell another ``.bin`` apart is checked: whole records, and points no farther than a spinning LiDAR reaches.
+BIN_LAYOUTS = {"KITTI Velodyne": ("x, y, z, reflectance", 4), "nuScenes LiDAR": ("x, y, z, intensity, ring", 5)}
+BIN_REACH = 1000.0  # metres: a point farther than this is no spinning LiDAR's return (KITTI's HDL-64 reaches 120 m)
+
+
+def _load_bin(path: Path) -> RawScan:
+    layout = "nuScenes LiDAR" if path.name.lower().endswith(".pcd.bin") else "KITTI Velodyne"
+    fields, width = BIN_LAYOUTS[layout]
+    with open_regular(path, str(path), "a scan file") as f:
+        raw = f.read()
+    if len(raw) % (4 * width):
+        raise InputError(f"{path}: not a {layout} file: {len(raw)} bytes is not a whole number of {4 * width}-byte "
+                         f"records (float32 {fields})")
+    rec = np.frombuffer(raw, dtype="<f4").reshape(-1, width).astype(np.float64)
+    xyz = rec[:, :3]
+    finite = np.isfinite(xyz).all(axis=1)
+    far = finite & (np.abs(xyz).max(axis=1) > BIN_REACH)
+    if finite.any() and far.sum() > 0.01 * finite.sum():
+        raise InputError(f"{path}: not a {layout} file (float32 {fields}, metres): {far.sum()} of {finite.sum()} "
+                         f"points lie more than {BIN_REACH:g} m from the sensor")
+    return RawScan(xyz, str(path), path.stem, units_convention="m", intensity=rec[:, 3], sidecar=path,
+                   notes=(f"read as a {layout} file: {len(rec)} records of float32 {fields}",))
 
 
 def _load_text(path: Path) -> np.ndarray:

@@ -285,3 +285,43 @@ def test_a_pcd_viewpoint_that_is_not_finite_is_refused(tmp_path):
     (tmp_path / "a.pcd").write_text(head + "\n".join(" ".join(map(str, p)) for p in pts))
     with pytest.raises(InputError, match="VIEWPOINT .* not finite"):
         load_scan(tmp_path / "a.pcd")
+
+
+def _bin_frames(tmp_path, width: int = 4, suffix: str = ".bin"):
+    """The simulated street's LiDAR pair written as KITTI (4 float32 a point) or nuScenes (5) frames, and the truth."""
+    from rangereg.core import scenes_sensor as ss
+    from rangereg.core.transforms import invert
+
+    s, t = ss.lidar_pair("street", 0, ss.Spinning(rings=16, steps=512))
+    paths = []
+    for scan, name in ((s, "000001"), (t, "000000")):
+        extra = np.random.default_rng(0).random((len(scan.points), width - 3))  # reflectance (and a ring)
+        np.c_[scan.points, extra].astype("<f4").tofile(tmp_path / f"{name}{suffix}")
+        paths.append(tmp_path / f"{name}{suffix}")
+    return paths, invert(t.pose) @ s.pose, s
+
+
+@pytest.mark.parametrize("width, suffix", [(4, ".bin"), (5, ".pcd.bin")])
+def test_a_kitti_or_nuscenes_lidar_frame_is_a_panorama_in_metres_at_its_origin(tmp_path, width, suffix):
+    (src, tgt), T_true, s = _bin_frames(tmp_path, width, suffix)
+    scan = load_scan(src)
+    assert scan.kind.value == "panorama" and np.array_equal(scan.viewpoint, np.zeros(3)) and scan.units == "m"
+    assert np.allclose(scan.points, s.points.astype("<f4"), atol=0) and scan.intensity is not None
+    assert any(("KITTI" if width == 4 else "nuScenes") in note for note in scan.notes)
+    from rangereg.core.guess import Guess
+    from rangereg.core.register import Config, register
+    from rangereg.core.transforms import pose_error
+
+    r = register(scan, load_scan(tgt), Guess(np.eye(4)), Config(method="global"))  # odometry: from the identity
+    rot, trans = pose_error(r.transform, T_true)
+    assert r.trusted and rot < 1.0 and trans < 0.05, (rot, trans)
+
+
+@pytest.mark.parametrize("content, expect", [
+    (bytes(100), "not a KITTI Velodyne file: 100 bytes is not a whole number of 16-byte records"),
+    (np.full((50, 4), 5e4, "<f4").tobytes(), "50 of 50 points lie more than 1000 m from the sensor"),
+    (b"", "empty")])
+def test_a_bin_file_that_is_no_lidar_frame_is_one_message(tmp_path, content, expect):
+    (tmp_path / "x.bin").write_bytes(content)
+    with pytest.raises(InputError, match=expect):
+        load_scan(tmp_path / "x.bin")

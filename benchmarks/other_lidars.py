@@ -43,14 +43,16 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2, help="pairs per scanner and scene (default 2)")
     ap.add_argument("--smallest", action="store_true", help="a 16 x 512 scanner, the street, one pair, one start")
     args = ap.parse_args()
+    if args.seeds < 1:
+        ap.error("--seeds must be at least 1")
     scanners, scenes, starts = SCANNERS, ("street", "room"), STARTS
     if args.smallest:
         scanners, scenes, starts, args.seeds = {"16 x 512": ss.Spinning(rings=16, steps=512)}, ("street",), STARTS[:1], 1
-    print("| scanner | scene | points | right | trusted | worst deg / cm | median s |")
-    print("|---|---|---|---|---|---|---|")
+    print("| scanner | scene | points | right | trusted and wrong | trusted | worst deg / cm | median s |")
+    print("|---|---|---|---|---|---|---|---|")
     for label, lidar in scanners.items():
         for scene in scenes:
-            right = trusted = 0
+            right = trusted = wrong_trusted = 0
             worst, secs, points = (0.0, 0.0), [], []
             for seed in range(args.seeds):
                 s, t = ss.lidar_pair(scene, seed, lidar)
@@ -65,9 +67,11 @@ def main() -> None:
                     ok = e_rot < OK_ROT and e_trans < OK_TRANS
                     right += ok
                     trusted += bool(r.below_threshold)
+                    wrong_trusted += bool(r.below_threshold) and not ok
                     worst = (max(worst[0], e_rot), max(worst[1], e_trans))
             n = args.seeds * len(starts)
-            print(f"| {label} | {scene} | {min(points) // 1000}-{max(points) // 1000}k | {right}/{n} | {trusted}/{n} | "
+            print(f"| {label} | {scene} | {min(points) // 1000}-{max(points) // 1000}k | {right}/{n} | {wrong_trusted} | "
+                  f"{trusted}/{n} | "
                   f"{worst[0]:.3f} / {100 * worst[1]:.1f} | {np.median(secs):.2f} |", flush=True)
 
 

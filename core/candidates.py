@@ -61,7 +61,8 @@ class WholeLegs:
     the target's point spacings; the legs go on until one moves the pose less than ``settled_deg`` and
     ``settled_spacings``, ``legs`` at most. Not charged to the search's budget."""
 
-    # Source points of the error on each leg: there the pose's precision is made, and the minimum of E over 300
+    # Source points of the error on each leg (at least: the problem's own max_points when that is more): there the
+    # pose's precision is made, and the minimum of E over 300
     # points of noisy depth is loose. Measured on the shared Kinect chain capture0001 -> 0002 -> 0003 from the legs'
     # poses (5 deg about the sensor, seed 0): legs of 300 points moved each pose a further 0.3-0.8 deg / 1-3 cm, each
     # time elsewhere (the chain 0.67-0.97 deg off); of 3000, a second and third leg moved them < 0.2 deg / 5 mm (the
@@ -92,10 +93,10 @@ class WholeLegs:
     step_spacings: float = 0.025
 
     def validate(self) -> None:
-        if self.sample < 10:
-            raise InputError(f"the whole scans' leg needs at least 10 points, got {self.sample}")
-        if self.legs < 1:
-            raise InputError(f"the whole scans need at least 1 leg, got {self.legs}")
+        if not (isinstance(self.sample, int) and self.sample >= 10):
+            raise InputError(f"the whole scans' leg needs a whole number of at least 10 points, got {self.sample}")
+        if not (isinstance(self.legs, int) and self.legs >= 1):
+            raise InputError(f"the whole scans need a whole number of at least 1 leg, got {self.legs}")
         for name in ("settled_deg", "settled_spacings", "step_deg", "step_spacings"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise InputError(f"the whole scans' {name} must be > 0, got {getattr(self, name)}")

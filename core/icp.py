@@ -12,9 +12,10 @@ Beyond the paper, ``IcpConfig(metric="plane")`` (the global pipeline's refinemen
 steps on the distances along the closest triangles' normals (Chen and Medioni's point-to-plane ICP)
 with the same robust weights, on the same E: a few iterations where Horn's steps take dozens.
 
-``IcpConfig(step_tolerance=(deg, units))`` walks as the paper's ICP does: every step is taken (no test that it
-lowers E, no backtracking, no acceleration), until a step moves the pose less than that, and the last pose is
-returned. Near E's minimum on noisy depth the test that a step lowers E rejects most point-to-plane steps (the
+``IcpConfig(step_tolerance=(deg, units))`` walks every step: each is taken (no test that it lowers E, no
+backtracking, no acceleration), as the paper's ICP takes its Horn steps, but it stops when a step moves the pose
+less than that (the paper stops when E changes little, which E's wobble here never settles) and returns the last
+pose. Near E's minimum on noisy depth the test that a step lowers E rejects most point-to-plane steps (the
 closest triangles and the robust weights shift under them, so E wobbles by a few per mille), and the Horn steps
 taken instead creep: measured on the shared Kinect frames capture0003 -> 0004, 10000 source points on one cut,
 168 of 300 descent iterations fell back to Horn's step and the pose was still moving 0.003 deg an iteration
@@ -59,20 +60,28 @@ class IcpConfig:
     # measured on bun315->bun045, a refinement reached 0.05 deg in 4 iterations and cycled for 96 more.
     patience: int | None = None
     # None: descent (above). (degrees, units): every step is taken, and ICP stops when a step turns the pose less
-    # than the degrees and moves the sample's centroid less than the units (module notes: the paper's walk)
+    # than the degrees and moves the sample's centroid less than the units (module notes: the every-step walk)
     step_tolerance: tuple[float, float] | None = None
 
     def validate(self) -> None:
         if self.max_iterations < 1 or not self.tolerance >= 0:
             raise InputError("ICP needs at least 1 iteration and a tolerance >= 0")
-        if self.step_tolerance is not None and not (
-                len(self.step_tolerance) == 2 and all(np.isfinite(x) and x > 0 for x in self.step_tolerance)):
+        if self.step_tolerance is not None and not _two_positive(self.step_tolerance):
             raise InputError(f"ICP's step tolerance must be two numbers > 0 (degrees, units), "
                              f"got {self.step_tolerance!r}")
         if self.patience is not None and self.patience < 1:
             raise InputError(f"ICP's patience must be at least 1 iteration (or None), got {self.patience}")
         if self.metric not in METRICS:
             raise InputError(f"ICP metric must be one of {', '.join(METRICS)}, not {self.metric!r}")
+
+
+def _two_positive(value) -> bool:
+    """Whether ``value`` is two finite numbers > 0."""
+    try:
+        a, b = (float(x) for x in value)
+    except (TypeError, ValueError):
+        return False
+    return bool(np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -261,7 +270,7 @@ def _propose(steps, terms, config: IcpConfig, inside: Callable[[np.ndarray], boo
 def _every_step(error: ErrorFunction, steps, config: IcpConfig,
                 on_iteration: Callable[[np.ndarray, float], None] | None,
                 inside: Callable[[np.ndarray], bool] | None) -> IcpResult:
-    """The paper's walk (module notes): each step taken, until one is below ``config.step_tolerance``; the last
+    """The every-step walk (module notes): each step taken, until one is below ``config.step_tolerance``; the last
     pose and its E."""
     max_deg, max_move = config.step_tolerance
     terms = error.terms(steps.T)

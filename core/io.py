@@ -289,9 +289,17 @@ def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> 
 
 # A KITTI Velodyne frame is nothing but records of four little-endian float32 (x, y, z in metres, reflectance); a
 # nuScenes LiDAR sweep (``*.pcd.bin``) of five (x, y, z, intensity, ring). The file says nothing else, so what would
-# tell another ``.bin`` apart is checked: whole records, and points no farther than a spinning LiDAR reaches.
+# tell another ``.bin`` apart is checked: whole records, a nuScenes ring a whole number, and points no farther than a
+# spinning LiDAR reaches (a few beyond are dropped and said, as glitches; more, and it is no LiDAR frame).
 BIN_LAYOUTS = {"KITTI Velodyne": ("x, y, z, reflectance", 4), "nuScenes LiDAR": ("x, y, z, intensity, ring", 5)}
 BIN_REACH = 1000.0  # metres: a point farther than this is no spinning LiDAR's return (KITTI's HDL-64 reaches 120 m)
+BIN_RINGS = 128  # a nuScenes ring index is a whole number below this (its LiDAR has 32)
+
+
+def _rings_in(records: np.ndarray) -> bool:
+    """Whether the last column of (N, 5) float32 records holds ring indices: whole numbers in [0, BIN_RINGS)."""
+    ring = records[:, -1]
+    return bool(len(ring)) and bool(np.all((ring >= 0) & (ring < BIN_RINGS) & (ring == np.round(ring))))
 
 
 def _load_bin(path: Path) -> RawScan:
@@ -302,15 +310,29 @@ def _load_bin(path: Path) -> RawScan:
     if len(raw) % (4 * width):
         raise InputError(f"{path}: not a {layout} file: {len(raw)} bytes is not a whole number of {4 * width}-byte "
                          f"records (float32 {fields})")
-    rec = np.frombuffer(raw, dtype="<f4").reshape(-1, width).astype(np.float64)
-    xyz = rec[:, :3]
+    with np.errstate(invalid="ignore"):  # a signalling NaN among the floats is just a NaN here
+        records = np.frombuffer(raw, dtype="<f4").reshape(-1, width)
+        if width == 5 and not _rings_in(records):
+            raise InputError(f"{path}: not a nuScenes LiDAR sweep: its fifth float32 a point (the ring) is not a whole "
+                             f"number below {BIN_RINGS}; a KITTI Velodyne frame (four float32) is read from a .bin "
+                             f"not named *.pcd.bin")
+        if width == 4 and len(raw) % 20 == 0 and _rings_in(np.frombuffer(raw, dtype="<f4").reshape(-1, 5)):
+            raise InputError(f"{path}: this looks like a nuScenes LiDAR sweep (five float32 a point, the fifth a ring "
+                             f"index), not a KITTI Velodyne frame (four): name it *.pcd.bin")
+        rec = records.astype(np.float64)
+    xyz = rec[:, :3].copy()
     finite = np.isfinite(xyz).all(axis=1)
-    far = finite & (np.abs(xyz).max(axis=1) > BIN_REACH)
-    if finite.any() and far.sum() > 0.01 * finite.sum():
-        raise InputError(f"{path}: not a {layout} file (float32 {fields}, metres): {far.sum()} of {finite.sum()} "
-                         f"points lie more than {BIN_REACH:g} m from the sensor")
+    with np.errstate(invalid="ignore", over="ignore"):
+        far = finite & ~(np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1) <= BIN_REACH)
+    notes = [f"read as a {layout} file: {len(rec)} records of float32 {fields}"]
+    if far.any():
+        if far.sum() > 0.01 * finite.sum():
+            raise InputError(f"{path}: not a {layout} file (float32 {fields}, metres): {far.sum()} of "
+                             f"{finite.sum()} points lie more than {BIN_REACH:g} m from the sensor")
+        xyz[far] = np.nan  # dropped and counted with the non-finite (core.assemble)
+        notes.append(f"{far.sum()} points more than {BIN_REACH:g} m from the sensor dropped")
     return RawScan(xyz, str(path), path.stem, units_convention="m", intensity=rec[:, 3], sidecar=path,
-                   notes=(f"read as a {layout} file: {len(rec)} records of float32 {fields}",))
+                   notes=tuple(notes))
 
 
 def _load_text(path: Path) -> np.ndarray:

@@ -56,6 +56,7 @@ def test_candidate_config_refuses_nonsense(bad, message):
 
 
 @pytest.mark.parametrize("bad, message", [(dict(sample=5), "at least 10 points"), (dict(legs=0), "at least 1 leg"),
+                                          (dict(legs=2.5), "whole number of at least 1 leg"),
                                           (dict(settled_deg=0.0), "settled_deg must be > 0"),
                                           (dict(step_spacings=float("nan")), "step_spacings must be > 0")])
 def test_the_whole_scans_legs_refuse_nonsense(bad, message):

@@ -70,7 +70,7 @@ def test_icp_config_refuses_nonsense(bad):
         IcpConfig(metric="planes").validate()
 
 
-@pytest.mark.parametrize("bad", [(0.0, 1.0), (1.0, -1.0), (float("nan"), 1.0), (1.0,)])
+@pytest.mark.parametrize("bad", [(0.0, 1.0), (1.0, -1.0), (float("nan"), 1.0), (1.0,), 0.01, "ab", (1.0, 2.0, 3.0)])
 def test_icp_config_refuses_a_nonsense_step_tolerance(bad):
     with pytest.raises(InputError, match="step tolerance must be two numbers > 0"):
         IcpConfig(step_tolerance=bad).validate()

@@ -295,7 +295,7 @@ def _bin_frames(tmp_path, width: int = 4, suffix: str = ".bin"):
     s, t = ss.lidar_pair("street", 0, ss.Spinning(rings=16, steps=512))
     paths = []
     for scan, name in ((s, "000001"), (t, "000000")):
-        extra = np.random.default_rng(0).random((len(scan.points), width - 3))  # reflectance (and a ring)
+        extra = np.c_[np.random.default_rng(0).random(len(scan.points)), np.arange(len(scan.points)) % 16][:, :width - 3]
         np.c_[scan.points, extra].astype("<f4").tofile(tmp_path / f"{name}{suffix}")
         paths.append(tmp_path / f"{name}{suffix}")
     return paths, invert(t.pose) @ s.pose, s
@@ -306,7 +306,8 @@ def test_a_kitti_or_nuscenes_lidar_frame_is_a_panorama_in_metres_at_its_origin(t
     (src, tgt), T_true, s = _bin_frames(tmp_path, width, suffix)
     scan = load_scan(src)
     assert scan.kind.value == "panorama" and np.array_equal(scan.viewpoint, np.zeros(3)) and scan.units == "m"
-    assert np.allclose(scan.points, s.points.astype("<f4"), atol=0) and scan.intensity is not None
+    written = np.fromfile(src, "<f4").reshape(-1, width)
+    assert np.array_equal(scan.points, written[:, :3].astype(np.float64)) and np.array_equal(scan.intensity, written[:, 3])
     assert any(("KITTI" if width == 4 else "nuScenes") in note for note in scan.notes)
     from rangereg.core.guess import Guess
     from rangereg.core.register import Config, register
@@ -317,11 +318,35 @@ def test_a_kitti_or_nuscenes_lidar_frame_is_a_panorama_in_metres_at_its_origin(t
     assert r.trusted and rot < 1.0 and trans < 0.05, (rot, trans)
 
 
-@pytest.mark.parametrize("content, expect", [
-    (bytes(100), "not a KITTI Velodyne file: 100 bytes is not a whole number of 16-byte records"),
-    (np.full((50, 4), 5e4, "<f4").tobytes(), "50 of 50 points lie more than 1000 m from the sensor"),
-    (b"", "empty")])
-def test_a_bin_file_that_is_no_lidar_frame_is_one_message(tmp_path, content, expect):
-    (tmp_path / "x.bin").write_bytes(content)
+def _records(n: int, width: int, seed: int = 0) -> np.ndarray:
+    """(n, width) float32 LiDAR-like records: points within 30 m, reflectance in [0, 1], a ring index last (5)."""
+    rng = np.random.default_rng(seed)
+    cols = [rng.normal(0, 10, (n, 3)), rng.random((n, 1))] + ([rng.integers(0, 32, (n, 1))] if width == 5 else [])
+    return np.hstack(cols).astype("<f4")
+
+
+@pytest.mark.parametrize("name, content, expect", [
+    ("x.bin", bytes(100), "not a KITTI Velodyne file: 100 bytes is not a whole number of 16-byte records"),
+    ("x.bin", np.full((50, 4), 5e4, "<f4").tobytes(), "50 of 50 points lie more than 1000 m from the sensor"),
+    ("x.bin", _records(4000, 5).tobytes(), "looks like a nuScenes LiDAR sweep .* name it \\*.pcd.bin"),
+    ("x.pcd.bin", _records(4000, 4).tobytes(), "not a nuScenes LiDAR sweep: its fifth float32"),
+    ("x.pcd.bin", bytes(96), "not a nuScenes LiDAR file: 96 bytes is not a whole number of 20-byte records")])
+def test_a_bin_file_that_is_no_lidar_frame_of_its_layout_is_one_message(tmp_path, name, content, expect):
+    (tmp_path / name).write_bytes(content)
     with pytest.raises(InputError, match=expect):
-        load_scan(tmp_path / "x.bin")
+        load_scan(tmp_path / name)
+
+
+def test_a_bin_frame_keeps_quiet_about_a_signalling_nan_and_drops_a_few_points_beyond_reach(tmp_path):
+    records = _records(2000, 4)
+    bits = records.view("<u4")
+    bits[5, 3] = 0x7F800001  # a signalling NaN: casting it to float64 warns unless told not to
+    records[:10, :3] = 2e4  # ten glitches 35 km out: dropped and said (1 % at most)
+    (tmp_path / "x.bin").write_bytes(records.tobytes())
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scan = load_scan(tmp_path / "x.bin")
+    assert len(scan.points) == 1990 and np.abs(scan.points).max() < 1000
+    assert any("10 points more than 1000 m from the sensor dropped" in note for note in scan.notes)

@@ -113,12 +113,14 @@ def _whole_leg(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray) -> n
     surface = surface.result() if isinstance(surface, Future) else surface
     surface = surface if surface is not None else Surface.from_scan(target)
     whole_legs = cfg.candidates.whole
+    # a cloud more than half of whose points are doubled has spacing 0: the bounds need a length
+    spacing = max(target.spacing, 1e-6 * target.size)
     sample = replace(cfg.problem, max_points=max(cfg.problem.max_points, whole_legs.sample))
     try:
         return converge(source, target, surface, T, cfg, sample, lambda T_, E: run.emit("icp", T_, E, charge=False),
                         setup.frame, legs=whole_legs.legs,
-                        settled=(whole_legs.settled_deg, whole_legs.settled_spacings * target.spacing),
-                        every_step=(whole_legs.step_deg, whole_legs.step_spacings * target.spacing))[0]
+                        settled=(whole_legs.settled_deg, whole_legs.settled_spacings * spacing),
+                        every_step=(whole_legs.step_deg, whole_legs.step_spacings * spacing))[0]
     except InputError:
         return None
 

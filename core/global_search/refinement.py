@@ -68,7 +68,9 @@ def converge(source: Scan, target: Scan, surface: Surface, T: np.ndarray, config
     that half, so every leg but the first starts on a new cut), ``legs`` at most. ``every_step`` (degrees, units): the
     legs take every ICP step until one is below it (core.icp: step_tolerance). Returns the pose and the last cut;
     raises InputError when there is no overlap at T."""
-    icp_config = replace(_refine_icp(config), step_tolerance=every_step)
+    icp_config = _refine_icp(config)
+    if every_step is not None:
+        icp_config = replace(icp_config, step_tolerance=every_step)
     rot_half, trans_half = (config.search.resegment_rotation_deg / 2,
                             config.search.resegment_translation * target.size / 2)
     rot_ok, trans_ok = settled or (rot_half, trans_half)

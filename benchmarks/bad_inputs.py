@@ -439,15 +439,17 @@ CASES += [
     C("ctrl-c right after start", "register src.ply tgt.ply", "interrupted (SIGINT)", status=130, signal=SIGINT,
       when=("delay", 0.3)),
     C("SIGTERM during imports", "info src.ply", "interrupted (SIGTERM)", status=143, signal=SIGTERM,
-      when=("delay", 0.5)),
+      when=("delay", 0.2)),  # (at 0.5 s a quiet machine had read src.ply and answered)
     C("slice SIGTERM", f"{S} --png keep.png --steps 201", "interrupted (SIGTERM)", status=143, signal=SIGTERM,
       when=("delay", 4.0)),
-    C("merge 2 workers ctrl-c", "merge src.ply tgt.ply c3.ply --workers 2 --out m.ply", "interrupted (SIGINT)",
+    # --json: the merge's progress lines (on stderr otherwise) would come before the one line of the interruption
+    C("merge 2 workers ctrl-c", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m.ply", "interrupted (SIGINT)",
       status=130, signal=SIGINT, when=("children", 2)),
+    # 3 s after the workers appear the merge is registering (a quiet machine finished it 8 s after them)
     C("merge 2 workers ctrl-c at work", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m.ply",
-      "interrupted (SIGINT)", status=130, signal=SIGINT, when=("children", 2, 8.0)),
+      "interrupted (SIGINT)", status=130, signal=SIGINT, when=("children", 2, 3.0)),
     C("merge 2 workers SIGTERM at work", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m2.ply",
-      "interrupted (SIGTERM)", status=143, signal=SIGTERM, when=("children", 2, 8.0)),
+      "interrupted (SIGTERM)", status=143, signal=SIGTERM, when=("children", 2, 3.0)),
     C("serve SIGTERM", f"serve --port {_FREE_PORTS[0]}", "interrupted (SIGTERM)", status=143, stdout_ok=True,
       signal=SIGTERM, when=("delay", 6.0)),
     C("serve SIGHUP", f"serve --port {_FREE_PORTS[1]}", "interrupted (SIGHUP)", status=129, stdout_ok=True,

@@ -294,6 +294,9 @@ def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> 
 BIN_LAYOUTS = {"KITTI Velodyne": ("x, y, z, reflectance", 4), "nuScenes LiDAR": ("x, y, z, intensity, ring", 5)}
 BIN_REACH = 1000.0  # metres: a point farther than this is no spinning LiDAR's return (KITTI's HDL-64 reaches 120 m)
 BIN_RINGS = 128  # a nuScenes ring index is a whole number below this (its LiDAR has 32)
+# A nuScenes sweep holds the car's own roof and body within this of the sensor (the devkit's remove_close(1.0) drops
+# them): they sit still in the sensor's frame in every sweep and would pull odometry towards the identity
+NUSCENES_EGO = 1.0  # metres
 
 
 def _rings_in(records: np.ndarray) -> bool:
@@ -325,6 +328,11 @@ def _load_bin(path: Path) -> RawScan:
     with np.errstate(invalid="ignore", over="ignore"):
         far = finite & ~(np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1) <= BIN_REACH)
     notes = [f"read as a {layout} file: {len(rec)} records of float32 {fields}"]
+    if width == 5:
+        ego = finite & (np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1) < NUSCENES_EGO)
+        if ego.any():
+            xyz[ego] = np.nan
+            notes.append(f"{ego.sum()} points within {NUSCENES_EGO:g} m of the sensor (the car itself) dropped")
     if far.any():
         if far.sum() > 0.01 * finite.sum():
             raise InputError(f"{path}: not a {layout} file (float32 {fields}, metres): {far.sum()} of "

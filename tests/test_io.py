@@ -350,3 +350,12 @@ def test_a_bin_frame_keeps_quiet_about_a_signalling_nan_and_drops_a_few_points_b
         scan = load_scan(tmp_path / "x.bin")
     assert len(scan.points) == 1990 and np.abs(scan.points).max() < 1000
     assert any("10 points more than 1000 m from the sensor dropped" in note for note in scan.notes)
+
+
+def test_a_nuscenes_sweep_leaves_out_the_car_itself(tmp_path):
+    records = _records(2000, 5)
+    records[:30, :3] *= 0.5 / np.linalg.norm(records[:30, :3], axis=1, keepdims=True)  # returns 0.5 m out: the roof
+    (tmp_path / "x.pcd.bin").write_bytes(records.tobytes())
+    scan = load_scan(tmp_path / "x.pcd.bin")
+    assert len(scan.points) == 1970 and np.linalg.norm(scan.points, axis=1).min() >= 1.0
+    assert any("30 points within 1 m of the sensor (the car itself) dropped" in note for note in scan.notes)

@@ -187,9 +187,9 @@ def drift(c: _Campaign, g: Graph, keys: list[tuple[int, int]]) -> Graph:
     standard deviations of it lie within ``drift_rotation_deg`` and, at its centroid, ``drift_translation``
     x the campaign's size (:func:`extent`). A scan at the end of a long open chain (a ring that cannot
     close) has the chain's uncertainties added up; one on loops that close, or near the reference, is
-    pinned. Measured (MergeConfig's notes): the information alone says 0.07-0.17 deg on the turntable's
-    crops where right pairs err by 0.1-1.0 deg (chi^2 / 6 on loops: median 1.4 from no poses, 4.8 from
-    the axis starts)."""
+    pinned. Measured (the constants: MergeConfig's notes): the pairs' information alone under-states their
+    error; the median chi^2 / 6 of the pairs on loops is 2.5 / 4.0 / 2.9 on the 24-stop turntable's crops
+    (no poses / axis / frame starts) and 1.6-3.8 on its whole scans, so each pair's is scaled by at least it."""
     c.loose = {}
     kept = [keys[e] for e in g.kept]
     placed = [k for k in range(c.n) if g.poses[k] is not None]

@@ -26,6 +26,7 @@ from .icp import METRICS
 from .noise import NORMAL_NEIGHBOURS, normal_floor
 from .scan import Scan
 from .surface import Surface, normal_angles, pca_normals
+from .threads import open3d_one_thread
 from .transforms import apply, invert
 
 # The cap is (CAP_SPACINGS x the pair's point spacing)^2 + the pair's noise floor (core.noise). Measured
@@ -471,10 +472,11 @@ def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[fl
         fs, ft = reg.compute_fpfh_feature(src, param), reg.compute_fpfh_feature(tgt, param)
         dist = 1.5 * voxel
         for k in range(seeds):
-            o3d.utility.random.seed(seed * 1000 + k)
-            res = reg.registration_ransac_based_on_feature_matching(
-                src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
-                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
-                reg.RANSACConvergenceCriteria(RANSAC_ITERATIONS, 0.999))
+            with open3d_one_thread():  # repeatable only on one thread (core.threads)
+                o3d.utility.random.seed(seed * 1000 + k)
+                res = reg.registration_ransac_based_on_feature_matching(
+                    src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
+                    [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
+                    reg.RANSACConvergenceCriteria(RANSAC_ITERATIONS, 0.999))
             out.append(np.asarray(res.transformation).copy())
     return out

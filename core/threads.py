@@ -1,4 +1,4 @@
-"""BLAS on one thread, unless the user's environment says otherwise.
+"""BLAS on one thread, unless the user's environment says otherwise; Open3D's RANSAC on one thread, always.
 
 The engine's products are tall and thin (an (N, 3) cloud times a 3 x 3 rotation, 6 x 6 normal equations):
 OpenBLAS splits them over its threads, which then wait for one another and for the engine's own threads (the
@@ -13,6 +13,9 @@ that choice stands.
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -28,3 +31,28 @@ def one_blas_thread() -> bool:
 
     threadpool_limits(limits=1, user_api="blas")
     return True
+
+
+# Open3D's feature-matching RANSAC is not repeatable on several threads, seed or not: its threads share the
+# iterations and stop early at whichever finds the confident hypothesis first, so the order the operating system
+# runs them in decides the result (Open3D's maintainers: "the only way to completely avoid it is with single
+# threaded processing", isl-org/Open3D#7475). Measured on the simulated turntable's crops 0 (12 neighbour pairs,
+# 5-spacing FPFH, two seeds each, three runs): on Open3D's two threads 2 of 12 pairs gave other hypotheses from run
+# to run, and so another campaign; on one, none. The lock keeps two callers (the page's runs) from restoring each
+# other's count halfway.
+_OPEN3D_THREADS = threading.Lock()
+
+
+@contextmanager
+def open3d_one_thread() -> Iterator[None]:
+    """Open3D's parallel loops on one thread while the block runs (the count before is restored after it)."""
+    import open3d as o3d
+
+    with _OPEN3D_THREADS:
+        before = o3d.utility.get_max_threads()
+        o3d.utility.set_max_threads(1)
+        try:
+            yield
+        finally:
+            o3d.utility.set_max_threads(before)
+

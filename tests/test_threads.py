@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from tests.conftest import ROOT
@@ -33,3 +34,27 @@ def test_the_engine_runs_blas_on_one_thread():
 def test_a_thread_count_the_user_set_stands():
     threads = blas_threads(OPENBLAS_NUM_THREADS="2")
     assert threads and all(n == 2 for n in threads), threads
+
+
+def test_the_fpfh_hypotheses_are_the_same_run_after_run():
+    # the turntable's crops 0: on Open3D's two threads, pairs among these gave other RANSAC hypotheses from run to
+    # run (2 of 12 pairs, three runs each); on one thread none does (core.threads.open3d_one_thread)
+    from rangereg.app.crops import crop
+    from rangereg.core.candidates import fpfh_candidates
+    from rangereg.core.turntable import make_campaign
+
+    scans = [crop(s, 0) for s in make_campaign(0).scans]
+    for i in range(0, 23, 2):
+        s, t = scans[i + 1], scans[i]
+        runs = [np.stack(fpfh_candidates(s, t, max(s.spacing, t.spacing), (5.0,), 2, 0)) for _ in range(4)]
+        assert all(np.array_equal(r, runs[0]) for r in runs), i
+
+
+def test_open3d_gets_its_thread_count_back():
+    import open3d as o3d
+    from rangereg.core.threads import open3d_one_thread
+
+    before = o3d.utility.get_max_threads()
+    with open3d_one_thread():
+        assert o3d.utility.get_max_threads() == 1
+    assert o3d.utility.get_max_threads() == before

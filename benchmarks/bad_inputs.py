@@ -443,7 +443,7 @@ CASES += [
     C("slice SIGTERM", f"{S} --png keep.png --steps 201", "interrupted (SIGTERM)", status=143, signal=SIGTERM,
       when=("delay", 4.0)),
     # --json: the merge's progress lines (on stderr otherwise) would come before the one line of the interruption
-    C("merge 2 workers ctrl-c", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m.ply", "interrupted (SIGINT)",
+    C("merge 2 workers ctrl-c", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m0.ply", "interrupted (SIGINT)",
       status=130, signal=SIGINT, when=("children", 2)),
     # 3 s after the workers appear the merge is registering (a quiet machine finished it 8 s after them)
     C("merge 2 workers ctrl-c at work", "merge src.ply tgt.ply c3.ply --workers 2 --json --out m.ply",

@@ -326,10 +326,11 @@ def _load_bin(path: Path) -> RawScan:
     xyz = rec[:, :3].copy()
     finite = np.isfinite(xyz).all(axis=1)
     with np.errstate(invalid="ignore", over="ignore"):
-        far = finite & ~(np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1) <= BIN_REACH)
+        reach = np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1)  # from the sensor (0 where not finite)
+    far = finite & ~(reach <= BIN_REACH)
     notes = [f"read as a {layout} file: {len(rec)} records of float32 {fields}"]
     if width == 5:
-        ego = finite & (np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1) < NUSCENES_EGO)
+        ego = finite & (reach < NUSCENES_EGO)
         if ego.any():
             xyz[ego] = np.nan
             notes.append(f"{ego.sum()} points within {NUSCENES_EGO:g} m of the sensor (the car itself) dropped")

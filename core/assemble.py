@@ -33,7 +33,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .scan import E57Record, Origin, RangeGrid, Scan, ScanKind, clean_points
+from .rows import cross, norms
+from .scan import E57Record, Origin, RangeGrid, Scan, ScanKind, clean_points, kd_tree
 from .viewpoint import (
     AROUND_SHARE,
     CONVENTION_REACH,
@@ -246,7 +247,7 @@ def _place(parts: _Parts, stated, kind: ScanKind | None, kind_from: Origin, what
         if parts.grid is not None or parts.faces is not None:
             kind = ScanKind.SINGLE_VIEW
         else:
-            tree = tree if tree is not None else cKDTree(points)
+            tree = tree if tree is not None else kd_tree(points)
             kind = ScanKind.SINGLE_VIEW if _one_view(points, tree, vp) else ScanKind.UNSTRUCTURED
         kind_from = Origin.ESTIMATE
     return vp, Origin.NONE if kind is ScanKind.UNSTRUCTURED else Origin.ESTIMATE, kind, kind_from, tree
@@ -256,7 +257,7 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
     """How the points lie about the frame's origin when a sensor there sampled them: PANORAMA (all
     around it), SINGLE_VIEW (in front of it), or None (no sensor there: too far, or spaced as no sensor
     there would space them). Also the k-d tree of the points when one was built (None otherwise)."""
-    r = np.linalg.norm(points, axis=1)
+    r = norms(points)
     seen = points[r > 0]
     if len(seen) < 3:
         return None, None
@@ -267,7 +268,7 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
     if 0 < share <= AROUND_SHARE:
         return None, None  # neither in front (a few behind) nor all around
     around = share > AROUND_SHARE
-    tree = cKDTree(points)
+    tree = kd_tree(points)
     idx = sample(points)
     d, _ = tree.query(points[idx], k=2)
     slope, spread = sensor_slope(points[idx], d[:, 1], np.zeros(3))
@@ -293,7 +294,7 @@ def orient_grid(grid: np.ndarray, points: np.ndarray, viewpoint: np.ndarray) -> 
         return grid
     cells = cells[:: max(1, len(cells) // ORIENT_SAMPLE)]  # a spread-out sample: all 1M cells took 0.3 s
     pa, pb, pr = points[a.ravel()[cells]], points[b.ravel()[cells]], points[r.ravel()[cells]]
-    facing = np.einsum("ij,ij->i", np.cross(pb - pa, pr - pa), viewpoint - pa)
+    facing = np.einsum("ij,ij->i", cross(pb - pa, pr - pa), viewpoint - pa)
     return grid if np.sum(facing > 0) >= np.sum(facing < 0) else np.ascontiguousarray(grid[:, ::-1])
 
 

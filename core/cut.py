@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .frustum import Overlap, frustum_of
+from .rows import norms
 from .scan import Scan
 from .surface import Surface
 from .transforms import apply
@@ -54,7 +55,7 @@ def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: n
     overlap = Overlap(src_mask, f_src, target.points, np.array(T_target_source, dtype=np.float64))
     used = src_mask.copy()
     if visibility and used.any():
-        radius = float(np.linalg.norm(source.points[used] - source.points[used].mean(0), axis=1).max())
+        radius = float(norms(source.points[used] - source.points[used].mean(0)).max())
         used = f_tgt.guessed(surface, moved, used, translation_uncertainty + rotation_uncertainty * radius)
     if used.sum() >= enough:
         return Cut(used, CUTS[0], overlap)

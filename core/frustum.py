@@ -27,6 +27,7 @@ from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .errors import InputError
+from .rows import norms
 from .scan import Scan, ScanKind
 from .transforms import apply, invert
 
@@ -330,6 +331,6 @@ def visible_from(target_surface, viewpoint: np.ndarray, points: np.ndarray, marg
     uncertainty of the guess, so that a wrong guess does not cut true overlap.
     """
     rays = points - viewpoint
-    dist = np.linalg.norm(rays, axis=1)
+    dist = norms(rays)
     hit = target_surface.first_hit(np.broadcast_to(viewpoint, points.shape), rays / dist[:, None])
     return np.isfinite(hit) & (dist <= hit + margin)

@@ -38,6 +38,7 @@ from .errors import InputError
 from .horn import constrained_horn, weighted_horn
 from .lock import LockFrame
 from .robust_error import ErrorFunction
+from .rows import cross
 from .transforms import apply, invert
 
 METRICS = ("point", "plane")
@@ -148,7 +149,7 @@ class _PlaneSteps(_RigidSteps):
         self._center = terms.moved.mean(0)
         q = terms.moved - self._center
         radius = float(np.sqrt(np.mean(np.sum(q * q, axis=1)))) or 1.0
-        J = np.hstack([np.cross(q, n) / radius, n])  # rotations scaled by the radius: a well-conditioned system
+        J = np.hstack([cross(q, n) / radius, n])  # rotations scaled by the radius: a well-conditioned system
         r = np.einsum("ij,ij->i", terms.moved - terms.closest, n)
         A = J.T @ (w[:, None] * J)
         b = -J.T @ (w * r)

@@ -21,6 +21,7 @@ from .files import BINARY_FACTOR, HEADER_LIMIT, TEXT_FACTOR, check_memory, open_
 from .las import SUFFIXES as LAS_SUFFIXES
 from .las import read_las_raw
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
+from .rows import norms
 from .scan import Scan, ScanKind
 from .sidefiles import (  # noqa: F401  (callers read side files through core.io too)
     check_sidecar,
@@ -326,7 +327,7 @@ def _load_bin(path: Path) -> RawScan:
     xyz = rec[:, :3].copy()
     finite = np.isfinite(xyz).all(axis=1)
     with np.errstate(invalid="ignore", over="ignore"):
-        reach = np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1)  # from the sensor (0 where not finite)
+        reach = norms(np.where(finite[:, None], xyz, 0.0))  # from the sensor (0 where not finite)
     far = finite & ~(reach <= BIN_REACH)
     notes = [f"read as a {layout} file: {len(rec)} records of float32 {fields}"]
     if width == 5:

@@ -33,6 +33,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .errors import InputError
+from .rows import norms
 from .scan import Scan
 
 # Rings: the sorted elevations split at gaps at least RING_GAP_RATIO times every gap inside a group (the
@@ -49,7 +50,7 @@ REACH_SLACK = 1.05  # a panorama's reach: the farthest range seen and 5 % (core.
 def spherical(rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N,) azimuth (radians, -pi..pi, about +z from +x), elevation (radians, -pi/2..pi/2) and range of
     (N, 3) rays from the sensor."""
-    r = np.linalg.norm(rays, axis=1)
+    r = norms(rays)
     with np.errstate(invalid="ignore", divide="ignore"):
         el = np.arcsin(np.clip(rays[:, 2] / r, -1.0, 1.0))
     return np.arctan2(rays[:, 1], rays[:, 0]), el, r
@@ -176,7 +177,7 @@ class SphericalImage:
             q = np.roll(p, (-dr, -dc), axis=(0, 1))
             if dr:  # rows do not wrap
                 q[(R - 1 if dr > 0 else 0)] = np.nan
-            d[k] = np.linalg.norm(q - p, axis=-1)
+            d[k] = norms(q - p)
         out = []
         for cell in (np.fmin(d[0], d[1]), np.fmin(d[2], d[3])):  # NaN only where both neighbours are missing
             o = np.full(len(points), np.inf)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rows import norms
 from .scan import Scan
 
 # From this stated rotation up a translation bound says little (a rotation that large about an origin
@@ -43,7 +44,7 @@ def offsets(Ts: np.ndarray, T_ref: np.ndarray, center: np.ndarray) -> tuple[np.n
     Ts = np.asarray(Ts, dtype=np.float64).reshape(-1, 4, 4)
     moved = Ts[:, :3, :3] @ center + Ts[:, :3, 3] - (T_ref[:3, :3] @ center + T_ref[:3, 3])
     cos = (np.einsum("pij,ij->p", Ts[:, :3, :3], T_ref[:3, :3]) - 1.0) / 2.0  # trace(R G^T)
-    return np.arccos(np.clip(cos, -1.0, 1.0)), np.linalg.norm(moved, axis=1)
+    return np.arccos(np.clip(cos, -1.0, 1.0)), norms(moved)
 
 
 @dataclass(frozen=True, eq=False)

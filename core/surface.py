@@ -22,7 +22,8 @@ import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .errors import InputError
-from .scan import Scan, ScanKind
+from .rows import cross, norms
+from .scan import Scan, ScanKind, kd_tree
 
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
@@ -33,7 +34,7 @@ def local_spacing(points: np.ndarray, tree: cKDTree | None = None) -> np.ndarray
     """(N,) mean distance from each point to its ``SPACING_NEIGHBOURS`` nearest neighbours (``tree``: a
     k-d tree of ``points`` already built)."""
     k = min(SPACING_NEIGHBOURS + 1, len(points))
-    tree = cKDTree(points) if tree is None else tree
+    tree = kd_tree(points) if tree is None else tree
     # the same answer on every core; below ~20k points starting the threads costs more than they save
     d, _ = tree.query(points, k=k, workers=-1 if len(points) > PARALLEL_QUERY else 1)
     return d[:, 1:].mean(axis=1)
@@ -68,7 +69,7 @@ def edge_lengths(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     # edge by edge: (M, 3) temporaries instead of (M, 3, 3) ones (4M triangles: 0.3 GB each)
     out = np.empty(faces.shape, dtype=np.float64)
     for k in range(3):
-        out[:, k] = np.linalg.norm(points[faces[:, k]] - points[faces[:, (k + 1) % 3]], axis=1)
+        out[:, k] = norms(points[faces[:, k]] - points[faces[:, (k + 1) % 3]])
     return out
 
 
@@ -173,7 +174,7 @@ def _grid_faces(idx: np.ndarray) -> np.ndarray:
 
 def _face_sensor(points, faces, viewpoint):
     p0 = points[faces[:, 0]]
-    n = np.cross(points[faces[:, 1]] - p0, points[faces[:, 2]] - p0)
+    n = cross(points[faces[:, 1]] - p0, points[faces[:, 2]] - p0)
     flip = np.einsum("ij,ij->i", n, viewpoint - p0) < 0
     faces = faces.copy()
     faces[flip] = faces[flip][:, [0, 2, 1]]
@@ -215,7 +216,7 @@ def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndar
         ):
             v, w = np.where(mask, rv, v), np.where(mask, rw, w)
         out = a + ab * v[:, None] + ac * w[:, None]
-        n = np.cross(ab, ac)
+        n = cross(ab, ac)
         n /= np.linalg.norm(n, axis=1, keepdims=True)
     out[~np.isfinite(n).all(axis=1)] = np.nan
     return out, n
@@ -295,7 +296,7 @@ class Surface:
 
     @cached_property
     def _vertex_tree(self) -> cKDTree:
-        return self.tree if self.tree is not None else cKDTree(self.vertices)
+        return self.tree if self.tree is not None else kd_tree(self.vertices)
 
     @cached_property
     def reach(self) -> float:

@@ -17,6 +17,7 @@ from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
 from .noise import noise_floors
 from .problem import Problem
+from .rows import cross
 from .surface import pca_normals
 from .transforms import rotation_matrix
 
@@ -219,7 +220,7 @@ def point_to_plane_system(q: np.ndarray, n: np.ndarray) -> Constraint:
         return Constraint(np.zeros(6), np.r_[1.0, 0, 0, 0, 0, 0], 0.0, 0)
     c = q.mean(0)
     L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, axis=1)))) or 1.0
-    J = np.hstack([n, np.cross(q - c, n) / L])
+    J = np.hstack([n, cross(q - c, n) / L])
     vals, vecs = np.linalg.eigh(J.T @ J / len(q))
     vals = np.clip(vals, 0.0, None)
     ratio = float(vals[0] / vals[-1]) if vals[-1] > 0 else 0.0

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InputError
+from .rows import cross, norms
 from .scan import RangeGrid
 
 STANDOFF = 5.0
@@ -23,13 +24,13 @@ def grid_normals(points: np.ndarray, grid: RangeGrid) -> np.ndarray:
     idx = grid.index
     a, b, r = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1]
     ok = (a >= 0) & (b >= 0) & (r >= 0)
-    return np.cross(points[b[ok]] - points[a[ok]], points[r[ok]] - points[a[ok]])
+    return cross(points[b[ok]] - points[a[ok]], points[r[ok]] - points[a[ok]])
 
 
 def face_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted normals (M, 3) of triangles (right-hand winding)."""
     p = points[faces]
-    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
 
 
 def _oriented_normals(points, grid, faces):
@@ -49,7 +50,7 @@ def estimate_viewpoint(points: np.ndarray, grid: RangeGrid | None = None, faces:
     normals = _oriented_normals(points, grid, faces)
     unit = None
     if normals is not None:
-        lengths = np.linalg.norm(normals, axis=1)
+        lengths = norms(normals)
         unit = normals[lengths > 0] / lengths[lengths > 0, None]
     if unit is not None and len(unit) and np.linalg.norm(np.median(unit, axis=0)) > 0:
         # The median facing, not the mean: grazing cells at the silhouette should not tilt it.
@@ -72,7 +73,7 @@ def check_viewpoint(points: np.ndarray, viewpoint: np.ndarray, grid: RangeGrid |
                     faces: np.ndarray | None, what: str) -> None:
     """Raise InputError when ``viewpoint`` cannot have seen the scan (inside it, edge-on, or behind)."""
     rays = points - viewpoint
-    dist = np.linalg.norm(rays, axis=1)
+    dist = norms(rays)
     if np.min(dist) == 0 and np.mean(dist == 0) > 0.5:
         raise InputError(f"{what}: the viewpoint {viewpoint.tolist()} sits on the points")
     normals = _oriented_normals(points, grid, faces)
@@ -85,7 +86,7 @@ def check_viewpoint(points: np.ndarray, viewpoint: np.ndarray, grid: RangeGrid |
     else:
         at = points[faces[:, 0]]
     facing = np.einsum("ij,ij->i", normals, viewpoint - at)
-    area = np.linalg.norm(normals, axis=1)
+    area = norms(normals)
     front = float(area[facing > 0].sum() / max(area.sum(), 1e-300))
     if front < 0.5:
         raise InputError(
@@ -136,7 +137,7 @@ def share_around(points: np.ndarray, viewpoint: np.ndarray) -> float:
     """The share of (N, 3) points more than :data:`VIEW_HALF_ANGLE` degrees off the mean viewing
     direction from ``viewpoint`` (0 for a single view; a large share for a panorama)."""
     rays = points - viewpoint
-    r = np.linalg.norm(rays, axis=1)
+    r = norms(rays)
     seen = r > 0
     if not seen.any():
         return 0.0
@@ -156,7 +157,7 @@ def sensor_slope(points: np.ndarray, spacing: np.ndarray, at: np.ndarray) -> tup
     """(slope, spread) of log(spacing) against log(range from ``at``) over points (n, 3) and their
     nearest-neighbour spacings (n,): slope ~1 where a sensor at ``at`` sampled them; spread: the 90th
     over the 10th percentile of the ranges."""
-    r = np.linalg.norm(points - at, axis=1)
+    r = norms(points - at)
     ok = (r > 0) & (spacing > 0)
     if ok.sum() < 10:
         return 0.0, 1.0
@@ -174,7 +175,7 @@ def layered_share(points: np.ndarray, tree, viewpoint: np.ndarray) -> float:
     from scipy.spatial import cKDTree
 
     rays = points - viewpoint
-    r = np.linalg.norm(rays, axis=1)
+    r = norms(rays)
     if not np.all(r > 0):
         return 1.0
     unit = rays / r[:, None]

@@ -113,7 +113,14 @@ def cast(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, dirs: np.
 @dataclass(frozen=True)
 class Spinning:
     """A spinning LiDAR: ``rings`` beams spread over ``elevation_deg`` (low, high), ``steps`` azimuth steps a
-    turn, range noise ``noise`` (m, sigma), returns between ``min_range`` and ``max_range`` (m)."""
+    turn, range noise ``noise`` (m, sigma), returns between ``min_range`` and ``max_range`` (m).
+
+    Per-laser calibration residuals (default none): each laser's range is off by a constant drawn with sigma
+    ``laser_range_bias`` (m) and it fires at its nominal elevation plus a constant drawn with sigma
+    ``laser_elevation_deg`` (degrees), while its points are written along the nominal elevation, as a sensor whose
+    calibration table is slightly wrong writes them (real multi-laser scanners: a range correction in cm and a
+    vertical angle per laser, benchmarks/lidar_floor.py). The constants are drawn from ``calibration_seed`` alone,
+    so both scans of a pair come from one unit and the scan's own draws are the same with or without them."""
 
     rings: int = 32
     steps: int = 1024
@@ -121,6 +128,16 @@ class Spinning:
     noise: float = 0.02
     min_range: float = 0.8
     max_range: float = 60.0
+    laser_range_bias: float = 0.0
+    laser_elevation_deg: float = 0.0
+    calibration_seed: int = 0
+
+    def calibration(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rings,) range offsets (m) and (rings,) elevation errors (radians) of this unit's lasers."""
+        rng = np.random.default_rng([self.calibration_seed, self.rings])
+        bias = rng.normal(0.0, 1.0, self.rings) * self.laser_range_bias
+        tilt = rng.normal(0.0, 1.0, self.rings) * np.radians(self.laser_elevation_deg)
+        return bias, tilt
 
 
 def spin_scan(mesh, T_world_sensor: np.ndarray, lidar: Spinning, rng: np.random.Generator,
@@ -132,9 +149,16 @@ def spin_scan(mesh, T_world_sensor: np.ndarray, lidar: Spinning, rng: np.random.
     az = 2 * np.pi * (np.arange(lidar.steps) + rng.uniform(0, 1)) / lidar.steps
     E, A = np.meshgrid(el, az, indexing="ij")
     dirs = np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], axis=-1).reshape(-1, 3)
-    world = dirs @ T_world_sensor[:3, :3].T
+    fired = dirs
+    bias, tilt = lidar.calibration()
+    if lidar.laser_elevation_deg:  # the beams leave at the true elevations; the points are written at the nominal
+        Et = E + tilt[:, None]
+        fired = np.stack([np.cos(Et) * np.cos(A), np.cos(Et) * np.sin(A), np.sin(Et)], axis=-1).reshape(-1, 3)
+    world = fired @ T_world_sensor[:3, :3].T
     hit = cast(vertices, faces, np.broadcast_to(T_world_sensor[:3, 3], world.shape), world)
     r = hit + rng.normal(0.0, lidar.noise, hit.shape)
+    if lidar.laser_range_bias:
+        r = r + np.repeat(bias, lidar.steps)  # rows of the (rings, steps) grid, ring-major as dirs
     ok = np.isfinite(hit) & (r >= lidar.min_range) & (r <= lidar.max_range)
     return Scan(points=dirs[ok] * r[ok, None], viewpoint=np.zeros(3), name=name, units="m",
                 pose=T_world_sensor.copy(), kind=ScanKind.PANORAMA)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,7 +18,7 @@ from .assemble import Given, RawScan, assemble, scan_kind
 from .e57 import SUFFIX as E57_SUFFIX
 from .e57 import read_e57_all, read_e57_raw, split_selection
 from .errors import InputError
-from .files import BINARY_FACTOR, HEADER_LIMIT, TEXT_FACTOR, check_memory, open_regular, stat_regular
+from .files import BINARY_FACTOR, HEADER_LIMIT, TEXT_FACTOR, check_memory, memory_available, open_regular, stat_regular
 from .las import SUFFIXES as LAS_SUFFIXES
 from .las import read_las_raw
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
@@ -55,6 +56,45 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     check_scan_file(path)
     given = Given(viewpoint=viewpoint, units=units, kind=scan_kind(kind), name=name)
     return assemble(read_raw(path, selector), given)
+
+
+# Two scans are read side by side (the target on a thread while this thread reads the source; the readers,
+# the points' checks and the k-d tree let go of the GIL for most of it) when their files together are at most
+# this many bytes and the memory free holds PAIR_PEAK_FACTOR x their sizes: the shared Kinect pair in 0.34 s
+# instead of 0.52 s, the shared LiDAR pair in 0.07 s instead of 0.10 s (three runs each, load 0.7-1.1). Larger
+# files are read one after the other, so that each one's memory check (core.files) sees the memory the other
+# one has taken. PAIR_PEAK_FACTOR: the peak measured reading a 1M-point float32 file (11.6 x its size).
+PAIR_SIDE_BY_SIDE_BYTES = 256 * 2**20
+PAIR_PEAK_FACTOR = 12
+
+
+def load_pair(source: str | Path, target: str | Path, source_viewpoint: np.ndarray | None = None,
+              target_viewpoint: np.ndarray | None = None, kind: ScanKind | str | None = None) -> tuple[Scan, Scan]:
+    """(source, target): :func:`load_scan` of both paths (each with its ``viewpoint`` override, both with
+    ``kind``), read side by side where they are small enough (module notes above). A file that cannot be read
+    raises as read in turn would: the source's error first."""
+    def one(path, viewpoint):
+        return load_scan(path, viewpoint=viewpoint, kind=kind)
+
+    sizes = []
+    for path in (source, target):
+        try:
+            sizes.append(Path(split_selection(path)[0]).stat().st_size)
+        except OSError:
+            sizes.append(None)  # load_scan says why
+    free = memory_available()
+    small = (None not in sizes and sum(sizes) <= PAIR_SIDE_BY_SIDE_BYTES
+             and (free is None or PAIR_PEAK_FACTOR * sum(sizes) <= free))
+    if not small:
+        return one(source, source_viewpoint), one(target, target_viewpoint)
+    with ThreadPoolExecutor(1, thread_name_prefix="load-target") as pool:
+        later = pool.submit(one, target, target_viewpoint)
+        try:
+            first = one(source, source_viewpoint)
+        except BaseException:
+            later.cancel()
+            raise
+        return first, later.result()
 
 
 def read_raw(path: str | Path, selector: str | None = None) -> RawScan:

@@ -359,3 +359,41 @@ def test_a_nuscenes_sweep_leaves_out_the_car_itself(tmp_path):
     scan = load_scan(tmp_path / "x.pcd.bin")
     assert len(scan.points) == 1970 and np.linalg.norm(scan.points, axis=1).min() >= 1.0
     assert any("30 points within 1 m of the sensor (the car itself) dropped" in note for note in scan.notes)
+
+
+def _pair_files(tmp_path):
+    a, b = tmp_path / "a.ply", tmp_path / "b.xyz"
+    write_ply(a, _cube_points(seed=1))
+    b.write_text("\n".join(" ".join(f"{v:.6f}" for v in p) for p in _cube_points(seed=2)))
+    return a, b
+
+
+@pytest.mark.parametrize("side_by_side", [True, False])
+def test_a_pair_reads_as_each_file_alone(tmp_path, monkeypatch, side_by_side):
+    import rangereg.core.io as io
+
+    a, b = _pair_files(tmp_path)
+    if not side_by_side:  # files too large to read at once: one after the other
+        monkeypatch.setattr(io, "PAIR_SIDE_BY_SIDE_BYTES", 0)
+    vp = np.array([0.0, 0.0, 1.0])
+    s, t = io.load_pair(a, b, target_viewpoint=vp)
+    alone_s, alone_t = load_scan(a), load_scan(b, viewpoint=vp)
+    for got, want in ((s, alone_s), (t, alone_t)):
+        assert got.name == want.name and got.kind == want.kind and got.units == want.units
+        np.testing.assert_array_equal(got.points, want.points)
+        np.testing.assert_array_equal(got.viewpoint, want.viewpoint)
+    np.testing.assert_array_equal(t.viewpoint, vp)
+
+
+def test_a_pair_with_two_bad_files_names_the_source_first(tmp_path):
+    from rangereg.core.io import load_pair
+
+    a, b = _pair_files(tmp_path)
+    empty = tmp_path / "empty.ply"
+    empty.write_bytes(b"")
+    with pytest.raises(InputError, match="missing.ply"):
+        load_pair(tmp_path / "missing.ply", empty)
+    with pytest.raises(InputError, match="empty.ply: the file is empty"):
+        load_pair(a, empty)
+    with pytest.raises(InputError, match="empty.ply"):
+        load_pair(empty, b)

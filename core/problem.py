@@ -9,6 +9,8 @@ also moves the points by about ``scale``.
 
 from __future__ import annotations
 
+import threading
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -159,8 +161,7 @@ def _sample(source: Scan, idx: np.ndarray, n: int, rng: np.random.Generator) -> 
     if source.kind is ScanKind.SINGLE_VIEW:
         return np.sort(rng.choice(idx, n, replace=False))
     cand = rng.choice(idx, min(len(idx), CANDIDATES_PER_POINT * n), replace=False)
-    k = min(NORMAL_NEIGHBOURS, len(source.points))
-    normals = pca_normals(source.points, source.tree.query(source.points[cand], k)[1].reshape(len(cand), k))
+    normals = _normals_at(source, cand)
     axis = np.argmax(np.abs(normals), axis=1)
     groups = [cand[axis == a] for a in range(3)]
     share = np.zeros(3, dtype=np.int64)
@@ -170,6 +171,29 @@ def _sample(source: Scan, idx: np.ndarray, n: int, rng: np.random.Generator) -> 
         left -= share[a]
     chosen = np.concatenate([g[:m] for g, m in zip(groups, share)])  # cand is a random order already
     return np.sort(chosen)
+
+
+# A scene's normals at the candidates, each point's fitted once while its scan lives: a registration draws a sample
+# at every cut (the setup's, each refinement's, the converged ones, the whole scans' legs, the result's), and the
+# draws share most of their points; the whole RGB-D fragments' legs draw 120k candidates a cut. A point's normal
+# depends on its own neighbours only, so it is the same bits whichever draw fits it first.
+_NORMALS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_NORMALS_LOCK = threading.Lock()
+
+
+def _normals_at(scan: Scan, at: np.ndarray) -> np.ndarray:
+    """(len(at), 3) unit normals (sign arbitrary) of ``scan`` at point indices ``at``, fitted to its
+    NORMAL_NEIGHBOURS nearest points (core.surface.pca_normals)."""
+    with _NORMALS_LOCK:
+        if scan not in _NORMALS:
+            _NORMALS[scan] = (np.empty((len(scan.points), 3)), np.zeros(len(scan.points), dtype=bool))
+        normals, known = _NORMALS[scan]
+    new = np.unique(at[~known[at]])
+    if len(new):
+        k = min(NORMAL_NEIGHBOURS, len(scan.points))
+        normals[new] = pca_normals(scan.points, scan.tree.query(scan.points[new], k)[1].reshape(len(new), k))
+        known[new] = True  # after the values: a thread that sees it set reads them written
+    return normals[at]
 
 
 def relative_guess(source: Scan, target: Scan) -> np.ndarray:

@@ -226,7 +226,10 @@ class CloudView:
     def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
         """(N,) bool: points within ``near`` plus ``margin`` (units: how far the guess may move them) of the
         cloud, whether ``inside`` or not."""
-        return self._within(points, self.near + margin)
+        out = inside.copy()  # those within ``near`` (inside) are within more: only the others are asked
+        rest = np.flatnonzero(~inside)
+        out[rest] = self._within(points[rest], self.near + margin)
+        return out
 
     def widened(self, points: np.ndarray, angle: float, translation: float = 0.0) -> np.ndarray:
         """(N,) bool: points within ``near`` plus the move a rotation of ``angle`` radians (about the cloud's

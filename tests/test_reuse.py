@@ -1,0 +1,39 @@
+"""Work a registration keeps and reuses gives the answers of the same work done afresh, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+from rangereg.core.noise import NORMAL_NEIGHBOURS
+from rangereg.core.problem import _normals_at
+from rangereg.core.scan import Scan, ScanKind
+from rangereg.core.surface import pca_normals
+from rangereg.core.unstructured import cloud_view
+
+
+def _cloud(n=6000, seed=0) -> Scan:
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-1, 1, (n, 2))
+    pts = np.c_[xy, 0.2 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1])] + rng.normal(0, 0.002, (n, 3))
+    return Scan(points=pts, viewpoint=np.zeros(3), name="cloud", units="m", kind=ScanKind.UNSTRUCTURED)
+
+
+def test_a_scans_normals_are_the_same_whichever_draw_fits_them_first():
+    scan = _cloud()
+    rng = np.random.default_rng(3)
+    draws = [rng.choice(len(scan.points), 2500, replace=False) for _ in range(4)]
+    fresh = [pca_normals(scan.points, scan.tree.query(scan.points[d], NORMAL_NEIGHBOURS)[1]) for d in draws]
+    kept = [_normals_at(scan, d) for d in draws]  # later draws reuse the earlier draws' fits
+    for f, k in zip(fresh, kept):
+        assert np.array_equal(f, k)
+    assert np.array_equal(_normals_at(scan, draws[0][::-1]), fresh[0][::-1])
+
+
+def test_a_clouds_cut_under_a_guess_asks_only_about_points_not_already_on_it():
+    source, target = _cloud(seed=1), _cloud(seed=2)
+    view = cloud_view(target)
+    rng = np.random.default_rng(5)
+    moved = source.points + rng.normal(0, 0.05, source.points.shape)
+    inside = view.contains(moved)
+    assert 0 < inside.sum() < len(moved)
+    for margin in (0.0, 0.01, 0.1, 5.0):
+        assert np.array_equal(view.guessed(None, moved, inside, margin), view._within(moved, view.near + margin))

@@ -6,7 +6,11 @@ path (searched on a thinned copy, refined on the whole frames).
     python benchmarks/other_lidars.py --smallest   # a 16 x 512 scanner, the street, one pair from the identity
 
 The scanners (rules fixed before any result was seen): 64 rings x 2048 steps over -25..15 deg; 128 x 1024 over
--22.5..22.5 deg (an Ouster OS-128's field); 64 x 1800 over -24.9..2 deg (a Velodyne HDL-64's). Scenes: the
+-22.5..22.5 deg (an Ouster OS-128's field); 64 x 1800 over -24.9..2 deg (a Velodyne HDL-64's). Added on 2026-12-05,
+after a measurement (benchmarks/lidar_floor.py) said a 16-ring room's noise floor comes out far below its range noise,
+before this script ran them: 16 x 1800 over -15..15 deg (a Velodyne VLP-16's: fewer than the sweep's 32 x 1024, so
+searched whole), and the sweep's 32 x 1024 with per-laser calibration errors (range sigma 2 cm, elevation sigma
+0.05 deg; core.scenes_sensor.Spinning, as measured on real units). Scenes: the
 simulated street and furnished room of the sensor sweep (core.scenes_sensor.lidar_pair), seeds 0.. --seeds - 1.
 Starts as the sweep's (app/sweep_sensors.py): the identity (odometry), the truth turned 15 deg / shifted 0.25 m and
 60 deg / 1 m about the sensor (told max(offset, 15) deg and max(shift, 0.25) m), no guess. Right: 1 deg and 5 cm
@@ -34,6 +38,8 @@ SCANNERS = {
     "64 x 2048, -25..15 deg": ss.Spinning(rings=64, steps=2048),
     "128 x 1024, -22.5..22.5 deg": ss.Spinning(rings=128, steps=1024, elevation_deg=(-22.5, 22.5)),
     "64 x 1800, -24.9..2 deg": ss.Spinning(rings=64, steps=1800, elevation_deg=(-24.9, 2.0)),
+    "16 x 1800, -15..15 deg": ss.Spinning(rings=16, steps=1800, elevation_deg=(-15.0, 15.0)),
+    "32 x 1024, per-laser errors": ss.Spinning(laser_range_bias=0.02, laser_elevation_deg=0.05),
 }
 STARTS = (("identity", 0.0, 0.0, 0), ("sensor", 15.0, 0.25, 0), ("sensor", 60.0, 1.0, 1), ("no-guess", 0.0, 0.0, 0))
 

@@ -28,15 +28,21 @@ def test_without_per_laser_errors_the_calibration_seed_changes_nothing():
         assert all(np.array_equal(x.points, y.points) for x, y in zip(a, b))
 
 
-def test_a_range_offset_moves_each_lasers_points_along_their_rays_by_that_lasers_offset():
+def _with_and_without(**errors):
+    """A small scanner over flat ground without and with per-laser ``errors``: (the unit with them, points without,
+    points with, their ranges without and with, the nominal elevations)."""
     lidar = Spinning(rings=8, steps=256, elevation_deg=(-25.0, -5.0), noise=0.01)
-    biased = replace(lidar, laser_range_bias=0.02, calibration_seed=4)
+    unit = replace(lidar, **errors)
     p0, el = _ground_scan(lidar)
-    p1, _ = _ground_scan(biased)
-    r0, r1 = np.linalg.norm(p0, axis=1), np.linalg.norm(p1, axis=1)
+    p1, _ = _ground_scan(unit)
+    return unit, p0, p1, np.linalg.norm(p0, axis=1), np.linalg.norm(p1, axis=1), el
+
+
+def test_a_range_offset_moves_each_lasers_points_along_their_rays_by_that_lasers_offset():
+    biased, p0, p1, r0, r1, _ = _with_and_without(laser_range_bias=0.02, calibration_seed=4)
     np.testing.assert_allclose(p1 / r1[:, None], p0 / r0[:, None], atol=1e-12)  # the same rays
     offsets = biased.calibration()[0]
-    np.testing.assert_allclose(r1 - r0, np.repeat(offsets, lidar.steps), atol=1e-9)
+    np.testing.assert_allclose(r1 - r0, np.repeat(offsets, biased.steps), atol=1e-9)
     assert 0.005 < np.std(offsets) < 0.05  # drawn at the stated sigma, not zero
     # one unit: both scans of a pair carry the same offsets; another seed, another unit
     assert np.array_equal(offsets, replace(biased, calibration_seed=4).calibration()[0])
@@ -44,13 +50,9 @@ def test_a_range_offset_moves_each_lasers_points_along_their_rays_by_that_lasers
 
 
 def test_an_elevation_error_fires_the_beam_elsewhere_but_writes_the_point_at_the_nominal_elevation():
-    lidar = Spinning(rings=8, steps=256, elevation_deg=(-25.0, -5.0), noise=0.01)
-    tilted = replace(lidar, laser_elevation_deg=0.05, calibration_seed=2)
-    p0, el = _ground_scan(lidar)
-    p1, _ = _ground_scan(tilted)
-    r0, r1 = np.linalg.norm(p0, axis=1), np.linalg.norm(p1, axis=1)
+    tilted, p0, p1, r0, r1, el = _with_and_without(laser_elevation_deg=0.05, calibration_seed=2)
     np.testing.assert_allclose(np.arcsin(p1[:, 2] / r1), el, atol=1e-9)  # written at the nominal elevation
-    err = np.repeat(tilted.calibration()[1], lidar.steps)
+    err = np.repeat(tilted.calibration()[1], tilted.steps)
     # on flat ground the range is the height over the sine of the true depression; the noise draw is shared
     expected = HEIGHT / np.sin(-(el + err)) - HEIGHT / np.sin(-el)
     np.testing.assert_allclose(r1 - r0, expected, atol=2e-4)  # Open3D casts in float32

@@ -13,7 +13,6 @@ in its spherical image, an unstructured scan's closeness to its points. The name
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
@@ -49,12 +48,14 @@ def overlap_cut(source: Scan, target: Scan, surface: Surface, T_target_source: n
                 visibility: bool, rotation_uncertainty: float, translation_uncertainty: float) -> Cut | None:
     """The first cut of CUTS with enough points, or None when even the frustum opened by the whole
     rotation uncertainty holds fewer than 3 (the guess's uncertainty allows no overlap)."""
-    f_tgt = frustum_of(target, kind)
+    # the source's view now, though only drawing reads it (Overlap.target_mask): making it refuses a source no
+    # view can be made of (points beside or behind its stated viewpoint); made on first use, such a pair
+    # registered instead of being refused (the view: 0.06 s on a 250k-point Kinect frame)
+    f_src, f_tgt = frustum_of(source, kind), frustum_of(target, kind)
     moved = apply(T_target_source, source.points)
     enough = max(3, int(MIN_SHARE * len(source.points)))
     src_mask = f_tgt.contains(moved)
-    overlap = Overlap(src_mask, partial(frustum_of, source, kind), target.points,
-                      np.array(T_target_source, dtype=np.float64))
+    overlap = Overlap(src_mask, f_src, target.points, np.array(T_target_source, dtype=np.float64))
     used = src_mask.copy()
     if visibility and used.any():
         radius = float(norms(source.points[used] - source.points[used].mean(0)).max())

@@ -18,7 +18,6 @@ methods, whatever the kind.
 from __future__ import annotations
 
 import weakref
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Protocol
@@ -284,17 +283,12 @@ class Overlap:
     """source_mask: (Ns,) source points inside the target's frustum under ``T_target_source``;
     target_mask: (Nt,) the reverse, the ``target_points`` (target frame) inside ``source_frustum``, made
     when first asked for (only drawing asks: a registration's every cut would pay a test of the whole
-    target for it). ``source_view``: the source's view, or what makes it when first asked for (a whole
-    250k-point Kinect frame's frustum is a hull of every point, 0.06 s, that only drawing would use)."""
+    target for it)."""
 
     source_mask: np.ndarray
-    source_view: View | Callable[[], View] = field(repr=False)
+    source_frustum: View = field(repr=False)
     target_points: np.ndarray = field(repr=False)
     T_target_source: np.ndarray = field(repr=False)
-
-    @cached_property
-    def source_frustum(self) -> View:
-        return self.source_view() if callable(self.source_view) else self.source_view
 
     @cached_property
     def target_mask(self) -> np.ndarray:

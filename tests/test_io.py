@@ -397,3 +397,27 @@ def test_a_pair_with_two_bad_files_names_the_source_first(tmp_path):
         load_pair(a, empty)
     with pytest.raises(InputError, match="empty.ply"):
         load_pair(empty, b)
+
+
+def test_a_pair_whose_source_fails_says_so_without_waiting_for_the_targets_read(tmp_path, monkeypatch):
+    import threading
+
+    import rangereg.core.io as io
+
+    a, b = _pair_files(tmp_path)
+    release, done = threading.Event(), threading.Event()
+
+    def slow(path, **kw):  # the target's read, as long as a large file's; the source cannot be read
+        if str(path) == str(b):
+            release.wait(10)
+            done.set()
+            return None
+        raise InputError(f"{path}: cannot be read")
+
+    monkeypatch.setattr(io, "load_scan", slow)
+    try:
+        with pytest.raises(InputError, match="a.ply: cannot be read"):
+            io.load_pair(a, b)
+        assert not done.is_set()  # the error came while the target was still being read
+    finally:
+        release.set()

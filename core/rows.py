@@ -15,12 +15,18 @@ import numpy as np
 
 def norms(v: np.ndarray) -> np.ndarray:
     """(...,) Euclidean lengths of (..., 3) vectors ``v``: ``np.linalg.norm(v, axis=-1)``."""
+    v = np.asarray(v)
+    if not _written_out(v):
+        return np.linalg.norm(v, axis=-1)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     return np.sqrt(x * x + y * y + z * z)
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(..., 3) cross products of (..., 3) vectors ``a`` and ``b`` (broadcast): ``np.cross(a, b)``."""
+    a, b = np.asarray(a), np.asarray(b)
+    if not (_written_out(a) and _written_out(b)):
+        return np.cross(a, b)
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     out = np.empty(np.broadcast_shapes(np.shape(a), np.shape(b)), dtype=np.result_type(a, b))
@@ -28,3 +34,10 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[..., 1] = a2 * b0 - a0 * b2
     out[..., 2] = a0 * b1 - a1 * b0
     return out
+
+
+def _written_out(v: np.ndarray) -> bool:
+    """Whether ``v`` is float32 or float64 (..., 3), where the written-out arithmetic is numpy's bit for bit.
+    numpy's own routines take the rest: integers squared in their own type overflow (and a small one's root
+    is a float32), and a row that is not a 3-vector would be cut to its first three components."""
+    return v.ndim >= 1 and v.shape[-1] == 3 and v.dtype in (np.float32, np.float64)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from rangereg.core.rows import cross, norms
 
 
@@ -34,3 +33,22 @@ def test_the_inputs_come_back_unmodified():
     a0, b0 = a.copy(), b.copy()
     norms(a), cross(a, b)
     assert np.array_equal(a, a0) and np.array_equal(b, b0)
+
+
+@pytest.mark.parametrize("v", [
+    np.array([[3, 4, 12], [2**40, 0, 0]], dtype=np.int64),  # squares that overflow int64
+    np.array([[3, 4, 12]], dtype=np.int16),  # numpy's norm is float64, a root of int16 float32
+    np.array([[1.0, 2.0, 2.0, 4.0]]),  # rows of four: all four count
+    np.array([[True, True, False]]),
+    [[1.0, 2.0, 2.0]],  # a list, as numpy takes
+])
+def test_what_is_not_a_float_3_vector_is_measured_as_numpy_does(v):
+    want = np.linalg.norm(v, axis=-1)
+    got = norms(v)
+    assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_cross_products_of_other_rows_as_numpy():
+    assert np.array_equal(cross([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]), np.cross([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    with pytest.raises(ValueError):  # numpy refuses rows of four; written out, the fourth was dropped
+        cross(np.ones((2, 4)), np.ones((2, 4)))

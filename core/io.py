@@ -60,8 +60,9 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
 
 # Two scans are read side by side (the target on a thread while this thread reads the source; the readers,
 # the points' checks and the k-d tree let go of the GIL for most of it) when their files together are at most
-# this many bytes and the memory free holds PAIR_PEAK_FACTOR x their sizes: the shared Kinect pair in 0.34 s
-# instead of 0.52 s, the shared LiDAR pair in 0.07 s instead of 0.10 s (three runs each, load 0.7-1.1). Larger
+# this many bytes and the memory free holds PAIR_PEAK_FACTOR x their sizes: the shared Kinect pair with its
+# spacings in 0.27 s instead of 0.36 s, the shared LiDAR pair in 0.060 s instead of 0.076 s (medians of five,
+# load 1.3-1.8). Larger
 # files are read one after the other, so that each one's memory check (core.files) sees the memory the other
 # one has taken. PAIR_PEAK_FACTOR: the peak measured reading a 1M-point float32 file (11.6 x its size).
 PAIR_SIDE_BY_SIDE_BYTES = 256 * 2**20

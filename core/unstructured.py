@@ -226,6 +226,8 @@ class CloudView:
     def guessed(self, surface, points: np.ndarray, inside: np.ndarray, margin: float) -> np.ndarray:
         """(N,) bool: points within ``near`` plus ``margin`` (units: how far the guess may move them) of the
         cloud, whether ``inside`` or not."""
+        if not margin >= 0:  # no margin to widen by (NaN, negative): the test itself, as asked
+            return self._within(points, self.near + margin)
         out = inside.copy()  # those within ``near`` (inside) are within more: only the others are asked
         rest = np.flatnonzero(~inside)
         out[rest] = self._within(points[rest], self.near + margin)

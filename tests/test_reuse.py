@@ -38,7 +38,7 @@ def test_a_clouds_cut_under_a_guess_asks_only_about_points_not_already_on_it():
     moved = source.points + rng.normal(0, 0.05, source.points.shape)
     inside = view.contains(moved)
     assert 0 < inside.sum() < len(moved)
-    for margin in (0.0, 0.01, 0.1, 5.0):
+    for margin in (0.0, 0.01, 0.1, 5.0, -0.5 * view.near, float("nan")):
         assert np.array_equal(view.guessed(None, moved, inside, margin), view._within(moved, view.near + margin))
 
 

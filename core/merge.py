@@ -60,6 +60,7 @@ from .merge_tasks import (
     clear_geometry_cache,
     feature_task,
     pair_task,
+    quality,
     scan_arrays,
     token,
 )
@@ -144,6 +145,12 @@ class MergeConfig:
     # (frame) 2 of 125, neither used by the graph, while its 56 untrusted pairs spent 91.8 s (1.6 s each,
     # trusted ones 0.40 s median)
     first_fallback_steps: int | None = 0
+    # ... and ends at the first stage that refines a weakly pinned pose (core.candidates.CandidateConfig.end_on_weak):
+    # the graph uses such a pose only where a loop corroborates it (core.merge_graph.corroborate), and a pair not
+    # used is registered again from the graph's pose. Measured, the 10-stop turntable of 40k-point scans (frame
+    # starts): 7 of 20 pairs weakly pinned, each spending the whole work bound (3.4-6.1 s against 0.3-1.5 s for a
+    # trusted pair) and 5 of the 7 ending at the first stage's pose anyway
+    first_ends_on_weak: bool = True
     # the pairs' time bound (core.candidates.CandidateConfig.time_limit; None: none, the search bounded by
     # its work alone, so a busy machine gives the same campaign later, not another). Measured, the 8-stop
     # turntable of 48 x 48 scans with no poses at load 9.8: with the registration's 2.5 s, neighbour pairs
@@ -198,6 +205,8 @@ class MergeConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a number > 0, got {v!r}")
+        if not isinstance(self.first_ends_on_weak, bool):
+            raise InputError(f"first_ends_on_weak must be True or False, got {self.first_ends_on_weak!r}")
         if self.pair_time_limit is not None and not (np.isfinite(self.pair_time_limit) and self.pair_time_limit > 0):
             raise InputError(f"pair_time_limit must be > 0 seconds (or None: no bound), got {self.pair_time_limit!r}")
         if self.found_rotation_deg > 180 or self.cycle_rotation_deg > 180:
@@ -277,7 +286,6 @@ class _Campaign:
         self.cue = NeighbourCue(self.n, self._features)
         self.infos: dict[tuple[int, int, int], np.ndarray] = {}
         self.plane_infos: dict[tuple[int, int, int], np.ndarray] = {}  # point-to-plane, for the graph's uncertainty
-        self.normals: dict[int, np.ndarray] = {}
         self.loose: dict[int, str] = {}  # scans joined but not placed: their pose too uncertain (core.merge_graph.drift)
         self.init_overlap: dict[tuple[int, int], float] = {}
         self.shares: dict[tuple[int, int], float] = {}  # matching share under the poses found (the last measured)
@@ -330,11 +338,17 @@ class _Campaign:
         if build_model:
             placed = [k for k in range(self.n) if g.poses[k] is not None]
             self.note(Step.MODEL, f"fusing the {len(placed)} placed scans into one model")
-            model = fuse([self.scans[k] for k in placed], [g.poses[k] for k in placed])
+            model = fuse([self.scans[k] for k in placed], [g.poses[k] for k in placed],
+                         qualities=[self.sample_quality(k) for k in placed])
         return MergeResult(list(g.poses), pairs, scans, model, time.perf_counter() - self.t0, self.t_pairs,
                            self.t_overlap, self.mode, self.round, self.registrations, self.reference,
                            rings=loops, skipped=len(self.skipped - set(self.pairs)),
                            forecasts=tuple(f for c in self.counters.values() for f in c.forecasts))
+
+    def sample_quality(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Scan k's normals (N, 3) facing its sensor and sample quality (N,) (core.merge_tasks.quality: once in this
+        process, shared with the tasks that ran here)."""
+        return quality(self.shared, k)
 
     def region(self) -> tuple[float, float | None]:
         """A pair's region (degrees, units or None: unstated) from the stated per-scan one (module notes, step 3):
@@ -367,6 +381,8 @@ class _Campaign:
         self.note(Step.PAIRS, f"registering {len(tasks)} pairs")
         first = self.mc.first_fallback_steps
         tasks = [replace(t, fallback_steps=first) if t.attempt == 0 and first is not None else t for t in tasks]
+        if self.mc.first_ends_on_weak:
+            tasks = [replace(t, end_on_weak=True) if t.attempt == 0 else t for t in tasks]
         out = self.measure(pair_task, tasks, Step.PAIRS)
         # why each pair registered again was not used before: said from the results as they were, before
         # any of this round's changes them (the outlier test weighs every trusted pair's E)

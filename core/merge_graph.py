@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from .fuse import sample_quality
 from .merge_pairs import labels
 from .merge_result import PairResult, Rejection
 from .posegraph import (
@@ -168,9 +167,7 @@ def plane_infos(c: _Campaign, keys: list[tuple[int, int]]) -> list[np.ndarray]:
     for i, j in keys:
         info_key = (i, j, c.tried[i, j])
         if info_key not in c.plane_infos:
-            if i not in c.normals:
-                c.normals[i] = sample_quality(c.scans[i])[0]
-            c.plane_infos[info_key] = plane_information(c.scans[j].points, c.scans[i], c.normals[i],
+            c.plane_infos[info_key] = plane_information(c.scans[j].points, c.scans[i], c.sample_quality(i)[0],
                                                         c.mc.polish_gate * c.spacing, c.pairs[i, j].T_i_j)
         out.append(c.plane_infos[info_key])
     return out

@@ -21,6 +21,9 @@ class StopReason(StrEnum):
     TRUSTED = "a candidate refined below the pair threshold"  # method "global" (core.global_search)
     WORK_BOUND = "nothing trusted within the search's work"  # method "global": its steps or candidates are spent
     TIME_BOUND = "nothing trusted within the time bound"  # method "global" with seconds asked for: they are gone
+    # method "global" asked to end there (core.candidates.CandidateConfig.end_on_weak): a pose that passes every test
+    # but the score's rise, left to the caller's own evidence (a campaign's loops)
+    WEAKLY_PINNED = "a candidate refined to a weakly pinned pose"
 
 
 @dataclass(frozen=True)

@@ -314,17 +314,25 @@ class Surface:
 
     def squared_distances_within(self, query: np.ndarray, radius: float) -> np.ndarray:
         """(N,) squared distances to the surface, exact where they are at most ``radius`` (units) and inf
-        where they are surely more. The exact query costs ~10 x more for a point a centimetre off the
-        surface than for one on it (Open3D's RaycastingScene, measured on the bunny); a point whose
-        nearest vertex lies farther than ``radius`` + :attr:`reach` is farther than ``radius`` from every
-        triangle, and a k-d tree of the vertices says so for ~1 us."""
+        where they are surely more (:meth:`closest_within`)."""
+        return self.closest_within(query, radius)[1]
+
+    def closest_within(self, query: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`closest` for (N, 3) queries, exact where the distance is at most ``radius``
+        (units): the closest points (N, 3), NaN, and squared distances (N,), inf, where the surface is surely
+        farther. The exact query costs ~10 x more for a point a centimetre off the surface than for one on it
+        (Open3D's RaycastingScene, measured on the bunny); a point whose nearest vertex lies farther than
+        ``radius`` + :attr:`reach` is farther than ``radius`` from every triangle, and a k-d tree of the
+        vertices says so for ~1 us. Each query's answer is the one :meth:`closest` gives it."""
         query = np.asarray(query, dtype=np.float64)
+        closest = np.full(query.shape, np.nan)
         d2 = np.full(len(query), np.inf)
-        near, _ = self._vertex_tree.query(query, distance_upper_bound=radius + self.reach)
+        near, _ = self._vertex_tree.query(query, distance_upper_bound=radius + self.reach,
+                                          workers=-1 if len(query) > PARALLEL_QUERY else 1)
         near = np.isfinite(near)
         if near.any():
-            d2[near] = self.closest(query[near])[1]
-        return d2
+            closest[near], d2[near] = self.closest(query[near])
+        return closest, d2
 
     def closest_with_normals(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`closest`, and the unit normals (N, 3) float64 of the triangles the closest points lie on.

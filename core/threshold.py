@@ -272,6 +272,17 @@ class PairThreshold:
             return False
         return constraint(basis, T).pins(self.min_constraint)
 
+    def weakly_pinned(self, basis: Basis, T: np.ndarray) -> bool:
+        """Whether pose T (4, 4) passes every test but the last: it overlaps enough, its misfit is below the factor,
+        its ratio reaches ``min_constraint``, and only the score's rise along its weakest motion falls short of
+        MIN_RISE (the 10-stop turntable's right pairs that are doubted: rises 1.01-1.19). The pair alone cannot
+        tell such a pose from its slides; a campaign's loops can (core.merge_graph.corroborate)."""
+        s = basis.evaluate(np.asarray(T)[None])
+        if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor):
+            return False
+        c = constraint(basis, T)
+        return c.matched > 0 and c.ratio >= self.min_constraint and c.rise is not None and c.rise < MIN_RISE
+
 
 def pair_threshold(floor: float, angle_floor: float, min_overlap: float, factor: float = FACTOR) -> PairThreshold:
     return PairThreshold(float(factor ** 2 * floor), float(floor), float(factor), float(min_overlap), float(angle_floor))

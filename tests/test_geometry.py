@@ -214,13 +214,16 @@ def test_distances_within_a_radius_are_exact_there_and_inf_only_beyond_it(scene)
     rng = np.random.default_rng(3)
     on = target.points[rng.choice(len(target.points), 400)]
     query = on + rng.normal(size=on.shape) * rng.choice([0.1, 5.0, 50.0, 500.0], size=(len(on), 1))
-    _, exact = surface.closest(query)
+    points, exact = surface.closest(query)
     for radius in (1.0, 20.0, 200.0):
         d2 = surface.squared_distances_within(query, radius)
         within = exact <= radius**2
         assert np.array_equal(d2[within], exact[within])  # exact (the same query) wherever it matters
         assert np.all(exact[np.isinf(d2)] > radius**2)  # inf only where the surface is surely farther
         assert np.all(np.isinf(d2) | (d2 == exact))
+        near, d2_near = surface.closest_within(query, radius)  # and the points, where it gives them
+        assert np.array_equal(d2_near, d2) and np.array_equal(np.isnan(near).any(axis=1), np.isinf(d2))
+        assert np.array_equal(near[np.isfinite(d2)], points[np.isfinite(d2)])
 
 
 @settings(max_examples=30, deadline=None)

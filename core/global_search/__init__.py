@@ -13,7 +13,8 @@ pair's fixed basis.
                then on the cut at the pose found), those inside the region first
     verdict    the first refined pose the pair threshold trusts inside the region ends the search; one
                trusted beyond it is kept, and returned (``within_region`` False) when no stage finds one
-               inside (a symmetric scene's twin inside wins)
+               inside (a symmetric scene's twin inside wins); asked to (``CandidateConfig.end_on_weak``), the
+               first weakly pinned pose refined inside ends it too, untrusted
     fallback   (fallback.py) nothing trusted: the paper's hybrid (``--method hybrid``, unchanged) round
                the best refined pose for at most ``CandidateConfig.fallback_steps`` steps; the pose of the
                two with the lower score
@@ -58,7 +59,7 @@ from ..scan import Scan
 from ..surface import Surface
 from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
-from .refinement import Found, converge, refine, search_stages
+from .refinement import Found, best_refined, converge, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
 from .stages import Hypotheses, Stage
 from .stream import EventStream
@@ -90,6 +91,10 @@ def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None
             best, stop = found.inside, Stop(StopReason.TRUSTED)
         elif found.beyond is not None:
             best, stop = found.beyond, Stop(StopReason.TRUSTED, f"{StopReason.TRUSTED.value}, beyond the stated region")
+        elif found.weak:
+            best = best_refined(setup, found.refined)[0]
+            stop = Stop(StopReason.WEAKLY_PINNED, f"{StopReason.WEAKLY_PINNED.value} (the search was asked to end "
+                                                  "there); the best scored pose")
         else:
             best, stop, local_minima = bounded_hybrid(setup, run, found)
     except Cancelled:

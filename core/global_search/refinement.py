@@ -109,6 +109,7 @@ class Found:
     beyond: np.ndarray | None = None
     last_cut: Problem | None = None
     stopped: Stop | None = None  # the search's budget was spent during a refinement (it is given up)
+    weak: bool = False  # a pose refined inside the region passes every test but the score's rise (end_on_weak)
     # a thinned pair's check (module notes in __init__: thinned): a pose trusted on the thinned scans, refined on
     # the whole ones (None: no cut there, the thinned pose stands); it counts as trusted only where that is too
     confirm: Callable[[np.ndarray], np.ndarray | None] | None = None
@@ -172,6 +173,9 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
                 return
             if found.beyond is None:
                 found.beyond = T
+        elif cc.end_on_weak and setup.region.inside(T) and setup.threshold.weakly_pinned(setup.basis, T):
+            found.weak = True
+            return
 
 
 def best_refined(setup: Setup, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:
@@ -195,6 +199,9 @@ def search_stages(setup: Setup, run: EventStream, confirm: Callable[[np.ndarray]
     for stage in stages(setup):
         if found.stopped is not None or run.budget.spent() is not None or run.budget.left("candidates") == 0:
             sources[stage.name] = "not reached within the search's bound"
+            continue
+        if found.weak and found.beyond is None:
+            sources[stage.name] = "not run: a weakly pinned pose was found, and the search was asked to end there"
             continue
         if found.beyond is not None and stage.costly:
             sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "

@@ -57,6 +57,7 @@ from .merge_tasks import (
     PairOutcome,
     PairTask,
     Shared,
+    built,
     clear_geometry_cache,
     feature_task,
     pair_task,
@@ -339,7 +340,7 @@ class _Campaign:
             placed = [k for k in range(self.n) if g.poses[k] is not None]
             self.note(Step.MODEL, f"fusing the {len(placed)} placed scans into one model")
             model = fuse([self.scans[k] for k in placed], [g.poses[k] for k in placed],
-                         qualities=[self.sample_quality(k) for k in placed])
+                         [built(self.shared, k)[1] for k in placed], qualities=[self.sample_quality(k) for k in placed])
         return MergeResult(list(g.poses), pairs, scans, model, time.perf_counter() - self.t0, self.t_pairs,
                            self.t_overlap, self.mode, self.round, self.registrations, self.reference,
                            rings=loops, skipped=len(self.skipped - set(self.pairs)),

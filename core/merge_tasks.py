@@ -230,7 +230,7 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     if task.end_on_weak:
         config = replace(config, candidates=replace(config.candidates, end_on_weak=True))
     try:
-        res = register(source, target, guess, config)
+        res = register(source, target, guess, config, surface=surface)  # the target's, built once per process
     except InputError as exc:  # e.g. no overlap at the guess or at a candidate: a pair that did not register
         return PairOutcome(task.T0, float("inf"), False, None, None, 0.0, None, time.perf_counter() - t0,
                            failure=str(exc))

@@ -1,7 +1,10 @@
 """The merge's rounds step (core.merge): the pairs the next round registers, under the poses found.
 
 1. Again: a pair not used, registered once, whose scans match by at least ``min_overlap`` under the
-   poses found, is registered again from the graph's pose before it is given up.
+   poses found, is registered again from the graph's pose before it is given up; one whose first
+   registration ended at a weakly pinned pose (core.merge.MergeConfig.first_ends_on_weak) and that no
+   loop corroborated, where the graph's poses do not give it that second try, is registered again as
+   first asked, with every stage of the search.
 2. Fresh: pairs that now overlap, each scan's best partners under the poses found, not registered yet.
 3. Groups: scans the used pairs do not join to the reference (core.merge_groups).
 
@@ -13,6 +16,7 @@ match: it could not be trusted).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,6 +27,7 @@ from .merge_progress import Step
 from .merge_result import Start
 from .merge_tasks import PairTask, share_task
 from .posegraph import Graph
+from .result import StopReason
 from .transforms import invert
 
 if TYPE_CHECKING:
@@ -64,6 +69,10 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
     for (i, j), f in over.items():
         if (i, j) in c.pairs and c.tried[i, j] == 1 and f >= c.mc.min_overlap:
             tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start=Start.GRAPH_POSE))
+    again = {(t.i, t.j) for t in tasks}
+    tasks += [replace(c.tasks[k], attempt=1, end_on_weak=False) for k, p in sorted(c.pairs.items())
+              if k not in used and k not in again and c.tried[k] == 1 and p.stop is not None
+              and p.stop.reason is StopReason.WEAKLY_PINNED]
     fresh = [Candidate(i, j, f) for (i, j), f in over.items() if (i, j) not in c.pairs]
     # the best by overlap (no long links: those were round 1's, and the used pairs count as the best)
     for x in choose(fresh + [Candidate(i, j, 1.0) for i, j in used], c.n, "init", c.mc, long=False):

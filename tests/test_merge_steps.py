@@ -137,6 +137,30 @@ def test_the_next_round_registers_again_from_the_graph_and_measures_only_near_pa
     assert all(c.shares[t.i, t.j] >= c.mc.min_overlap for t in tasks)
 
 
+def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_every_stage(camp):
+    from rangereg.core.merge_tasks import PairTask
+
+    c = _campaign(camp)
+    for i in range(7):
+        _pair(c, camp, i, i + 1)
+    _pair(c, camp, 0, 7)
+    weak = Stop(StopReason.WEAKLY_PINNED)
+    slid = _truth(camp, 2, 5) @ from_params(np.r_[30.0, 0, 0, 0, 0, 0])  # at the level, off the ring's loops
+    T0 = _truth(camp, 2, 5) @ from_params(np.r_[0, 0, 0, 0.1, 0, 0])
+    _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)
+    c.tasks[2, 5] = PairTask(2, 5, T0, 30.0, None, start=Start.ROUGH_POSES, fallback_steps=0, end_on_weak=True)
+    g, screened = c.graph()
+    assert (2, 5) not in screened.usable
+    tasks = [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (2, 5)]
+    # as first asked (its guess and region), now with every stage: not ended at a weakly pinned pose
+    assert len(tasks) == 1 and tasks[0].attempt == 1 and not tasks[0].end_on_weak
+    assert tasks[0].start is Start.ROUGH_POSES and tasks[0].rotation_deg == 30.0 and np.array_equal(tasks[0].T0, T0)
+    # once only: a second weakly pinned end is the pair's answer
+    _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)
+    g, screened = c.graph()
+    assert not [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (2, 5)]
+
+
 # ---- groups ----
 
 def test_a_turntable_arc_has_its_ends_where_its_gap_is():

@@ -146,14 +146,16 @@ class MergeConfig:
     # (frame) 2 of 125, neither used by the graph, while its 56 untrusted pairs spent 91.8 s (1.6 s each,
     # trusted ones 0.40 s median)
     first_fallback_steps: int | None = 0
-    # ... and, from a guess (not with no guess), ends at the first weakly pinned pose it refines
+    # ... and, in round 1 from a guess (not with no guess), ends at the first weakly pinned pose it refines
     # (core.candidates.CandidateConfig.end_on_weak): the graph uses such a pose only where a loop corroborates it
     # (core.merge_graph.corroborate), and one not used is registered again, from the graph's pose or as first asked
     # with every stage (core.merge_rounds). Measured, the 10-stop turntable of 40k-point scans (frame starts): 7 of
     # 20 pairs weakly pinned, each spending the whole work bound (3.4-6.1 s against 0.3-1.5 s for a trusted pair), 5
     # of the 7 ending at the first stage's pose anyway. The 24-stop turntable's crops 0 (axis starts): of the weakly
     # pinned poses it ended at, 11 of 12 from a guess were right (the 12th 3.3 deg off), 0 of 8 with no guess
-    # (80-164 deg off): hence not with no guess
+    # (80-164 deg off): hence not with no guess. Not in later rounds: their pairs are chosen to join what round 1
+    # left apart, and each may be a group's one link (those crops: ending there too, 11 placed against 14); nor in a
+    # sequence, whose rounds do not register its odometry pairs again
     first_ends_on_weak: bool = True
     # the pairs' time bound (core.candidates.CandidateConfig.time_limit; None: none, the search bounded by
     # its work alone, so a busy machine gives the same campaign later, not another). Measured, the 8-stop
@@ -386,9 +388,8 @@ class _Campaign:
         self.note(Step.PAIRS, f"registering {len(tasks)} pairs")
         first = self.mc.first_fallback_steps
         tasks = [replace(t, fallback_steps=first) if t.attempt == 0 and first is not None else t for t in tasks]
-        if self.mc.first_ends_on_weak:
-            tasks = [replace(t, end_on_weak=True) if t.attempt == 0 and t.start is not Start.NO_GUESS else t
-                     for t in tasks]
+        if self.mc.first_ends_on_weak and self.round == 1 and self.mode != "sequence":
+            tasks = [replace(t, end_on_weak=True) if t.start is not Start.NO_GUESS else t for t in tasks]
         out = self.measure(pair_task, tasks, Step.PAIRS)
         # why each pair registered again was not used before: said from the results as they were, before
         # any of this round's changes them (the outlier test weighs every trusted pair's E)

@@ -290,6 +290,7 @@ class _Campaign:
         self.pairs: dict[tuple[int, int], PairResult] = {}
         self.tried: dict[tuple[int, int], int] = {}  # registrations per pair
         self.tasks: dict[tuple[int, int], PairTask] = {}  # each pair's last registration, as asked
+        self.weak_again: set[tuple[int, int]] = set()  # pairs tried again after a weakly pinned first try
         self.cue = NeighbourCue(self.n, self._features)
         self.infos: dict[tuple[int, int, int], np.ndarray] = {}
         self.plane_infos: dict[tuple[int, int, int], np.ndarray] = {}  # point-to-plane, for the graph's uncertainty
@@ -318,7 +319,11 @@ class _Campaign:
     # ---- the rounds ----
 
     def go(self, build_model: bool) -> MergeResult:
-        tasks = merge_sequence.odometry_tasks(self) if self.mode == "sequence" else merge_pairs.first_tasks(self)
+        if self.mode == "sequence":
+            tasks = merge_sequence.odometry_tasks(self)
+        else:  # round 1's pairs from a guess end at a weakly pinned pose (MergeConfig.first_ends_on_weak)
+            weak = self.mc.first_ends_on_weak
+            tasks = [replace(t, end_on_weak=weak and t.start is not Start.NO_GUESS) for t in merge_pairs.first_tasks(self)]
         graph = None
         if not tasks:  # no pair overlaps under the poses: the scans apart are reached by the cue at once
             graph = self.graph()
@@ -388,8 +393,6 @@ class _Campaign:
         self.note(Step.PAIRS, f"registering {len(tasks)} pairs")
         first = self.mc.first_fallback_steps
         tasks = [replace(t, fallback_steps=first) if t.attempt == 0 and first is not None else t for t in tasks]
-        if self.mc.first_ends_on_weak and self.round == 1 and self.mode != "sequence":
-            tasks = [replace(t, end_on_weak=True) if t.start is not Start.NO_GUESS else t for t in tasks]
         out = self.measure(pair_task, tasks, Step.PAIRS)
         # why each pair registered again was not used before: said from the results as they were, before
         # any of this round's changes them (the outlier test weighs every trusted pair's E)

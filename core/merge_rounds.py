@@ -70,16 +70,19 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
         if (i, j) in c.pairs and c.tried[i, j] == 1 and f >= c.mc.min_overlap:
             tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start=Start.GRAPH_POSE))
     again = {(t.i, t.j) for t in tasks}
-    tasks += [replace(c.tasks[k], attempt=1, end_on_weak=False) for k, p in sorted(c.pairs.items())
-              if k not in used and k not in again and c.tried[k] == 1 and p.stop is not None
-              and p.stop.reason is StopReason.WEAKLY_PINNED]
+    weak = [replace(c.tasks[k], attempt=1, end_on_weak=False) for k, p in sorted(c.pairs.items())
+            if k not in used and k not in again and c.tried[k] == 1 and p.stop is not None
+            and p.stop.reason is StopReason.WEAKLY_PINNED]
+    c.weak_again |= {(t.i, t.j) for t in weak}
+    tasks += weak
     fresh = [Candidate(i, j, f) for (i, j), f in over.items() if (i, j) not in c.pairs]
     # the best by overlap (no long links: those were round 1's, and the used pairs count as the best)
     for x in choose(fresh + [Candidate(i, j, 1.0) for i, j in used], c.n, "init", c.mc, long=False):
         if x.key not in c.pairs and x.key in over:
             tasks.append(PairTask(x.i, x.j, invert(P[x.i]) @ P[x.j], found, None, start=Start.GRAPH_POSE))
     c.skipped |= {p for p, f in over.items() if p not in c.pairs and f < c.mc.min_overlap}
-    return tasks + join_tasks(c, g, sorted(used))
+    mine = {(t.i, t.j) for t in tasks}  # a pair once a round: a weakly pinned one's second try before a join's
+    return tasks + [t for t in join_tasks(c, g, sorted(used)) if (t.i, t.j) not in mine]
 
 
 def join_only(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:

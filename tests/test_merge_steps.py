@@ -161,6 +161,27 @@ def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_ever
     assert not [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (2, 5)]
 
 
+def test_a_weakly_pinned_groups_link_is_tried_again_as_asked_once_a_round_then_with_no_guess(camp):
+    from rangereg.core.merge_tasks import PairTask
+
+    c = _campaign(camp, [s.pose for s in camp.scans])
+    for i in range(4):
+        _pair(c, camp, i, i + 1)  # scans 0-4 joined; 5-7 reached only by the weakly pinned (4, 5)
+    weak = Stop(StopReason.WEAKLY_PINNED)
+    slid = _truth(camp, 4, 5) @ from_params(np.r_[30.0, 0, 0, 0, 0, 0])
+    _pair(c, camp, 4, 5, T=slid, trusted=False, misfit=0.6, stop=weak)
+    c.tasks[4, 5] = PairTask(4, 5, _truth(camp, 4, 5), 30.0, None, start=Start.ROUGH_POSES, fallback_steps=0,
+                             end_on_weak=True)
+    g, screened = c.graph()
+    assert not g.placed[5]
+    link = [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (4, 5)]
+    assert len(link) == 1 and link[0].start is Start.ROUGH_POSES and not link[0].end_on_weak  # not a join's too
+    _pair(c, camp, 4, 5, T=slid, trusted=False, misfit=8.0, stop=BOUND)  # that try found nothing better
+    g, screened = c.graph()
+    link = [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (4, 5)]
+    assert len(link) == 1 and link[0].start is Start.NO_GUESS  # the join's one try with no guess, as before
+
+
 # ---- groups ----
 
 def test_a_turntable_arc_has_its_ends_where_its_gap_is():

@@ -165,7 +165,8 @@ def crop_pairs(a) -> int:
             print(f"  {name} {i}-{j} share {share[i, j]:.2f}: {'right' if ok else 'WRONG'} {rot:.2f} deg / {move:.2f} mm, "
                   f"{'trusted' if res.below_threshold else 'not trusted'}, misfit "
                   f"{'-' if d.misfit is None else f'{d.misfit:.2f}'}, pins {'-' if c is None else f'{c.ratio:.4f}'}"
-                  f"{'' if c is None or c.rise is None else f' rise {c.rise:.2f}'}", flush=True)
+                  f"{'' if c is None or c.rise is None else f' rise {c.rise:.2f}'}"
+                  f"{'' if c is None or c.stable_rise is None else f' stable rise {c.stable_rise:.2f}'}", flush=True)
 
         def joined(keys):
             label = components(n, keys)

@@ -41,6 +41,8 @@ SHIFT_POINTS = 48  # ... on this many of the basis's points (a translation is th
 # the point-to-plane system that says whether a pose is pinned is built on this many source points
 # (core.threshold.constraint: the basis's 160 leave a road's few poles and kerbs to chance)
 CONSTRAINT_SAMPLE = 1500
+# ... and its source normals fitted to this many points (as core.threshold.CONSTRAINT_NEIGHBOURS fits the target's)
+CONSTRAINT_NORMAL_NEIGHBOURS = 30
 RECENT_POSES = 8  # single poses a basis remembers its answers for (Basis.evaluate, normal_angle)
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 # RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
@@ -239,9 +241,11 @@ class Basis:
     target: Scan
     angle_floor: float
     constraint_points: np.ndarray | None = None  # (C, 3) a larger seeded source sample (core.threshold.constraint)
+    source: Scan | None = None  # the scan ``points`` were drawn from (for :attr:`constraint_normals`)
     # the last few single poses asked about (a pose found is scored, tested for trust and reported: the
     # same answers three times over), by the pose's bytes
     _recent: dict = field(default_factory=dict, init=False, repr=False)
+    _lazy: dict = field(default_factory=dict, init=False, repr=False)  # what is made when first asked for
 
     def _remembered(self, what: str, T: np.ndarray, compute):
         key = (what, T.tobytes())
@@ -250,6 +254,19 @@ class Basis:
                 del self._recent[next(iter(self._recent))]
             self._recent[key] = compute()
         return self._recent[key]
+
+    @property
+    def constraint_normals(self) -> np.ndarray | None:
+        """(C, 3) the source's unit normals at ``constraint_points``, fitted to CONSTRAINT_NORMAL_NEIGHBOURS points
+        when first asked for (core.threshold.stable_rise: few poses need them); None without the source."""
+        if self.source is None or self.constraint_points is None:
+            return None
+        if "constraint normals" not in self._lazy:
+            src = self.source
+            k = min(CONSTRAINT_NORMAL_NEIGHBOURS, len(src.points))
+            idx = src.tree.query(self.constraint_points, k)[1].reshape(-1, k)
+            self._lazy["constraint normals"] = pca_normals(src.points, idx)
+        return self._lazy["constraint normals"]
 
     def evaluate(self, poses: np.ndarray) -> Scores:
         """Score (P, 4, 4) T_target_source poses; all closest points in one query."""
@@ -412,7 +429,7 @@ def make_basis(source: Scan, target: Scan, surface: Surface, floor: float, rng: 
     n_dense = min(CONSTRAINT_SAMPLE, len(source.points))
     constraint_points = source.points[np.sort(dense.choice(len(source.points), n_dense, replace=False))]
     return Basis(src, tgt, float(cap), surface, frustum_of(source, frustum), frustum_of(target, frustum),
-                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor, constraint_points)
+                 config.min_overlap, normals, config.normal_neighbours, target, angle_floor, constraint_points, source)
 
 
 # ---- where candidates come from -------------------------------------------------------------------------

@@ -163,7 +163,10 @@ class Result:
             else:
                 text = ("where the scans overlap they agree at the noise level, but the overlap pins the pose weakly "
                         f"and it slides freely by {c.free_motion}: slid that way by 3-8 match distances it scores "
-                        f"only {c.rise:.3g} x as high (pinned from {d.threshold.min_rise:g} x)")
+                        f"only {c.rise:.3g} x as high (pinned from {d.threshold.min_rise:g} x)"
+                        + ("" if c.stable_rise is None else
+                           f", the points facing that motion {c.stable_rise:.3g} x (pinned from "
+                           f"{d.threshold.min_stable_rise:g} x)"))
         else:
             text = (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
                     f"{d.misfit:.3g}, trusted below {factor:g})")

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..problem import Problem
 from ..search.budget import BudgetSpent
-from ..threshold import WEAK_BELOW, constraint
+from ..threshold import constraint
 from .setup import Setup
 from .stream import EventStream
 
@@ -32,19 +32,21 @@ MAX_SLIDE_SHARE = 0.25
 # the truth 6.0e-5: 39 % lower), so 10 % leaves the noise of a converged truth alone.
 MARGIN = 0.9
 ROUNDS = 2  # a refined slide is tested again (the second finds what the first's refinement left)
-# The walk is taken only where the overlap pins the pose weakly (core.threshold.WEAK_BELOW: the constraint's
-# smallest / largest eigenvalue): the slid poses seen score 0.008 (sim-fragments-0) and 0.013 (sim-room-2), the
+# The walk is taken only where the overlap pins the pose weakly (the constraint's smallest / largest eigenvalue
+# below WALK_BELOW): the slid poses it was measured on score 0.008 (sim-fragments-0) and 0.013 (sim-room-2), the
 # truths of the bunny pairs 0.047-0.119, rooms 0.047-0.077, the LiDAR pair 0.089 (core.threshold's notes). A walk
 # at a truth is harmless but not free (~0.5 s on a bunny pair with no guess: 400 slides of a quarter of its size).
+# (core.threshold.WEAK_BELOW, where the trust asks a rise, was this bound until a slid pose at 0.036 was trusted.)
+WALK_BELOW = 0.03
 
 
 def slides(setup: Setup, T: np.ndarray) -> np.ndarray:
     """(S, 4, 4) pose T translated along its weakest matched motion (target frame), both ways, one cap width
     apart up to the region's translation bound (MAX_SLIDE_SHARE of the target's size at most); (0, 4, 4) when
-    the overlap pins T (WEAK_BELOW), the weakest motion is a rotation or too few points match to say."""
+    the overlap pins T (WALK_BELOW), the weakest motion is a rotation or too few points match to say."""
     c = constraint(setup.basis, T)
     t, r = c.weakest[:3], c.weakest[3:]
-    if not c.matched or c.ratio >= WEAK_BELOW or np.linalg.norm(t) < np.linalg.norm(r):
+    if not c.matched or c.ratio >= WALK_BELOW or np.linalg.norm(t) < np.linalg.norm(r):
         return np.zeros((0, 4, 4))
     d = t / np.linalg.norm(t)
     reach = min(setup.region.translation + setup.region.slack_translation, MAX_SLIDE_SHARE * setup.target.size)

@@ -169,3 +169,20 @@ def test_dense_fused_fragments_from_a_guess_slid_along_the_room_are_not_trusted_
     rot, move = pose_error(res.transform, T_true)
     if not (rot < OK_ROT and move < OK_TRANS):
         assert not res.trusted and "slides freely" in res.trust_text, (rot, move, res.trust_text)
+
+
+def test_a_spinning_lidar_in_a_corridor_of_plain_walls_is_never_trusted():
+    # A road between two plain walls leaves the motion along it free. On the panorama's own surface the search ends
+    # where the two sensors coincide (0.5-1 m along the corridor from the truth) at a ratio of 0.004-0.005 whose score
+    # rises when slid: trusted before panoramas had a bound of their own (benchmarks/slid_guesses.py).
+    from rangereg.core.scenes_sensor import lidar_pair
+    from rangereg.core.threshold import MIN_CONSTRAINT_PANORAMA
+
+    for seed, shift in ((0, 0.0), (1, 6.0)):
+        s, t = lidar_pair("corridor", seed)
+        T0 = invert(t.pose) @ s.pose
+        T0[0, 3] += shift
+        res = register(s, t, Guess(T0), Config(method="global", seed=0))
+        assert not res.trusted, (seed, pose_error(res.transform, invert(t.pose) @ s.pose), res.trust_text)
+        assert res.details.threshold.min_constraint == MIN_CONSTRAINT_PANORAMA
+        assert "does not pin all six degrees of freedom" in res.trust_text

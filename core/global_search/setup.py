@@ -21,7 +21,7 @@ from ..region import Region
 from ..scan import Scan
 from ..search.budget import Budget
 from ..surface import Surface
-from ..threshold import PairThreshold, pair_threshold
+from ..threshold import PairThreshold, min_constraint_of, pair_threshold
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,7 +106,7 @@ def prepare_setup(source: Scan, target: Scan, guess: Guess | np.ndarray | None, 
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
     floor = float(np.mean(floors()))
     basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
-    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
+    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap, min_constraint=min_constraint_of(target))
     region = guess.region(source, target)
     return Setup(source, target, config, problem, basis, threshold, region, frame, ahead, t0)
 

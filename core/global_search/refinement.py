@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..config import Config
+from ..errors import InputError
 from ..guess import Guess
 from ..icp import IcpConfig, icp
 from ..lock import LockFrame
@@ -161,6 +162,8 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         except BudgetSpent as spent:  # the budget ran out inside this refinement: it is given up, the search ends
             found.stopped = spent.stop
             return
+        except InputError:  # its refinement walked to where the scans do not overlap: the candidate is given up
+            continue
         if found.confirm is not None and setup.trusted(T):  # (the check first: a trust test costs a basis query)
             T_whole = found.confirm(T)
             if T_whole is not None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..problem import Problem
 from ..search.budget import BudgetSpent
 from ..threshold import constraint
@@ -77,7 +78,7 @@ def along_the_free_motion(setup: Setup, run: EventStream, T: np.ndarray, last: P
         run.leg("icp")
         try:
             T2, last2 = refine_from(poses[k])
-        except BudgetSpent:
+        except (BudgetSpent, InputError):  # spent, or the slide's refinement left the overlap: keep the pose
             break
         if not setup.basis.evaluate(T2[None]).score[0] < scores[0]:
             break

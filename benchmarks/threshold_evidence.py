@@ -18,7 +18,7 @@ whether the threshold (with the factor left out for that case) lies between the 
 ``--kinds``: the other kinds too: simulated RGB-D fragments and LiDAR rooms and streets (core.scenes_sensor), the
 shared LiDAR pair (truth relative.txt); a case whose surface or overlap this code cannot make is said, not hidden.
 ``--rise``: the evidence for core.threshold.MIN_RISE and MIN_STABLE_RISE: per case at the truth the constraint's ratio,
-the score's rise when slid along the weakest motion (tried only below core.threshold.WEAK_BELOW) and the same rise of
+the score's rise when slid along the weakest motion (tried only below core.threshold.weak_below_of) and the same rise of
 the points that pin that motion (core.threshold.stable_rise; tried where the first falls short).
 ``--constraint``: the evidence for core.threshold.MIN_CONSTRAINT instead: per case the ratio of the matched
 point-to-plane system at the truth and at the truth slid along the system's weakest motion by 1, 2 and 5 % of
@@ -185,7 +185,15 @@ def rise_main(a) -> int:
     from rangereg.core.config import Config
     from rangereg.core.global_search.setup import prepare_setup
     from rangereg.core.guess import Guess
-    from rangereg.core.threshold import MIN_CONSTRAINT, MIN_RISE, MIN_STABLE_RISE, WEAK_BELOW, constraint, score_rise, stable_rise
+    from rangereg.core.threshold import (
+        MIN_CONSTRAINT,
+        MIN_RISE,
+        MIN_STABLE_RISE,
+        constraint,
+        score_rise,
+        stable_rise,
+        weak_below_of,
+    )
 
     rows = []
     every = itertools.chain(cases(Path(a.folder)), kind_cases(Path(a.folder).parent), free_cases())
@@ -203,7 +211,7 @@ def rise_main(a) -> int:
             print(f"{name:20s} too little matches to measure", flush=True)
             continue
         rise, stable = score_rise(setup.basis, T, c), stable_rise(setup.basis, T, c)
-        tried = MIN_CONSTRAINT <= c.ratio < WEAK_BELOW
+        tried = MIN_CONSTRAINT <= c.ratio < weak_below_of(t)
         rows.append((name, tried, rise))
         print(f"{name:20s} ratio {c.ratio:.4f} ({'tried' if tried else 'not tried'}) rise {rise:.3f} "
               f"stable rise {stable:.3f} (weakest: {c.free_motion})", flush=True)

@@ -275,12 +275,18 @@ class Basis:
             return self._remembered("scores", poses, lambda: self._evaluate(poses))
         return self._evaluate(poses)
 
+    def matches(self, poses: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P, M) squared distances of (M, 3) source ``points`` under (P, 4, 4) poses to the target surface (exact
+        within the cap, inf beyond: every distance beyond it pays the cap, so only those need the exact query) and
+        (P, M) bool: inside the target's frustum."""
+        P, M = len(poses), len(points)
+        moved = (np.einsum("pij,mj->pmi", poses[:, :3, :3], points) + poses[:, None, :3, 3]).reshape(-1, 3)
+        d2 = self.surface.squared_distances_within(moved, float(np.sqrt(self.cap))).reshape(P, M)
+        return d2, self.target_frustum.contains(moved).reshape(P, M)
+
     def _evaluate(self, poses: np.ndarray) -> Scores:
         P, M = len(poses), len(self.points)
-        moved = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
-        # every distance beyond the cap pays the cap: only those within it need the exact query
-        d2 = self.surface.squared_distances_within(moved.reshape(-1, 3), float(np.sqrt(self.cap))).reshape(P, M)
-        inside = self.target_frustum.contains(moved.reshape(-1, 3)).reshape(P, M)
+        d2, inside = self.matches(poses, self.points)
         inv = np.array([invert(T) for T in poses])
         back = np.einsum("pij,mj->pmi", inv[:, :3, :3], self.target_points) + inv[:, None, :3, 3]
         reverse = self.source_frustum.contains(back.reshape(-1, 3)).reshape(P, -1).mean(1)

@@ -284,11 +284,7 @@ def facing_weights(basis: Basis, T: np.ndarray, c: Constraint) -> np.ndarray:
 def facing_scores(basis: Basis, weights: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """(P,) the capped score of (P, 4, 4) poses on ``basis.constraint_points``, each weighted by ``weights`` ((C,),
     :func:`facing_weights`), as the basis scores: a point outside the target's frustum or beyond the cap pays it."""
-    pts = basis.constraint_points
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    moved = (np.einsum("pij,mj->pmi", poses[:, :3, :3], pts) + poses[:, None, :3, 3]).reshape(-1, 3)
-    d2 = basis.surface.squared_distances_within(moved, float(np.sqrt(basis.cap))).reshape(len(poses), -1)
-    inside = basis.target_frustum.contains(moved).reshape(len(poses), -1)
+    d2, inside = basis.matches(np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4), basis.constraint_points)
     return np.where(inside, np.minimum(d2, basis.cap), basis.cap) @ weights / weights.sum()
 
 

@@ -298,12 +298,13 @@ def _load_pcd(path: Path) -> RawScan:
     elif mode == "ascii" and "intensity" in fields:
         intensity = arr[:, offs[fields.index("intensity")]]
     vp, rotation = _pcd_viewpoint(header.get("VIEWPOINT"), path)
+    default = vp is not None and [float(x) for x in header["VIEWPOINT"]] == [0, 0, 0, 1, 0, 0, 0]  # PCL's and Open3D's
     grid_idx = None
     w, h = int(header.get("WIDTH", [n])[0]), int(header.get("HEIGHT", ["1"])[0])
     if h > 1 and w * h == len(pts):
         grid_idx = np.arange(len(pts)).reshape(h, w)  # row-major; NaN cells are emptied by the assembly
     return RawScan(pts, str(path), path.stem, grid=grid_idx, viewpoint=vp, viewpoint_label="VIEWPOINT",
-                   sensor_rotation=rotation,
+                   viewpoint_default=default, sensor_rotation=rotation,
                    intensity=intensity, sidecar=path)
 
 

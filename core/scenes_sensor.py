@@ -250,10 +250,11 @@ def fragment(mesh, cameras: list[np.ndarray], cam: DepthCamera, rng: np.random.G
                 pose=cameras[0].copy(), kind=ScanKind.UNSTRUCTURED)
 
 
-def fragment_pair(seed: int = 0, frames: int = 5, cam: DepthCamera = DepthCamera()) -> tuple[Scan, Scan]:
-    """(source, target) RGB-D fragments of the room: a hand-held camera walked along an arc, ``frames`` frames
-    a fragment, the second fragment's path starting where the first's ends (they overlap, as consecutive
-    fragments of a reconstruction do)."""
+def fragment_pair(seed: int = 0, frames: int = 5, cam: DepthCamera = DepthCamera(), shared: int = 2
+                  ) -> tuple[Scan, Scan]:
+    """(source, target) RGB-D fragments of the room: a hand-held camera walked along an arc round the room's
+    centre, 6 degrees a frame, ``frames`` frames a fragment, the second fragment's path starting ``shared``
+    frames before the first's ends (they overlap, as consecutive fragments of a reconstruction do)."""
     rng = np.random.default_rng(seed)
     mesh = room_mesh()
     centre = np.array([3.5, 2.5, 1.0])
@@ -269,7 +270,7 @@ def fragment_pair(seed: int = 0, frames: int = 5, cam: DepthCamera = DepthCamera
         return out
 
     first = path(a0, frames)
-    second = path(a0 + np.radians(6.0) * (frames - 2), frames)
+    second = path(a0 + np.radians(6.0) * (frames - shared), frames)
     target = fragment(mesh, first, cam, rng, name=f"fragment-{seed}-a")
     source = fragment(mesh, second, cam, rng, name=f"fragment-{seed}-b")
     return source, target

@@ -232,6 +232,18 @@ class Constraint:
             out[k, :3, 3] = R @ (out[k, :3, 3] - self.center) + self.center + v[:3] * s
         return out
 
+    def alignment(self, T: np.ndarray, T_other: np.ndarray) -> float:
+        """How nearly the motion from pose T to ``T_other`` (both (4, 4)) runs along the weakest motion: the |cosine|
+        (0-1) between the weakest motion and that move (its centre's translation, its rotation in units of
+        ``radius``), the move taken as one twist about ``center`` (target frame)."""
+        from scipy.spatial.transform import Rotation
+
+        D = np.asarray(T_other, dtype=np.float64) @ np.linalg.inv(np.asarray(T, dtype=np.float64))
+        move = np.r_[D[:3, :3] @ self.center + D[:3, 3] - self.center,
+                     Rotation.from_matrix(D[:3, :3]).as_rotvec() * self.radius]
+        size = np.linalg.norm(move) * np.linalg.norm(self.weakest)
+        return float(abs(move @ self.weakest) / size) if size > 0 else 1.0
+
     def to_json(self) -> dict:
         return {"eigenvalues": self.eigenvalues.tolist(), "ratio": self.ratio, "matched": self.matched,
                 "free_motion": self.free_motion if self.matched else "", "rise": self.rise,

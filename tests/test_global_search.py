@@ -242,3 +242,22 @@ def test_a_candidate_whose_refinement_leaves_the_overlap_is_given_up_not_the_run
     res = register(s, t, Guess(T_true @ turn), Config(method="global", seed=0))
     rot, move = pose_error(res.transform, T_true)
     assert (rot < 1.0 and move < 0.05) or not res.trusted, (rot, move)
+
+
+def test_a_pose_is_undercut_only_by_a_distinct_pose_that_scores_lower(scene_start):
+    # the rule that keeps the pair threshold from trusting a pose the robust error itself likes less than one
+    # found before (RGB-D fragments of a room trusted half a turn off over the truth it had found)
+    from rangereg.core.global_search import prepare_setup
+    from rangereg.core.global_search.refinement import undercut
+    from rangereg.core.transforms import perturb
+
+    target, source, T_true, _ = scene_start("corner", 0.0, 0.0)
+    setup = prepare_setup(source, target, Guess(T_true, 30.0), Config(method="global", seed=0))
+    T_off = perturb(T_true, np.r_[0.0, 0.0, 0.0, 0.0, 0.0, np.radians(8.0)], source.centroid)
+    T_near = perturb(T_true, np.r_[0.0, 0.0, 0.0, 0.0, 0.0, np.radians(0.2)], source.centroid)
+    s = setup.basis.evaluate(np.stack([T_true, T_off]))
+    assert setup.basis.valid(s)[0] and s.score[0] < s.score[1]
+    assert undercut(setup, [T_true], T_off)  # the truth was found and scores lower: the 8-degree pose is not trusted
+    assert not undercut(setup, [T_off], T_true)
+    assert not undercut(setup, [T_near, T_true], T_true)  # a twin within the distinct bounds is the same pose
+    assert not undercut(setup, [], T_off)

@@ -40,11 +40,13 @@ from .scan import E57Record, Origin, RangeGrid, Scan, ScanKind, clean_points, kd
 from .viewpoint import (
     AROUND_SHARE,
     CONVENTION_REACH,
+    GRAZING_SHARE,
     LAYERED_SHARE,
     RANGE_SPREAD,
     SENSOR_SLOPE,
     check_viewpoint,
     estimate_viewpoint,
+    grazing_share,
     layered_share,
     sample,
     sensor_slope,
@@ -318,8 +320,10 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
 
 def _one_view(points: np.ndarray, tree: cKDTree, viewpoint: np.ndarray) -> bool:
     """Whether bare points could be one view from ``viewpoint``: one surface along each ray, in layers
-    only at occluding contours (core.viewpoint.LAYERED_SHARE)."""
-    return layered_share(points, tree, viewpoint) <= LAYERED_SHARE
+    only at occluding contours (core.viewpoint.LAYERED_SHARE), and few surfaces seen edge-on
+    (core.viewpoint.GRAZING_SHARE)."""
+    return (layered_share(points, tree, viewpoint) <= LAYERED_SHARE
+            and grazing_share(points, tree, viewpoint) <= GRAZING_SHARE)
 
 
 def orient_grid(grid: np.ndarray, points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:

@@ -286,6 +286,27 @@ def test_thinned_sensor_frames_in_a_pcd_keep_or_leave_the_default_viewpoint_as_t
     assert (s.kind, s.viewpoint_from, s.viewpoint.tolist(), s.notes) == (ScanKind.SINGLE_VIEW, Origin.FILE, [0, 0, 0], ())
 
 
+def test_a_thinned_lidar_frame_as_ply_is_no_single_view_from_far_below_and_registers_from_the_identity(tmp_path):
+    # the case again: the shared LiDAR frames thinned at 0.5 m and written as PLY lay one layer deep as seen
+    # from ~360 m below, were read as one view from there, and the identity was trusted 49 cm off the truth; their
+    # walls are seen edge-on from there (core.viewpoint.GRAZING_SHARE): unstructured, and the pose is right
+    _needs(LIDAR)
+    from rangereg.core.guess import Guess
+    from rangereg.core.io import load_pair
+    from rangereg.core.register import Config, register
+    from rangereg.core.transforms import pose_error
+
+    from benchmarks.written_files import thinned
+
+    for name in ("251371071", "251370668"):
+        write_ply(tmp_path / f"{name}.ply", thinned(LIDAR / f"{name}.pcd", 0.5))
+    s, t = load_pair(tmp_path / "251371071.ply", tmp_path / "251370668.ply")
+    assert s.kind == t.kind == ScanKind.UNSTRUCTURED
+    res = register(s, t, Guess.none(), Config(method="global"))
+    rot, move = pose_error(res.transform, np.loadtxt(LIDAR / "relative.txt"))
+    assert rot < 1.0 and move < 0.05 and res.trusted, (rot, move)
+
+
 # ---- --scan-kind, bad inputs ----
 
 def test_scan_kind_flag_overrides_the_file(tmp_path, rangereg):

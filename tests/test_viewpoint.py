@@ -59,3 +59,14 @@ def test_viewpoint_on_the_wrong_side(bunny):
     behind = s.centroid - (s.viewpoint - s.centroid)
     with pytest.raises(InputError, match="wrong side"):
         load_scan(s.source, viewpoint=behind)
+
+
+def test_a_plane_seen_face_on_grazes_nothing_and_edge_on_everything():
+    from rangereg.core.scan import kd_tree
+    from rangereg.core.viewpoint import grazing_share
+
+    u, v = np.meshgrid(np.linspace(-1, 1, 60), np.linspace(-1, 1, 60))
+    plane = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    tree = kd_tree(plane)
+    assert grazing_share(plane, tree, np.array([0.0, 0.0, 5.0])) == 0.0
+    assert grazing_share(plane, tree, np.array([50.0, 0.0, 0.0])) == 1.0

@@ -195,12 +195,15 @@ def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:
     the lowest of the robust error found, and the pair threshold's trust is not the error's choice. Seen
     (2026-12-06) on RGB-D fragments fused from 15 frames of a room: KISS-Matcher's pose, the truth to
     0.05 deg but weakly pinned (doubted), scored 1.006e-4; a rotation sample then refined to the room
-    turned half a turn, 1.086e-4 and well pinned, and was trusted 180 deg off. Not counted, where T is
-    weakly pinned: its slides (:data:`ALONG_THE_FREE_MOTION`), which may score lower (a room's floor and walls
+    turned half a turn, 1.086e-4 and well pinned, and was trusted 180 deg off. Not counted: a pose beyond
+    the stated region, where T is inside it (the corner scene's twin 120 deg off scores 18.2, the truth 27.0);
+    where T is weakly pinned, its slides (:data:`ALONG_THE_FREE_MOTION`), which may score lower (a room's floor and walls
     fit as well slid) and which the pair threshold's rise tests judged."""
     cc = setup.config.candidates
     others = [R for R in refined if not _near([R], T, setup.source.centroid, np.radians(cc.distinct_rotation_deg),
                                                 cc.distinct_translation * setup.target.size)]
+    if others and setup.region.inside(T):  # what the user stated comes first: only a pose inside it can undercut
+        others = [R for R in others if setup.region.inside(R)]
     if not others:
         return False
     s = setup.basis.evaluate(np.stack(others + [T]))

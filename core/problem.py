@@ -23,7 +23,7 @@ from .guess import Guess
 from .noise import NORMAL_NEIGHBOURS
 from .robust_error import RobustError
 from .scan import Scan, ScanKind, scale_mismatch
-from .surface import Surface, pca_normals
+from .surface import PARALLEL_QUERY, Surface, pca_normals
 from .transforms import apply, delta_between, invert, perturb
 
 
@@ -191,7 +191,8 @@ def _normals_at(scan: Scan, at: np.ndarray) -> np.ndarray:
     new = np.unique(at[~known[at]])
     if len(new):
         k = min(NORMAL_NEIGHBOURS, len(scan.points))
-        normals[new] = pca_normals(scan.points, scan.tree.query(scan.points[new], k)[1].reshape(len(new), k))
+        nb = scan.tree.query(scan.points[new], k, workers=-1 if len(new) > PARALLEL_QUERY else 1)[1]
+        normals[new] = pca_normals(scan.points, nb.reshape(len(new), k))
         known[new] = True  # after the values: a thread that sees it set reads them written
     return normals[at]
 

@@ -315,6 +315,8 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
         return None, tree  # the spacing does not grow with the range: not sampled from there
     if around and spread < RANGE_SPREAD:
         return None, tree  # all around at one range: nothing tells a sensor from a shell about its centre
+    if not around and grazing_share(points, tree, np.zeros(3)) > GRAZING_SHARE:
+        return None, tree  # in front, but seen edge-on: a scene whose sensor stood elsewhere (a world frame)
     return (ScanKind.PANORAMA if around else ScanKind.SINGLE_VIEW), tree
 
 

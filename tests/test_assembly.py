@@ -307,6 +307,19 @@ def test_a_thinned_lidar_frame_as_ply_is_no_single_view_from_far_below_and_regis
     assert rot < 1.0 and move < 0.05 and res.trusted, (rot, move)
 
 
+def test_a_lidar_frame_written_in_a_world_frame_is_no_view_from_the_worlds_origin(tmp_path):
+    # 37 m from its sensor its spacing still grows with the range from the origin (slope ~3), and the points lie in
+    # front of it: it was read as one view from there and registered 18-20 cm off, trusted. Seen from there its
+    # walls and road are edge-on (core.viewpoint.GRAZING_SHARE), so there is no sensor at the origin.
+    _needs(LIDAR)
+    from rangereg.core.transforms import apply, from_params
+
+    pts = read_raw(LIDAR / "251370668.pcd").points
+    pts = pts[np.all(np.isfinite(pts), axis=1) & np.any(pts != 0, axis=1)]
+    write_ply(tmp_path / "world.ply", apply(from_params(np.r_[35.0, -12.0, 1.5, 0, 0, np.radians(25)]), pts))
+    assert load_scan(tmp_path / "world.ply").kind == ScanKind.UNSTRUCTURED
+
+
 # ---- --scan-kind, bad inputs ----
 
 def test_scan_kind_flag_overrides_the_file(tmp_path, rangereg):

@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .scan import Scan, ScanKind
-from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surface, local_spacing, pca_normals
+from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surface, local_spacing
 
 # Open3D's recipe fits normals to at most 30 neighbours within 2 voxels of a downsampled cloud (its points ~1
 # voxel apart). A raw cloud's median nearest-neighbour distance (Scan.spacing) is half its mean spacing where the
@@ -31,6 +31,16 @@ from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surfac
 NORMAL_RADIUS_SPACINGS = 5.0
 NORMAL_MAX_NEIGHBOURS = 30
 FALLBACK_NEIGHBOURS = 8  # a rim point's plane: its nearest points, whatever their distance
+# A neighbourhood whose second spread is under LINEAR_SPREAD of its first is a line, not a plane: a spinning
+# LiDAR's ring (its points ~20 x closer along the ring than between rings), whose "normal" is any direction
+# across it. Measured (2026-12-06, the share of such neighbourhoods): the shared LiDAR frames 0.72-0.77, thinned
+# at 0.1-0.5 m 0.06-0.21, the simulated street and room 0.13-0.28; the Kinect frame, RGB-D fragments and the
+# bunny 0.000-0.002. Its plane is fitted to its NORMAL_MAX_NEIGHBOURS nearest, whatever their distance, then
+# to its LINE_NEIGHBOURS nearest. Read as unstructured (--scan-kind, or written in a world frame), the shared
+# pair was trusted 0.67 deg / 50 cm off before (now "trust no"); in a world frame 37 m from its sensor it ends
+# 0.05 deg / 1.7 cm off (doubted) instead of 0.52 deg / 27 cm; thinned at 0.1 m, 0.06 deg / 1.9 cm against 0.38.
+LINEAR_SPREAD = 0.01
+LINE_NEIGHBOURS = 120
 # A patch reaches 2 local spacings from its point: half the longest edge a triangulated surface keeps
 # (core.surface.EDGE_FACTOR = 4), so a hole the single-view mesh would bridge the patches cover too.
 PATCH_SPACINGS = 2.0
@@ -48,7 +58,8 @@ def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray
     ``spacing``, at most ``NORMAL_MAX_NEIGHBOURS`` of them, itself included (Open3D's hybrid search in
     ``estimate_normals``: the same neighbourhoods and covariance, its normals to 2e-6 degrees on a 274k-point
     simulated fragment); a point with fewer than 3 there (at a rim) is fitted to its ``FALLBACK_NEIGHBOURS``
-    nearest points instead. A patch is ``PATCH_SPACINGS`` x the mean distance to the point's
+    nearest points instead, and one whose neighbours lie on a line (:data:`LINEAR_SPREAD`) to more, farther ones.
+    A patch is ``PATCH_SPACINGS`` x the mean distance to the point's
     ``SPACING_NEIGHBOURS`` nearest (core.surface.local_spacing), from the same query."""
     pts = np.asarray(points, dtype=np.float64)
     at = np.asarray(at, dtype=np.int64)
@@ -60,16 +71,33 @@ def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray
     within = d[:, :kn] <= NORMAL_RADIUS_SPACINGS * spacing
     count = within.sum(axis=1)
     normals = np.empty((len(at), 3))
+    linear = np.zeros(len(at), dtype=bool)
     for lo in range(0, len(at), PLANE_CHUNK):
         w = within[lo:lo + PLANE_CHUNK, :, None]
         nb = pts[j[lo:lo + PLANE_CHUNK, :kn]]
         c = (nb - (nb * w).sum(axis=1, keepdims=True) / np.maximum(count[lo:lo + PLANE_CHUNK, None, None], 1)) * w
-        _, vecs = np.linalg.eigh(np.matmul(c.transpose(0, 2, 1), c))
+        vals, vecs = np.linalg.eigh(np.matmul(c.transpose(0, 2, 1), c))
         normals[lo:lo + PLANE_CHUNK] = vecs[:, :, 0]
+        linear[lo:lo + PLANE_CHUNK] = vals[:, 1] < LINEAR_SPREAD * vals[:, 2]
     rim = np.flatnonzero(count < 3)
     if len(rim):
-        normals[rim] = pca_normals(pts, j[rim, :min(FALLBACK_NEIGHBOURS, k)])
+        normals[rim] = _plane(pts[j[rim, :min(FALLBACK_NEIGHBOURS, k)]])[0]
+    line = np.flatnonzero(linear & (count >= 3))
+    for wide in (kn, LINE_NEIGHBOURS):  # a line of points (a scan line, a ring) spans no plane: reach past it
+        if not len(line):
+            break
+        kw = min(wide, len(pts))
+        n, still = _plane(pts[tree.query(pts[at[line]], k=kw)[1].reshape(len(line), kw)])
+        normals[line[~still]] = n[~still]
+        line = line[still]
     return normals, patch
+
+
+def _plane(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 3) unit normals of neighbourhoods (M, k, 3) and (M,) whether each is a line (LINEAR_SPREAD)."""
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return vecs[:, :, 0], vals[:, 1] < LINEAR_SPREAD * vals[:, 2]
 
 
 PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries, 14 MB

@@ -1,7 +1,7 @@
 """Scans as users' tools write them: Open3D's PCD (with the format's default VIEWPOINT 0 0 0 1 0 0 0, which
 PCL and Open3D put into every file) and PLY (no viewpoint), no sidecar, registered with no guess.
 
-    python benchmarks/written_files.py [--seeds 4] [--formats pcd,ply] [--families walk15,walk30,lidar,kinect]
+    python benchmarks/written_files.py [--seeds 4] [--formats pcd,ply] [--families walk15,lidar,kinect,...]
     python benchmarks/written_files.py --smallest   # one small walk pair, PCD: a check that it runs
 
 The sensor sweep hands its simulated scans over in memory with their kind, and its real files are frames as
@@ -17,6 +17,9 @@ was looked at; two walks of another generator, seen while finding the defect tha
   odometry pipelines keep their frames. Truth: relative.txt.
 - kinect: the shared Kinect frames capture0002 onto capture0001 thinned at 1, 2 and 5 cm. No truth: the
   reference is the pose registered on the frames as captured (the same frames thinned must give it).
+- lidar-world (added later the same day, after the defect it shows was found): the shared LiDAR pair as a map
+  holds it, in a world frame: the target's sensor at (35, -12, 1.5) m turned 25 deg about z, the source at its
+  true pose there moved by an odometry error of (0.3, -0.2, 0) m and 2 deg about z. Truth: that error undone.
 
 Right: within 1 degree and 5 cm at the source's origin. Ours: the files read through the assembly
 (core.io.load_pair) and registered with no guess (`rangereg register a b`), seconds from reading to pose.
@@ -39,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 
 from rangereg.app.sweep_sensors import OK_ROT, OK_TRANS, peer  # noqa: E402
 from rangereg.core import scenes_sensor as ss  # noqa: E402
-from rangereg.core.transforms import invert, pose_error  # noqa: E402
+from rangereg.core.transforms import apply, from_params, invert, pose_error  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 WALKS = {"walk15": (15, 5), "walk30": (30, 10)}  # frames a fragment, frames shared
@@ -47,13 +50,16 @@ LIDAR_VOXELS = (0.1, 0.25, 0.5)
 KINECT_VOXELS = (0.01, 0.02, 0.05)
 
 
-def thinned(path: Path, voxel: float) -> np.ndarray:
-    """The finite points of a shared file, thinned on a ``voxel`` grid (Open3D's voxel_down_sample)."""
+def thinned(path: Path, voxel: float | None = None) -> np.ndarray:
+    """The finite points of a shared file (a LiDAR's "no return" at the sensor left out), thinned on a ``voxel``
+    grid (Open3D's voxel_down_sample; None: as they are)."""
     import open3d as o3d
     from rangereg.core.io import read_raw
 
     p = read_raw(path).points
     p = p[np.all(np.isfinite(p), axis=1) & np.any(p != 0, axis=1)]
+    if voxel is None:
+        return p
     return np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p)).voxel_down_sample(voxel).points)
 
 
@@ -71,6 +77,13 @@ def pairs(families: list[str], seeds: int, small: bool):
             for v in LIDAR_VOXELS:
                 yield (fam, f"lidar at {v:g} m", thinned(SHARED / "lidar" / "251371071.pcd", v),
                        thinned(SHARED / "lidar" / "251370668.pcd", v), T, "truth")
+        elif fam == "lidar-world" and (SHARED / "lidar").is_dir():
+            T_rel = np.loadtxt(SHARED / "lidar" / "relative.txt")
+            T_world_target = from_params(np.r_[35.0, -12.0, 1.5, 0.0, 0.0, np.radians(25.0)])
+            error = from_params(np.r_[0.3, -0.2, 0.0, 0.0, 0.0, np.radians(2.0)])
+            source = apply(error @ T_world_target @ T_rel, thinned(SHARED / "lidar" / "251371071.pcd"))
+            target = apply(T_world_target, thinned(SHARED / "lidar" / "251370668.pcd"))
+            yield fam, "lidar in a world frame", source, target, invert(error), "truth"
         elif fam == "kinect" and (SHARED / "kinect").is_dir():
             from rangereg.core import Config, register
             from rangereg.core.guess import Guess
@@ -116,7 +129,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=4, help="walk pairs per family (default 4)")
     ap.add_argument("--formats", default="pcd,ply", help="comma-separated of pcd, ply")
-    ap.add_argument("--families", default="walk15,walk30,lidar,kinect")
+    ap.add_argument("--families", default="walk15,walk30,lidar,kinect,lidar-world")
     ap.add_argument("--no-peer", action="store_true", help="leave Open3D's pipeline out")
     ap.add_argument("--smallest", action="store_true", help="one small walk15 pair as PCD (a check that it runs)")
     a = ap.parse_args()

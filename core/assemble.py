@@ -59,11 +59,12 @@ ORIENT_SAMPLE = 20_000  # grid cells that decide which way a grid faces (a whole
 # Units from the scale. The median point spacing of real scans, in metres: the bunny 0.0005, the Kinect
 # frames 0.004, the spinning-LiDAR frames 0.012; the simulated scenes in millimetres 5.6-16.6. A spacing
 # below SPACING_METRES would be finer than 50 micrometres in millimetres (no range scanner we meet), one
-# above SPACING_MILLIMETRES coarser than half a metre in metres; between them the scale cannot tell
-# (a street at 20 cm or an object at 0.2 mm) and the units stay unknown, unless the points surround their
-# sensor: a panorama is a scene, in metres.
+# above SPACING_MILLIMETRES coarser than 2 m in metres (the LiDAR frames thinned on the 0.3-1 m voxels of a
+# global registration are 0.2-0.62 apart: the shared frames at 1 m, 0.62, were "mm" when this bound was 0.5);
+# between them the scale cannot tell (a street at 20 cm or an object at 0.2 mm) and the units stay unknown,
+# unless the points surround their sensor: a panorama is a scene, in metres.
 SPACING_METRES = 0.05
-SPACING_MILLIMETRES = 0.5
+SPACING_MILLIMETRES = 2.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -94,6 +94,7 @@ def test_units_from_the_scale_follow_the_spacing_not_the_size():
     assert units_from_scale(0.01) == "m"  # a street 50 m wide at 1 cm
     assert units_from_scale(5.6) == "mm"  # the simulated bowl, 850 mm wide
     assert units_from_scale(0.2) == "unknown"  # an object at 0.2 mm or a street at 20 cm
+    assert units_from_scale(0.62) == "unknown"  # an object at 0.6 mm or a LiDAR frame thinned at 1 m
     assert units_from_scale(0.2, ScanKind.PANORAMA) == "m"  # a panorama is a scene
 
 

@@ -44,6 +44,7 @@ from .viewpoint import (
     LAYERED_SHARE,
     RANGE_SPREAD,
     SENSOR_SLOPE,
+    SENSOR_SLOPE_MAX,
     check_viewpoint,
     estimate_viewpoint,
     grazing_share,
@@ -146,15 +147,18 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
     if kind is None and side.get("kind") is not None:
         kind, kind_from = side["kind"], Origin.SIDECAR
 
-    notes = raw.notes
-    if stated is not None and stated[1] is Origin.FILE and raw.viewpoint_default and kind is None:
-        vp, vp_from, kind, kind_from, tree = _default_viewpoint(parts.points, stated[0])
-        if vp is None:  # the format's default says nothing of these points: as if the file gave none
+    notes, placed, about_origin = raw.notes, None, None
+    if stated is not None and stated[1] is Origin.FILE and raw.viewpoint_default:
+        placed = _default_viewpoint(parts.points, stated[0])
+        if placed[0] is None:  # the format's default says nothing of these points: as if the file gave none
             notes += (f"the file's {raw.viewpoint_label} is the format's default (the origin), and the points do "
                       "not lie as a sensor there sees them: not used",)
-            vp, vp_from, kind, kind_from, tree = _place(parts, None, None, kind_from, what, (None, tree))
-    else:
-        vp, vp_from, kind, kind_from, tree = _place(parts, stated, kind, kind_from, what)
+            stated, placed, about_origin = None, None, (None, placed[4])
+        elif kind is not None:  # a kind given or in the sidecar: the default holds as a viewpoint, the kind as said
+            placed = None
+    if placed is None:
+        placed = _place(parts, stated, kind, kind_from, what, about_origin)
+    vp, vp_from, kind, kind_from, tree = placed
     if vp_from is not Origin.ESTIMATE and kind is not ScanKind.UNSTRUCTURED and parts.faces is None:
         parts = parts.without_points_at(vp)
         if tree is not None and len(parts.points) != len(tree.data):
@@ -312,12 +316,10 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
     idx = sample(points)
     d, _ = tree.query(points[idx], k=2)
     slope, spread = sensor_slope(points[idx], d[:, 1], np.zeros(3))
-    if spread >= RANGE_SPREAD and slope <= SENSOR_SLOPE:
-        return None, tree  # the spacing does not grow with the range: not sampled from there
+    if spread >= RANGE_SPREAD and not SENSOR_SLOPE < slope <= SENSOR_SLOPE_MAX:
+        return None, tree  # the spacing does not grow with the range as from a sensor there
     if around and spread < RANGE_SPREAD:
         return None, tree  # all around at one range: nothing tells a sensor from a shell about its centre
-    if not around and grazing_share(points, tree, np.zeros(3)) > GRAZING_SHARE:
-        return None, tree  # in front, but seen edge-on: a scene whose sensor stood elsewhere (a world frame)
     return (ScanKind.PANORAMA if around else ScanKind.SINGLE_VIEW), tree
 
 

@@ -58,8 +58,8 @@ def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray
     ``spacing``, at most ``NORMAL_MAX_NEIGHBOURS`` of them, itself included (Open3D's hybrid search in
     ``estimate_normals``: the same neighbourhoods and covariance, its normals to 2e-6 degrees on a 274k-point
     simulated fragment); a point with fewer than 3 there (at a rim) is fitted to its ``FALLBACK_NEIGHBOURS``
-    nearest points instead, and one whose neighbours lie on a line (:data:`LINEAR_SPREAD`) to more, farther ones.
-    A patch is ``PATCH_SPACINGS`` x the mean distance to the point's
+    nearest points instead (not asked whether they lie on a line); one whose neighbours lie on a line
+    (:data:`LINEAR_SPREAD`) is fitted to more, farther ones. A patch is ``PATCH_SPACINGS`` x the mean distance to the point's
     ``SPACING_NEIGHBOURS`` nearest (core.surface.local_spacing), from the same query."""
     pts = np.asarray(points, dtype=np.float64)
     at = np.asarray(at, dtype=np.int64)
@@ -82,14 +82,21 @@ def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray
     rim = np.flatnonzero(count < 3)
     if len(rim):
         normals[rim] = _plane(pts[j[rim, :min(FALLBACK_NEIGHBOURS, k)]])[0]
+    # a line of points (a scan line, a ring) spans no plane: reach past it. Where the radius held all kn nearest
+    # already, asking for them again gives the same line: those go straight to the wider reach.
     line = np.flatnonzero(linear & (count >= 3))
-    for wide in (kn, LINE_NEIGHBOURS):  # a line of points (a scan line, a ring) spans no plane: reach past it
-        if not len(line):
-            break
+    for wide, ask in ((kn, count < kn), (LINE_NEIGHBOURS, np.ones(len(at), dtype=bool))):
         kw = min(wide, len(pts))
-        n, still = _plane(pts[tree.query(pts[at[line]], k=kw)[1].reshape(len(line), kw)])
-        normals[line[~still]] = n[~still]
-        line = line[still]
+        for lo in range(0, len(line), PLANE_CHUNK // 4):  # (5k, 120, 3) float64 temporaries, 14 MB
+            part = line[lo:lo + PLANE_CHUNK // 4]
+            part = part[ask[part]]
+            if not len(part):
+                continue
+            nb = tree.query(pts[at[part]], k=kw, workers=-1 if len(part) > PARALLEL_QUERY else 1)[1]
+            n, still = _plane(pts[nb.reshape(len(part), kw)])
+            normals[part[~still]] = n[~still]
+            linear[part[~still]] = False
+        line = line[linear[line]]
     return normals, patch
 
 

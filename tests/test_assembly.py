@@ -259,8 +259,14 @@ def test_a_fused_fragment_in_a_pcd_does_not_take_the_formats_default_viewpoint(f
     code, out, _ = rangereg("info", tmp_path / "fragment.pcd")
     assert code == 0 and "kind        unstructured" in out and "viewpoint   none" in out
     assert "note        the file's VIEWPOINT is the format's default (the origin)" in out
+    code, out, _ = rangereg("info", tmp_path / "fragment.pcd", "--json")
+    assert code == 0 and json.loads(out)["notes"][0].startswith("the file's VIEWPOINT is the format's default")
     write_ply(tmp_path / "fragment.ply", points)  # the same points as a PLY: the same kind
     assert load_scan(tmp_path / "fragment.ply").kind == ScanKind.UNSTRUCTURED
+    # told it is one view, the default is still no viewpoint for it: estimated, as for the PLY
+    told = load_scan(tmp_path / "fragment.pcd", kind="single-view")
+    assert (told.kind, told.viewpoint_from) == (ScanKind.SINGLE_VIEW, Origin.ESTIMATE)
+    assert np.allclose(told.viewpoint, load_scan(tmp_path / "fragment.ply", kind="single-view").viewpoint, atol=1e-4)
 
 
 def test_a_stated_viewpoint_that_is_not_the_default_is_kept_for_a_fused_fragment(tmp_path):
@@ -319,6 +325,11 @@ def test_a_lidar_frame_written_in_a_world_frame_is_no_view_from_the_worlds_origi
     pts = pts[np.all(np.isfinite(pts), axis=1) & np.any(pts != 0, axis=1)]
     write_ply(tmp_path / "world.ply", apply(from_params(np.r_[35.0, -12.0, 1.5, 0, 0, np.radians(25)]), pts))
     assert load_scan(tmp_path / "world.ply").kind == ScanKind.UNSTRUCTURED
+    # in its own frame, cropped to 90 degrees in front (a solid-state LiDAR's field): one view from its origin
+    front = pts[np.abs(np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))) < 45]
+    write_ply(tmp_path / "front.ply", front)
+    s = load_scan(tmp_path / "front.ply")
+    assert (s.kind, s.viewpoint_from) == (ScanKind.SINGLE_VIEW, Origin.CONVENTION)
 
 
 # ---- --scan-kind, bad inputs ----

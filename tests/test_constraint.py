@@ -186,3 +186,21 @@ def test_a_spinning_lidar_in_a_corridor_of_plain_walls_is_never_trusted():
         assert not res.trusted, (seed, pose_error(res.transform, invert(t.pose) @ s.pose), res.trust_text)
         assert res.details.threshold.min_constraint == MIN_CONSTRAINT_PANORAMA
         assert "does not pin all six degrees of freedom" in res.trust_text
+
+
+def test_alignment_measures_how_nearly_a_move_runs_along_the_weakest_motion():
+    from rangereg.core.threshold import Constraint
+    from rangereg.core.transforms import rotation_matrix
+
+    slide_x = Constraint(np.ones(6), np.r_[1.0, 0, 0, 0, 0, 0], 0.01, 100, center=np.array([1.0, 2.0, 3.0]), radius=2.0)
+    T = np.eye(4)
+    T[:3, 3] = [0.3, -0.2, 0.1]
+    along, across = T.copy(), T.copy()
+    along[0, 3] += 0.5
+    across[1, 3] += 0.5
+    assert slide_x.alignment(T, along) > 0.999 and slide_x.alignment(T, across) < 1e-9
+    turn = np.eye(4)  # a turn about z through the centre: no translation of the centre, rotation in radius units
+    turn[:3, :3] = rotation_matrix(np.r_[0.0, 0.0, 0.2])
+    turn[:3, 3] = slide_x.center - turn[:3, :3] @ slide_x.center
+    spin_z = Constraint(np.ones(6), np.r_[0, 0, 0, 0, 0, 1.0], 0.01, 100, center=slide_x.center, radius=2.0)
+    assert spin_z.alignment(T, turn @ T) > 0.999 and slide_x.alignment(T, turn @ T) < 1e-9

@@ -33,7 +33,7 @@ def run(a: Namespace) -> int:
             "grid": scan.grid is not None, "grid_shape": None if scan.grid is None else list(scan.grid.shape),
             "triangles": tri, "spacing": scan.spacing, "dropped": scan.dropped, "at_sensor": scan.at_sensor,
             "intensity": scan.intensity is not None,
-            "ground_truth": scan.pose is not None, "stored_pose": scan.guess is not None}
+            "ground_truth": scan.pose is not None, "stored_pose": scan.guess is not None, "notes": list(scan.notes)}
     if a.json:
         print(json.dumps(info))
         return 0

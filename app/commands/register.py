@@ -119,9 +119,10 @@ def report(res, source, target, cfg, guess, as_json: bool, seconds: dict) -> Non
     people (with the truth when the scans carry it).
     ``seconds``: 'seconds' from reading both files to the result, 'import_seconds' the imports before."""
     estimated = [s.name for s in (source, target) if s.viewpoint_estimated]
+    notes = [f"{s.name}: {n}" for s in (source, target) for n in s.notes]  # what the reading said of each file
     if as_json:
         out = {**res.to_json(), "search_seconds": res.seconds, **seconds, "viewpoint_estimated": estimated,
-               "advice": advice(res, guess)}
+               "scan_notes": notes, "advice": advice(res, guess)}
         if cfg.lock.active:
             out["lock"] = str(cfg.lock)
         print(strict_json(out))
@@ -142,6 +143,8 @@ def report(res, source, target, cfg, guess, as_json: bool, seconds: dict) -> Non
     if estimated:
         print(f"viewpoint   estimated for {' and '.join(estimated)} (the file holds none): give it with "
               "--viewpoint-source / --viewpoint-target or a sidecar if you know it")
+    for line in notes:
+        print(f"read        {line}")
     print(f"trust       {'yes' if res.below_threshold else 'no'}: {res.trust_text}")
     print("transform (maps SOURCE into TARGET's frame):")
     for row in res.transform:

@@ -43,10 +43,15 @@ def local_spacing(points: np.ndarray, tree: cKDTree | None = None) -> np.ndarray
 def pca_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """(Q, 3) unit normals, sign arbitrary: the direction of least spread of each row of (Q, k) indices
     into (N, 3) ``points`` (the smallest eigenvector of the neighbourhood's covariance)."""
-    nb = points[neighbours]
+    return spreads(points[neighbours])[0]
+
+
+def spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Of neighbourhoods (Q, k, 3): (Q, 3) the direction of least spread (unit, sign arbitrary) and (Q, 3) the
+    spreads (the covariance's eigenvalues, smallest first)."""
     nb = nb - nb.mean(1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return vecs[:, :, 0]
+    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return vecs[:, :, 0], vals
 
 
 def normal_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:

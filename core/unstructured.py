@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .scan import Scan, ScanKind
-from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surface, local_spacing
+from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surface, local_spacing, spreads
 
 # Open3D's recipe fits normals to at most 30 neighbours within 2 voxels of a downsampled cloud (its points ~1
 # voxel apart). A raw cloud's median nearest-neighbour distance (Scan.spacing) is half its mean spacing where the
@@ -102,9 +102,8 @@ def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray
 
 def _plane(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(M, 3) unit normals of neighbourhoods (M, k, 3) and (M,) whether each is a line (LINEAR_SPREAD)."""
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return vecs[:, :, 0], vals[:, 1] < LINEAR_SPREAD * vals[:, 2]
+    normals, vals = spreads(nb)
+    return normals, vals[:, 1] < LINEAR_SPREAD * vals[:, 2]
 
 
 PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries, 14 MB

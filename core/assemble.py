@@ -44,7 +44,6 @@ from .viewpoint import (
     LAYERED_SHARE,
     RANGE_SPREAD,
     SENSOR_SLOPE,
-    SENSOR_SLOPE_MAX,
     check_viewpoint,
     estimate_viewpoint,
     grazing_share,
@@ -316,8 +315,8 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
     idx = sample(points)
     d, _ = tree.query(points[idx], k=2)
     slope, spread = sensor_slope(points[idx], d[:, 1], np.zeros(3))
-    if spread >= RANGE_SPREAD and not SENSOR_SLOPE < slope <= SENSOR_SLOPE_MAX:
-        return None, tree  # the spacing does not grow with the range as from a sensor there
+    if spread >= RANGE_SPREAD and slope <= SENSOR_SLOPE:
+        return None, tree  # the spacing does not grow with the range: not sampled from there
     if around and spread < RANGE_SPREAD:
         return None, tree  # all around at one range: nothing tells a sensor from a shell about its centre
     return (ScanKind.PANORAMA if around else ScanKind.SINGLE_VIEW), tree

@@ -116,11 +116,6 @@ RANGE_SPREAD = 1.2
 # the LiDAR frame about a point 10 m or 30 m off its sensor 0.46 and 0.53, the Kinect frame about a
 # point 1 m behind its camera 0.58.
 SENSOR_SLOPE = 0.7
-# ... and at most this: a fixed angular step grows the spacing in proportion to the range (slope ~1; grazing
-# surfaces add a little), not as its cube. The shared LiDAR frames written in a world frame 37 m from their
-# sensor give 2.9-3.1 about that frame's origin, lie in front of it, and were read as one view from there
-# (registered 18-20 cm off, trusted). The bound: the geometric mean of the sensors' highest (1.06) and 2.9.
-SENSOR_SLOPE_MAX = 1.75
 # Layers: a single view holds one surface along each ray, so points next to each other as seen from the
 # viewpoint lie at about one range, but at its occluding contours. The share of points with a neighbour
 # (of 8, in the view) more than 10 spacings nearer or farther, measured from the estimated viewpoint:

@@ -314,20 +314,31 @@ def test_a_thinned_lidar_frame_as_ply_is_no_single_view_from_far_below_and_regis
     assert rot < 1.0 and move < 0.05 and res.trusted, (rot, move)
 
 
-def test_a_lidar_frame_written_in_a_world_frame_is_no_view_from_the_worlds_origin(tmp_path):
-    # 37 m from its sensor its spacing still grows with the range from the origin (slope ~3), and the points lie in
-    # front of it: it was read as one view from there and registered 18-20 cm off, trusted. Seen from there its
-    # walls and road are edge-on (core.viewpoint.GRAZING_SHARE), so there is no sensor at the origin.
+def test_a_lidar_pair_written_in_a_world_frame_registers_right_at_its_sensor_and_a_front_crop_is_one_view(tmp_path):
+    # 37 m from their sensor the frames' spacing still grows with the range from the world's origin and they lie in
+    # front of it: one view from there. Judged where the sensor stood (not at the far origin) the pose is right.
     _needs(LIDAR)
-    from rangereg.core.transforms import apply, from_params
+    from rangereg.core.guess import Guess
+    from rangereg.core.io import load_pair
+    from rangereg.core.register import Config, register
+    from rangereg.core.transforms import apply, from_params, pose_error
 
-    pts = read_raw(LIDAR / "251370668.pcd").points
-    pts = pts[np.all(np.isfinite(pts), axis=1) & np.any(pts != 0, axis=1)]
-    write_ply(tmp_path / "world.ply", apply(from_params(np.r_[35.0, -12.0, 1.5, 0, 0, np.radians(25)]), pts))
-    assert load_scan(tmp_path / "world.ply").kind == ScanKind.UNSTRUCTURED
+    def frame(name):
+        pts = read_raw(LIDAR / f"{name}.pcd").points
+        return pts[np.all(np.isfinite(pts), axis=1) & np.any(pts != 0, axis=1)]
+
+    T_world_target = from_params(np.r_[35.0, -12.0, 1.5, 0, 0, np.radians(25)])
+    error = from_params(np.r_[0.3, -0.2, 0.0, 0, 0, np.radians(2.0)])  # the source's odometry error
+    T_world_source = error @ T_world_target @ np.loadtxt(LIDAR / "relative.txt")
+    write_ply(tmp_path / "s.ply", apply(T_world_source, frame("251371071")))
+    write_ply(tmp_path / "t.ply", apply(T_world_target, frame("251370668")))
+    s, t = load_pair(tmp_path / "s.ply", tmp_path / "t.ply")
+    res = register(s, t, Guess.none(), Config(method="global"))
+    rot, move = pose_error(res.transform, np.linalg.inv(error), T_world_source[:3, 3])
+    assert rot < 1.0 and move < 0.05 and res.trusted, (rot, move)
     # in its own frame, cropped to 90 degrees in front (a solid-state LiDAR's field): one view from its origin
-    front = pts[np.abs(np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))) < 45]
-    write_ply(tmp_path / "front.ply", front)
+    pts = frame("251370668")
+    write_ply(tmp_path / "front.ply", pts[np.abs(np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))) < 45])
     s = load_scan(tmp_path / "front.ply")
     assert (s.kind, s.viewpoint_from) == (ScanKind.SINGLE_VIEW, Origin.CONVENTION)
 

@@ -149,14 +149,17 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
     notes, placed, about_origin = raw.notes, None, None
     if stated is not None and stated[1] is Origin.FILE and raw.viewpoint_default:
         placed = _default_viewpoint(parts.points, stated[0])
+        about_origin = (None, placed[4])  # its k-d tree, if one was built, serves the rest
         if placed[0] is None:  # the format's default says nothing of these points: as if the file gave none
             notes += (f"the file's {raw.viewpoint_label} is the format's default (the origin), and the points do "
                       "not lie as a sensor there sees them: not used",)
-            stated, placed, about_origin = None, None, (None, placed[4])
+            stated, placed = None, None
         elif kind is not None:  # a kind given or in the sidecar: the default holds as a viewpoint, the kind as said
             placed = None
     if placed is None:
         placed = _place(parts, stated, kind, kind_from, what, about_origin)
+        if placed[4] is None and about_origin is not None:
+            placed = (*placed[:4], about_origin[1])
     vp, vp_from, kind, kind_from, tree = placed
     if vp_from is not Origin.ESTIMATE and kind is not ScanKind.UNSTRUCTURED and parts.faces is None:
         parts = parts.without_points_at(vp)

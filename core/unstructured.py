@@ -36,9 +36,8 @@ FALLBACK_NEIGHBOURS = 8  # a rim point's plane: its nearest points, whatever the
 # across it. Measured (2026-12-06, the share of such neighbourhoods): the shared LiDAR frames 0.72-0.77, thinned
 # at 0.1-0.5 m 0.06-0.21, the simulated street and room 0.13-0.28; the Kinect frame, RGB-D fragments and the
 # bunny 0.000-0.002. Its plane is fitted to its NORMAL_MAX_NEIGHBOURS nearest, whatever their distance, then
-# to its LINE_NEIGHBOURS nearest. Read as unstructured (--scan-kind, or written in a world frame), the shared
-# pair was trusted 0.67 deg / 50 cm off before (now "trust no"); in a world frame 37 m from its sensor it ends
-# 0.05 deg / 1.7 cm off (doubted) instead of 0.52 deg / 27 cm; thinned at 0.1 m, 0.06 deg / 1.9 cm against 0.38.
+# to its LINE_NEIGHBOURS nearest. Read as unstructured (--scan-kind), the shared pair was trusted 0.67 deg /
+# 50 cm off before (now "trust no"); thinned at 0.1 m it ends 0.15 deg / 2.4 cm off against 0.38 deg / 1.9 cm.
 LINEAR_SPREAD = 0.01
 LINE_NEIGHBOURS = 120
 # A patch reaches 2 local spacings from its point: half the longest edge a triangulated surface keeps

@@ -153,6 +153,13 @@ def _sampled(source: Scan, target: Scan, surface: Surface, guess: Guess, overlap
 # no horizontal motion, and point-to-point ICP from the identity then stopped 0.3-0.45 m short along the road
 # (7 of 8 seeds x sample sizes); spread over the normals' axes it reached it.
 CANDIDATES_PER_POINT = 20
+# The candidates' normals are fitted in batches, in the draw's order, the first of FIRST_BATCH per point, each
+# next twice the last, until every axis holds a third of the sample: the sample is then the first third of each
+# axis in the draw's order, as from the whole draw (the same points when n splits in three, as the defaults'
+# 1500 and 6000 do; else which axis takes the remainder may differ). Measured (2026-12-06) on a 15-frame RGB-D
+# fragment's legs on the whole scans (6000 points from 120k candidates): the first batch holds every axis's
+# third, and the normals cost 0.06 s instead of 0.4 s.
+FIRST_BATCH = 3
 
 
 def _sample(source: Scan, idx: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -161,8 +168,14 @@ def _sample(source: Scan, idx: np.ndarray, n: int, rng: np.random.Generator) -> 
     if source.kind is ScanKind.SINGLE_VIEW:
         return np.sort(rng.choice(idx, n, replace=False))
     cand = rng.choice(idx, min(len(idx), CANDIDATES_PER_POINT * n), replace=False)
-    normals = _normals_at(source, cand)
-    axis = np.argmax(np.abs(normals), axis=1)
+    axis, fitted, batch = np.empty(len(cand), dtype=np.int64), 0, FIRST_BATCH * n
+    while fitted < len(cand):
+        part = slice(fitted, min(len(cand), fitted + batch))
+        axis[part] = np.argmax(np.abs(_normals_at(source, cand[part])), axis=1)
+        fitted, batch = part.stop, 2 * batch
+        if np.bincount(axis[:fitted], minlength=3).min() >= -(-n // 3):
+            break
+    cand, axis = cand[:fitted], axis[:fitted]
     groups = [cand[axis == a] for a in range(3)]
     share = np.zeros(3, dtype=np.int64)
     left = n

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from rangereg.core.errors import InputError
 from rangereg.core.noise import NORMAL_NEIGHBOURS
-from rangereg.core.problem import _normals_at, prepare
+from rangereg.core.problem import CANDIDATES_PER_POINT, _normals_at, _sample, prepare
 from rangereg.core.scan import Scan, ScanKind, kd_tree
 from rangereg.core.surface import pca_normals
 from rangereg.core.unstructured import cloud_view
@@ -29,6 +29,33 @@ def test_a_scans_normals_are_the_same_whichever_draw_fits_them_first():
     for f, k in zip(fresh, kept):
         assert np.array_equal(f, k)
     assert np.array_equal(_normals_at(scan, draws[0][::-1]), fresh[0][::-1])
+
+
+def _sample_of_the_whole_draw(scan: Scan, idx: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """The normal-space sample as first written: every candidate's normal fitted, then the shares."""
+    cand = rng.choice(idx, min(len(idx), CANDIDATES_PER_POINT * n), replace=False)
+    axis = np.argmax(np.abs(pca_normals(scan.points, scan.tree.query(scan.points[cand], NORMAL_NEIGHBOURS)[1])), 1)
+    groups = [cand[axis == a] for a in range(3)]
+    share, left = np.zeros(3, dtype=np.int64), n
+    for i, a in enumerate(np.argsort([len(g) for g in groups], kind="stable")):
+        share[a] = min(len(groups[a]), left // (3 - i))
+        left -= share[a]
+    return np.sort(np.concatenate([g[:m] for g, m in zip(groups, share)]))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_scenes_sample_fitting_normals_in_batches_is_the_whole_draws(seed):
+    # a room's corner: the floor holds most points, two walls few (one axis rare enough to need later batches)
+    rng = np.random.default_rng(seed)
+    floor = np.c_[rng.uniform(0, 4, (20000, 2)), rng.normal(0, 0.003, 20000)]
+    wall_x = np.c_[rng.normal(0, 0.003, 3000), rng.uniform(0, 4, 3000), rng.uniform(0, 2, 3000)]
+    wall_y = np.c_[rng.uniform(0, 4, 600), rng.normal(0, 0.003, 600), rng.uniform(0, 2, 600)]
+    scan = Scan(points=np.vstack([floor, wall_x, wall_y]), viewpoint=np.zeros(3), name="corner", units="m",
+                kind=ScanKind.UNSTRUCTURED)
+    idx = np.sort(rng.choice(len(scan.points), 15000, replace=False))
+    for n in (30, 300, 600):  # a third of 600 is more than the rare wall holds among the first batch
+        assert np.array_equal(_sample(scan, idx, n, np.random.default_rng(seed)),
+                              _sample_of_the_whole_draw(scan, idx, n, np.random.default_rng(seed)))
 
 
 def test_a_clouds_cut_under_a_guess_asks_only_about_points_not_already_on_it():

@@ -8,8 +8,9 @@ intensity), nothing decided. :func:`assemble` then settles each value by the fir
 
 - **viewpoint**: ``--viewpoint``; the sidecar's ``viewpoint``; the file's (a PCD's VIEWPOINT, an E57
   scan frame's origin, LAS scan-origin fields), but a format's default (PCD's ``0 0 0 1 0 0 0``, written
-  into every file) only where the points lie as a sensor there sees them; by convention the frame's
-  origin, when the points lie around it or in front of it as a sensor there would have sampled them
+  into every file) only where the points lie as a sensor there sees them, and one they were plainly not
+  sampled from, while they were from the frame's origin (a pose in a map's frame), not at all; by
+  convention the frame's origin, when the points lie around it or in front of it as a sensor there would have sampled them
   (LiDAR and RGB-D frames are written so); else estimated (core.viewpoint) where a single view is
   plausible, and none otherwise.
 - **units**: given; the sidecar's ``units``; the file's (E57: metres by the standard); the format's
@@ -146,7 +147,7 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
     if kind is None and side.get("kind") is not None:
         kind, kind_from = side["kind"], Origin.SIDECAR
 
-    notes, placed, about_origin = raw.notes, None, None
+    notes, placed, about_origin, rotation = raw.notes, None, None, raw.sensor_rotation
     if stated is not None and stated[1] is Origin.FILE and raw.viewpoint_default:
         placed = _default_viewpoint(parts.points, stated[0])
         about_origin = (None, placed[4])  # its k-d tree, if one was built, serves the rest
@@ -156,6 +157,13 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
             stated, placed = None, None
         elif kind is not None:  # a kind given or in the sidecar: the default holds as a viewpoint, the kind as said
             placed = None
+    elif stated is not None and stated[1] is Origin.FILE and np.any(stated[0] != 0):
+        about_origin = _elsewhere(parts.points, stated[0])
+        if about_origin is not None and about_origin[0] is not None:
+            notes += (f"the file's {raw.viewpoint_label} {np.round(stated[0], 3).tolist()} is not where these points "
+                      "were sampled from (their spacing grows with the range from the frame's origin, not from it: "
+                      "a pose in another frame?); the frame's origin is used",)
+            stated, rotation = None, None  # the stored orientation is that pose's too
     if placed is None:
         placed = _place(parts, stated, kind, kind_from, what, about_origin)
         if placed[4] is None and about_origin is not None:
@@ -182,7 +190,7 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
                 pose=None if pose is None else np.asarray(pose, dtype=np.float64),
                 guess=None if guess is None else np.asarray(guess, dtype=np.float64),
                 dropped=parts.dropped, source=what, kind=kind, viewpoint_from=vp_from, kind_from=kind_from,
-                sensor_rotation=raw.sensor_rotation, intensity=parts.intensity,
+                sensor_rotation=rotation, intensity=parts.intensity,
                 viewpoint_spread=raw.viewpoint_spread, at_sensor=parts.at_sensor, e57=raw.e57, notes=notes)
     if tree is not None:
         scan.__dict__["tree"] = tree  # the placement's k-d tree of these very points (a cached_property)
@@ -297,6 +305,28 @@ def _default_viewpoint(points: np.ndarray, origin: np.ndarray):
     if about is None:
         return None, None, None, None, tree
     return origin, Origin.FILE, about, Origin.ESTIMATE, tree
+
+
+def _elsewhere(points: np.ndarray, viewpoint: np.ndarray) -> tuple[ScanKind | None, cKDTree | None] | None:
+    """:func:`_about_origin` of the points where a sensor at the frame's origin, not one at the file's
+    ``viewpoint`` (3,), sampled them: their spacing grows with the range from the origin and not with that
+    from the viewpoint (PCL's VIEWPOINT holding the sensor's pose in a map while the points stay in the
+    sensor's frame). None where the viewpoint may be where they were sampled from.
+
+    Measured (2026-12-06): the shared LiDAR frames, and the Kinect frame capture0002 written as bare points,
+    each with a VIEWPOINT 11-128 m off their origin, were read as one view from there: the LiDAR pair was trusted
+    1.06 deg / 3.2 cm off (0.11 deg at the origin), the Kinect pair doubted after 7 s. The same frames in the
+    map's frame, their VIEWPOINT the sensor's position there, are sampled from it and keep it."""
+    about, tree = _about_origin(points)
+    if about is None:
+        return None
+    idx = sample(points)
+    d, _ = tree.query(points[idx], k=2)
+    slope, spread = sensor_slope(points[idx], d[:, 1], np.zeros(3))
+    if not (spread >= RANGE_SPREAD and slope > SENSOR_SLOPE):
+        return None  # the origin is no likelier than the viewpoint
+    slope, spread = sensor_slope(points[idx], d[:, 1], viewpoint)
+    return None if spread >= RANGE_SPREAD and slope > SENSOR_SLOPE else (about, tree)
 
 
 def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:

@@ -343,6 +343,43 @@ def test_a_lidar_pair_written_in_a_world_frame_registers_right_at_its_sensor_and
     assert (s.kind, s.viewpoint_from) == (ScanKind.SINGLE_VIEW, Origin.CONVENTION)
 
 
+def test_a_viewpoint_holding_the_sensors_pose_in_a_map_is_set_aside_for_the_frames_origin(tmp_path):
+    # PCL's VIEWPOINT can hold the sensor's pose in a map while the points stay in the sensor's frame: read as one
+    # view from 128 m away, the shared LiDAR pair was trusted 1.06 deg off; the points were sampled from the origin
+    _needs(LIDAR)
+    from rangereg.core.guess import Guess
+    from rangereg.core.io import load_pair
+    from rangereg.core.register import Config, register
+    from rangereg.core.transforms import apply, from_params, pose_error
+
+    def frame(name):
+        pts = read_raw(LIDAR / f"{name}.pcd").points
+        return pts[np.all(np.isfinite(pts), axis=1) & np.any(pts != 0, axis=1)]
+
+    T_source = np.loadtxt(LIDAR / "relative.txt")
+    T_map = from_params(np.r_[120.0, -45.0, 3.0, 0, 0, np.radians(37)])
+
+    def viewpoint(T):
+        q = Rotation.from_matrix(T[:3, :3]).as_quat()
+        return " ".join(map(str, [*T[:3, 3], q[3], *q[:3]]))
+
+    _write_pcd(tmp_path / "s.pcd", frame("251371071"), viewpoint(T_map @ T_source))
+    _write_pcd(tmp_path / "t.pcd", frame("251370668"), viewpoint(T_map))
+    s, t = load_pair(tmp_path / "s.pcd", tmp_path / "t.pcd")
+    for scan in (s, t):
+        assert (scan.kind, scan.viewpoint_from, scan.viewpoint.tolist()) == (ScanKind.PANORAMA, Origin.CONVENTION,
+                                                                              [0, 0, 0])
+        assert scan.sensor_rotation is None and "not where these points were sampled from" in scan.notes[0]
+    res = register(s, t, Guess.none(), Config(method="global"))
+    rot, move = pose_error(res.transform, T_source)
+    assert rot < 1.0 and move < 0.05 and res.trusted, (rot, move)
+    # the same frame in the map's frame, its VIEWPOINT the sensor's pose there: sampled from it, kept
+    _write_pcd(tmp_path / "m.pcd", apply(T_map, frame("251370668")), viewpoint(T_map))
+    m = load_scan(tmp_path / "m.pcd")
+    assert (m.kind, m.viewpoint_from, m.notes) == (ScanKind.PANORAMA, Origin.FILE, ())
+    np.testing.assert_allclose(m.viewpoint, T_map[:3, 3], atol=1e-6)
+
+
 # ---- --scan-kind, bad inputs ----
 
 def test_scan_kind_flag_overrides_the_file(tmp_path, rangereg):

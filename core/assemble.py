@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import InputError
+from .lattice import pixel_grid
 from .rows import cross, norms
 from .scan import E57Record, Origin, RangeGrid, Scan, ScanKind, clean_points, kd_tree
 from .viewpoint import (
@@ -173,8 +174,13 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
         parts = parts.without_points_at(vp)
         if tree is not None and len(parts.points) != len(tree.data):
             tree = None
-    grid = parts.grid
-    if grid is not None and not raw.grid_faces_sensor and vp_from not in (Origin.ESTIMATE, Origin.NONE):
+    grid, faces_sensor = parts.grid, raw.grid_faces_sensor
+    if grid is None and parts.faces is None and kind is ScanKind.SINGLE_VIEW and vp_from is not Origin.ESTIMATE:
+        grid, faces_sensor = pixel_grid(parts.points, vp), False  # an RGB-D frame as bare points (core.lattice)
+        if grid is not None:
+            notes += (f"the points lie on a depth camera's pixel lattice: its {grid.shape[0]} x {grid.shape[1]} range "
+                      "grid is recovered",)
+    if grid is not None and not faces_sensor and vp_from not in (Origin.ESTIMATE, Origin.NONE):
         grid = orient_grid(grid, parts.points, vp)
     if kind is ScanKind.SINGLE_VIEW and vp_from.stated:
         check_viewpoint(parts.points, vp, None if grid is None else RangeGrid(grid), parts.faces, what)

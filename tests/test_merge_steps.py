@@ -137,6 +137,36 @@ def test_the_next_round_registers_again_from_the_graph_and_measures_only_near_pa
     assert all(c.shares[t.i, t.j] >= c.mc.min_overlap for t in tasks)
 
 
+def test_the_round_after_the_cues_takes_long_links_among_more_partners_once(camp):
+    # from no poses the cue's pairs are each scan's nearest, and a chain of them drifts: the next round measures
+    # long_measure_partners likeliest partners and takes half of each scan's best as long links, once
+    c = _campaign(camp, measure_partners=2, long_measure_partners=6, max_partners=2)
+    assert c.mode == "features" and not c.long_links
+    for i in range(len(camp.scans) - 1):
+        _pair(c, camp, i, i + 1, start=Start.NO_GUESS)
+    g, screened = c.graph()
+    measured = []
+    near_pairs = merge_rounds.near_pairs
+
+    def spy(c_, g_, used, partners=None):
+        measured.append(partners)
+        return near_pairs(c_, g_, used, partners)
+
+    merge_rounds.near_pairs = spy
+    try:
+        first = merge_rounds.next_tasks(c, g, screened)
+        second = merge_rounds.next_tasks(c, g, screened)
+    finally:
+        merge_rounds.near_pairs = near_pairs
+    assert measured == [6, None] and c.long_links
+
+    def apart(tasks):
+        n = len(camp.scans)
+        return {min(abs(t.j - t.i), n - abs(t.j - t.i)) for t in tasks if t.start is Start.GRAPH_POSE}
+
+    assert max(apart(first)) > max(apart(second), default=0)
+
+
 def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_every_stage(camp):
     from rangereg.core.merge_tasks import PairTask
 

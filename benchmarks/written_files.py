@@ -84,8 +84,7 @@ def pairs(families: list[str], seeds: int, small: bool):
                 yield fam, f"{fam}-{seed}", s.points, t.points, invert(t.pose) @ s.pose, "truth", ORIGIN
         elif fam == "tsdf":
             for seed in range(11, 11 + seeds):
-                s, t = ss.tsdf_fragment_pair(seed, cam=ss.DepthCamera(cols=80, rows=60)) if small else \
-                    ss.tsdf_fragment_pair(seed)
+                s, t = ss.tsdf_fragment_pair(seed)
                 yield fam, f"tsdf-{seed}", s.points, t.points, invert(t.pose) @ s.pose, "truth", ORIGIN
         elif fam == "lidar" and (SHARED / "lidar").is_dir():
             T = np.loadtxt(SHARED / "lidar" / "relative.txt")

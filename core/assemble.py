@@ -41,6 +41,7 @@ from .rows import cross, norms
 from .scan import E57Record, Origin, RangeGrid, Scan, ScanKind, clean_points, kd_tree
 from .viewpoint import (
     AROUND_SHARE,
+    CLOSER_FIT,
     CONVENTION_REACH,
     GRAZING_SHARE,
     LAYERED_SHARE,
@@ -50,6 +51,7 @@ from .viewpoint import (
     estimate_viewpoint,
     grazing_share,
     layered_share,
+    range_correlation,
     sample,
     sensor_slope,
     share_around,
@@ -78,7 +80,8 @@ class RawScan:
     format fixes its facing (Stanford's range-grid PLY) rather than leaving it to the sensor's position;
     faces: (M, 3) int64 or None; viewpoint: (3,) sensor position stored in the file, or None (named in
     messages by viewpoint_label); viewpoint_default: that stored value is the format's default, which its
-    writers put in every file, a sensor there or not (a PCD's ``VIEWPOINT 0 0 0 1 0 0 0``);
+    writers put in every file, a sensor there or not (a PCD's ``VIEWPOINT 0 0 0 1 0 0 0``); viewpoint_pose: the
+    stored value is a pose, which writers may fill with the sensor's pose in another frame (a PCD's VIEWPOINT);
     sensor_rotation: (3, 3) its stored orientation, or None; pose / guess: (4, 4) T_world_scan stored
     in the file (ground truth / a rough pose); units: the units the file states; units_convention: the
     format's usual units when the file states none; intensity: (N,) float64 or None; sidecar: the file
@@ -95,6 +98,7 @@ class RawScan:
     viewpoint: np.ndarray | None = None
     viewpoint_label: str = "the stored viewpoint"
     viewpoint_default: bool = False
+    viewpoint_pose: bool = False
     sensor_rotation: np.ndarray | None = None
     viewpoint_spread: float | None = None
     pose: np.ndarray | None = None
@@ -158,9 +162,9 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
             stated, placed = None, None
         elif kind is not None:  # a kind given or in the sidecar: the default holds as a viewpoint, the kind as said
             placed = None
-    elif stated is not None and stated[1] is Origin.FILE and np.any(stated[0] != 0):
-        about_origin = _elsewhere(parts.points, stated[0])
-        if about_origin is not None and about_origin[0] is not None:
+    elif stated is not None and stated[1] is Origin.FILE and raw.viewpoint_pose and np.any(stated[0] != 0):
+        elsewhere, about_origin = _elsewhere(parts.points, stated[0])
+        if elsewhere and kind in (None, about_origin[0]):  # (a kind given otherwise: the viewpoint as stated)
             notes += (f"the file's {raw.viewpoint_label} {np.round(stated[0], 3).tolist()} is not where these points "
                       "were sampled from (their spacing grows with the range from the frame's origin, not from it: "
                       "a pose in another frame?); the frame's origin is used",)
@@ -313,26 +317,27 @@ def _default_viewpoint(points: np.ndarray, origin: np.ndarray):
     return origin, Origin.FILE, about, Origin.ESTIMATE, tree
 
 
-def _elsewhere(points: np.ndarray, viewpoint: np.ndarray) -> tuple[ScanKind | None, cKDTree | None] | None:
-    """:func:`_about_origin` of the points where a sensor at the frame's origin, not one at the file's
-    ``viewpoint`` (3,), sampled them: their spacing grows with the range from the origin and not with that
-    from the viewpoint (PCL's VIEWPOINT holding the sensor's pose in a map while the points stay in the
-    sensor's frame). None where the viewpoint may be where they were sampled from.
+def _elsewhere(points: np.ndarray, viewpoint: np.ndarray) -> tuple[bool, tuple[ScanKind | None, cKDTree | None]]:
+    """Whether a sensor at the frame's origin, not one at the file's ``viewpoint`` (3,), sampled the points: they
+    lie as :func:`_about_origin` asks, their spacing grows with the range from the origin (core.viewpoint:
+    SENSOR_SLOPE, RANGE_SPREAD), and it follows that range clearly better than the range from the viewpoint
+    (core.viewpoint.CLOSER_FIT): PCL's VIEWPOINT holding the sensor's pose in a map while the points stay in the
+    sensor's frame. Also :func:`_about_origin`'s answer (its k-d tree serves the rest).
 
-    Measured (2026-12-06): the shared LiDAR frames, and the Kinect frame capture0002 written as bare points,
-    each with a VIEWPOINT 11-128 m off their origin, were read as one view from there: the LiDAR pair was trusted
-    1.06 deg / 3.2 cm off (0.11 deg at the origin), the Kinect pair doubted after 7 s. The same frames in the
-    map's frame, their VIEWPOINT the sensor's position there, are sampled from it and keep it."""
-    about, tree = _about_origin(points)
-    if about is None:
-        return None
+    Measured (2026-12-06): the shared LiDAR frames, and the Kinect frame capture0002 written as bare points, with a
+    map's pose 11-128 m off in VIEWPOINT were read as one view from there: the LiDAR pair was trusted 1.06 deg /
+    3.2 cm off (0.11 deg at the origin), the Kinect pair doubted after 7 s. The same frames in the map's frame,
+    their VIEWPOINT the sensor's position there, are sampled from it and keep it."""
+    about = _about_origin(points)
+    if about[0] is None:
+        return False, about
     idx = sample(points)
-    d, _ = tree.query(points[idx], k=2)
-    slope, spread = sensor_slope(points[idx], d[:, 1], np.zeros(3))
+    d = about[1].query(points[idx], k=2)[0][:, 1]
+    slope, spread = sensor_slope(points[idx], d, np.zeros(3))
     if not (spread >= RANGE_SPREAD and slope > SENSOR_SLOPE):
-        return None  # the origin is no likelier than the viewpoint
-    slope, spread = sensor_slope(points[idx], d[:, 1], viewpoint)
-    return None if spread >= RANGE_SPREAD and slope > SENSOR_SLOPE else (about, tree)
+        return False, about  # the origin is no likelier than the viewpoint
+    closer = range_correlation(points[idx], d, np.zeros(3)) - range_correlation(points[idx], d, viewpoint)
+    return closer >= CLOSER_FIT, about
 
 
 def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:

@@ -304,7 +304,7 @@ def _load_pcd(path: Path) -> RawScan:
     if h > 1 and w * h == len(pts):
         grid_idx = np.arange(len(pts)).reshape(h, w)  # row-major; NaN cells are emptied by the assembly
     return RawScan(pts, str(path), path.stem, grid=grid_idx, viewpoint=vp, viewpoint_label="VIEWPOINT",
-                   viewpoint_default=default, sensor_rotation=rotation,
+                   viewpoint_default=default, viewpoint_pose=vp is not None, sensor_rotation=rotation,
                    intensity=intensity, sidecar=path)
 
 

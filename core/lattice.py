@@ -25,15 +25,20 @@ ON_LATTICE = 0.1
 # column of pixels (x / z of float32 values: ~1e-7 of it), not a column apart (a 4000-pixel-wide image: 2.5e-4).
 ROUNDING = 1e-6
 # A grid is kept only where its points fill this share of its cells at least (a Kinect frame: 0.8; a frame with
-# its far wall out of range keeps more than half), so that a sparse lattice is not taken for an image.
+# its far wall out of range keeps more than half): a bound on the grid's memory, 10 cells a point.
 MIN_FILL = 0.1
+# ... and where this share of its filled cells has its right and lower neighbours filled too, so that the grid's
+# faces cover the frame: the shared Kinect frames 0.986-0.989; the same frames thinned to every 2nd or 3rd point
+# (Open3D's uniform_down_sample), which stay on the lattice, 0.0, and at random to half, 0.25. Those keep their
+# points and are triangulated as bare points (a sparse grid had left no face, or a tenth of them).
+MIN_ADJACENT = 0.5
 MIN_POINTS = 100
 
 
 def pixel_grid(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray | None:
     """(rows, cols) int64 index into (N, 3) ``points`` (-1: an empty cell), rows and columns in the order of
     the image coordinates along the frame's axes, when the points, seen from ``viewpoint`` (3,) along the frame
-    axis they lie furthest along, lie one a cell on a pixel lattice (module notes); else None."""
+    axis they lie furthest along, lie one to a cell on a pixel lattice (module notes); else None."""
     rel = np.asarray(points, dtype=np.float64) - viewpoint
     if len(rel) < MIN_POINTS:
         return None
@@ -57,7 +62,11 @@ def pixel_grid(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray | None:
         return None
     grid = np.full((rows, cols), -1, dtype=np.int64)
     grid[row, col] = np.arange(len(rel))
-    if np.count_nonzero(grid >= 0) != len(rel):  # two points in one cell: no depth image's
+    filled = grid >= 0
+    if np.count_nonzero(filled) != len(rel):  # two points in one cell: no depth image's
+        return None
+    corner = filled[:-1, :-1]
+    if np.count_nonzero(corner & filled[:-1, 1:] & filled[1:, :-1]) < MIN_ADJACENT * max(np.count_nonzero(corner), 1):
         return None
     return grid
 

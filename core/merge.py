@@ -199,6 +199,10 @@ class MergeConfig:
     def validate(self) -> None:
         if self.pairs is not None and self.pairs not in self.PAIR_MODES:
             raise InputError(f"pairs must be one of {', '.join(self.PAIR_MODES)}, got {self.pairs!r}")
+        if isinstance(self.long_measure_partners, int) and isinstance(self.measure_partners, int) \
+                and self.long_measure_partners < self.measure_partners:
+            raise InputError(f"long_measure_partners ({self.long_measure_partners}) must be at least measure_partners "
+                             f"({self.measure_partners})")
         if not self.min_overlap <= self.long_overlap < 1:
             raise InputError(f"long_overlap must be in [min_overlap, 1), got {self.long_overlap}")
         if not 0 < self.min_overlap_any <= self.min_overlap < 1:

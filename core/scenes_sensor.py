@@ -328,12 +328,13 @@ def tsdf_fragment(mesh, cameras: list[np.ndarray], cam: DepthCamera, rng: np.ran
             depth_scale=1.0, depth_trunc=cam.far, convert_rgb_to_intensity=False)
         frames.append((rgbd, np.linalg.inv(cameras[0] @ drift @ first_inv @ T)))  # T_camera_world as drifted
     low, high = np.asarray(bounds[0], dtype=np.float64), np.asarray(bounds[1], dtype=np.float64)
-    side = TSDF_TILE * voxel
     margin = 4 * voxel
+    resolution = min(TSDF_TILE, int(np.ceil(float(np.max(high - low)) / voxel)) + 8)  # no larger than the bounds ask
+    side = resolution * voxel
     points = []
     for corner in np.stack(np.meshgrid(*[np.arange(lo, hi, side - 2 * margin) for lo, hi in zip(low, high)],
                                        indexing="ij"), -1).reshape(-1, 3):
-        volume = integration.UniformTSDFVolume(length=side, resolution=TSDF_TILE,
+        volume = integration.UniformTSDFVolume(length=side, resolution=resolution,
                                                sdf_trunc=TSDF_TRUNC_VOXELS * voxel,
                                                color_type=integration.TSDFVolumeColorType.RGB8,
                                                origin=corner - margin)

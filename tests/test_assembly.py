@@ -373,6 +373,17 @@ def test_a_viewpoint_holding_the_sensors_pose_in_a_map_is_set_aside_for_the_fram
     res = register(s, t, Guess.none(), Config(method="global"))
     rot, move = pose_error(res.transform, T_source)
     assert rot < 1.0 and move < 0.05 and res.trusted, (rot, move)
+    # a map's pose 10-40 m off in any direction is set aside alike (the spacing follows the range from the origin)
+    rng = np.random.default_rng(0)
+    for distance in (10.0, 20.0, 40.0):
+        for _ in range(2):
+            d = rng.normal(size=3) * [1, 1, 0.2]
+            T_off = from_params(np.r_[distance * d / np.linalg.norm(d), 0, 0, rng.uniform(-np.pi, np.pi)])
+            _write_pcd(tmp_path / "o.pcd", frame("251370668"), viewpoint(T_off))
+            o = load_scan(tmp_path / "o.pcd")
+            assert o.viewpoint_from == Origin.CONVENTION, (distance, T_off[:3, 3])
+    # a kind given that the origin would not have: the viewpoint as stated
+    assert load_scan(tmp_path / "t.pcd", kind="single-view").viewpoint_from == Origin.FILE
     # the same frame in the map's frame, its VIEWPOINT the sensor's pose there: sampled from it, kept
     _write_pcd(tmp_path / "m.pcd", apply(T_map, frame("251370668")), viewpoint(T_map))
     m = load_scan(tmp_path / "m.pcd")
@@ -381,6 +392,16 @@ def test_a_viewpoint_holding_the_sensors_pose_in_a_map_is_set_aside_for_the_fram
 
 
 # ---- --scan-kind, bad inputs ----
+
+def test_scan_origin_fields_are_in_the_points_frame_and_never_set_aside():
+    # LAS scan-origin fields are in the points' frame by the format: the map-pose rule is a PCD VIEWPOINT's only
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(4000, 3))
+    pts = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(2, 30, (4000, 1))  # all round the origin
+    raw = RawScan(pts, "x.las", "x", viewpoint=np.array([11.0, 0.0, 0.0]), viewpoint_label="the scan-origin fields")
+    s = assemble(raw)
+    assert s.viewpoint_from == Origin.FILE and s.viewpoint.tolist() == [11.0, 0.0, 0.0] and not s.notes
+
 
 def test_scan_kind_flag_overrides_the_file(tmp_path, rangereg):
     np.savetxt(tmp_path / "s.xyz", _sheet())

@@ -49,6 +49,10 @@ def test_points_off_a_lattice_keep_no_grid():
     assert pixel_grid(np.vstack([pts, other]), np.zeros(3)) is None  # two frames fused: two lattices
     assert pixel_grid(np.vstack([pts, pts[:5]]), np.zeros(3)) is None  # two points in one pixel
     assert pixel_grid(pts[:: 37], np.zeros(3)) is None  # too few of the cells filled to be an image
+    # thinned on the lattice (Open3D's uniform_down_sample, a random half): still on it, but its cells' neighbours
+    # are empty, and a grid's faces would leave the frame without a surface
+    assert pixel_grid(pts[::2], np.zeros(3)) is None and pixel_grid(pts[::3], np.zeros(3)) is None
+    assert pixel_grid(pts[rng.random(len(pts)) < 0.5], np.zeros(3)) is None
     assert pixel_grid(np.vstack([pts, -pts[:3]]), np.zeros(3)) is None  # not all in front of the camera
 
 
@@ -65,3 +69,6 @@ def test_a_kinect_frame_written_as_bare_points_reads_as_the_organised_frame(tmp_
     assert bare.kind is ScanKind.SINGLE_VIEW and np.array_equal(bare.grid.index, cropped)
     assert "pixel lattice" in bare.notes[0]
     assert bare.faces is None and len(triangulate(bare)) == len(triangulate(organised))
+    write_ply(tmp_path / "third.ply", organised.points[::3])  # thinned on the lattice: bare points, a surface
+    third = load_scan(tmp_path / "third.ply")
+    assert third.grid is None and len(triangulate(third)) > len(third.points)

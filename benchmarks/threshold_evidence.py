@@ -12,7 +12,7 @@ the largest truth misfit and the smallest wrong one over the OTHER cases) and it
 whether the threshold (with the factor left out for that case) lies between the two.
 
     python benchmarks/threshold_evidence.py [--starts 40] [--folder ../shared/data/bunny] [--smallest]
-        [--kinds] [--constraint] [--rise]
+        [--kinds] [--constraint] [--rise] [--intrusion]
 
 ``--smallest``: the bowl alone, one random start and one turned truth (a check that the script runs).
 ``--kinds``: the other kinds too: simulated RGB-D fragments and LiDAR rooms and streets (core.scenes_sensor), the
@@ -20,6 +20,9 @@ shared LiDAR pair (truth relative.txt); a case whose surface or overlap this cod
 ``--rise``: the evidence for core.threshold.MIN_RISE and MIN_STABLE_RISE: per case at the truth the constraint's ratio,
 the score's rise when slid along the weakest motion (tried only below core.threshold.weak_below_of) and the same rise of
 the points that pin that motion (core.threshold.stable_rise; tried where the first falls short).
+``--intrusion``: the evidence for core.intrusion.MAX_INTRUSION: per fused room fragment pair (the sweep's, the walks and
+the TSDF fragments of benchmarks/written_files.py) the intrusion at the truth and at every twin that passes each other
+test (the truth turned about each room corner's diagonal and refined; ``--starts`` seeded starts too).
 ``--constraint``: the evidence for core.threshold.MIN_CONSTRAINT instead: per case the ratio of the matched
 point-to-plane system at the truth and at the truth slid along the system's weakest motion by 1, 2 and 5 % of
 the size (free cases: a corridor of planes, a fold of two planes, the wing), and the bound fitted leave-one-out.
@@ -223,6 +226,105 @@ def rise_main(a) -> int:
     return 0
 
 
+def room_fragment_cases():
+    """Fused fragments of the furnished room (core.scenes_sensor: the sweep's sim-fragments, the walks and the TSDF
+    fragments of benchmarks/written_files.py, same seeds): (family, name, source, target, T_target_source). Each
+    fragment carries its true pose in the room (``pose``), whose corners the twins turn about."""
+    from rangereg.core import scenes_sensor as ss
+
+    for seed in range(3):
+        yield ("sim-fragments", f"sim-fragments-{seed}", *ss.fragment_pair(seed))
+    cam = ss.DepthCamera(cols=240, rows=180)
+    for frames, shared in ((15, 5), (30, 10)):
+        for seed in range(4):
+            yield (f"walk{frames}", f"walk{frames}-{seed}", *ss.fragment_pair(seed, frames, cam, shared))
+    for seed in (11, 12, 13, 14):
+        yield ("tsdf", f"tsdf-{seed}", *ss.tsdf_fragment_pair(seed))
+
+
+def corner_turns(size=(7.0, 5.0, 2.8)):
+    """(16, 4, 4) T_world_world: the room turned a third of a turn either way about each corner's diagonal (the
+    turn that lays a corner's floor on its wall: the twins of a room's corner)."""
+    from rangereg.core.transforms import rotation_matrix
+
+    out = []
+    for corner in itertools.product(*[(0.0, x) for x in size]):
+        c = np.array(corner)
+        d = np.where(c > 0, -1.0, 1.0) / np.sqrt(3.0)
+        for sign in (1, -1):
+            W = np.eye(4)
+            W[:3, :3] = rotation_matrix(d * sign * 2 * np.pi / 3)
+            W[:3, 3] = c - W[:3, :3] @ c
+            out.append(W)
+    return np.array(out)
+
+
+def intrusion_main(a) -> int:
+    """The evidence for core.intrusion (its module notes): per fused room fragment pair, on the basis the global
+    method builds at the truth (the search's thinned scans), the intrusion at the truth and at every twin (the
+    truth turned about a room corner's diagonal, refined as the pipeline refines, and the wrong minima of seeded
+    starts) that passes every other test of the pair threshold: the poses it must reject. Then the bound, and the
+    bound fitted with each family left out."""
+    from rangereg.core.candidates import for_search
+    from rangereg.core.global_search.setup import prepare_setup
+    from rangereg.core.intrusion import MAX_INTRUSION, intrusion
+
+    rows = []
+    for family, name, s0, t0 in room_fragment_cases():
+        if a.cases and name not in a.cases.split(","):
+            continue
+        T_true = invert(t0.pose) @ s0.pose
+        s, t = for_search(s0), for_search(t0)
+        setup = prepare_setup(s, t, Guess(T_true), Config(method="global", seed=0))
+        basis, thr = setup.basis, setup.threshold
+        stated = Guess.identity(90.0, 0.3 * t.size)
+        starts = [invert(t0.pose) @ W @ s0.pose for W in corner_turns()]
+        starts += list(starts_from(T_true, s, np.random.default_rng(7), a.starts, t.size))[:a.starts]
+        twins = []
+        for T0 in starts:
+            try:
+                T, _ = refine(s, t, setup.surface, stated.at(T0), Config())
+            except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
+                continue
+            rot, trans = pose_error(T, T_true, s.centroid)
+            if (rot >= 1.0 or trans >= 0.05) and _passes_but_intrusion(thr, basis, T):
+                if not any(pose_error(T, o[1], s.centroid)[0] < 1.0 for o in twins):
+                    twins.append((intrusion(basis, T), T, rot, trans))
+        truth = intrusion(basis, T_true)
+        rows.append((family, name, truth, [w[0] for w in twins]))
+        print(f"{name:16s} truth {truth:.3f} | {len(twins)} twins pass every other test: "
+              + (", ".join(f"{w[0]:.3f} ({w[2]:.0f} deg, {w[3]:.2f} m)" for w in twins) or "-"), flush=True)
+    if not rows:
+        return 0
+
+    def bound(rs):
+        hi, lo = max(r[2] for r in rs), min((w for r in rs for w in r[3]), default=np.inf)
+        return hi, lo, float(np.sqrt(hi * lo))
+
+    hi, lo, k = bound(rows)
+    print(f"\nhighest truth {hi:.3f}, least twin {lo:.3f}: geometric mean {k:.3f} "
+          f"(core.intrusion.MAX_INTRUSION = {MAX_INTRUSION:g})")
+    for fam in dict.fromkeys(r[0] for r in rows):
+        others = [r for r in rows if r[0] != fam]
+        if not others:
+            continue
+        k = bound(others)[2]
+        mine = [r for r in rows if r[0] == fam]
+        ok = all(r[2] < k for r in mine) and all(w >= k for r in mine for w in r[3])
+        print(f"  without {fam:14s} bound {k:.3f}: {fam}'s truths below and twins above it: {'holds' if ok else 'FAILS'}")
+    return 0
+
+
+def _passes_but_intrusion(thr, basis, T: np.ndarray) -> bool:
+    """Whether pose T passes every test of the pair threshold but the intrusion: enough matched, the misfit, the
+    constraint."""
+    from rangereg.core.threshold import constraint
+
+    sc = basis.evaluate(T[None])
+    return bool(basis.valid(sc)[0] and sc.inliers[0] >= MIN_TRUST_OVERLAP and thr.misfit(basis, T, sc) < thr.factor
+                and constraint(basis, T).pins(thr.min_constraint))
+
+
 def print_constraint(r: dict) -> None:
     print(f"{r['case']:20s} {'free  ' if r['free'] else 'pinned'} truth {r['truth']:.4f}  slid 1/2/5 % of the size "
           + " ".join(f"{x:.4f}" for x in r["slid"]) + f"  weakest: {r['motion']}  ({r['how']})", flush=True)
@@ -295,7 +397,10 @@ def main() -> int:
     ap.add_argument("--kinds", action="store_true", help="the other kinds too (module notes)")
     ap.add_argument("--constraint", action="store_true", help="the evidence for MIN_CONSTRAINT (module notes)")
     ap.add_argument("--rise", action="store_true", help="the evidence for MIN_RISE (module notes)")
+    ap.add_argument("--intrusion", action="store_true", help="the evidence for core.intrusion.MAX_INTRUSION")
     a = ap.parse_args()
+    if a.intrusion:
+        return intrusion_main(a)
     if a.constraint:
         return constraint_main(a)
     if a.rise:

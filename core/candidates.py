@@ -255,6 +255,12 @@ class Basis:
             self._recent[key] = compute()
         return self._recent[key]
 
+    def once(self, what: str, make):
+        """``make()``, made when first asked for ``what`` and kept (what a few poses' tests need: hulls, samples)."""
+        if what not in self._lazy:
+            self._lazy[what] = make()
+        return self._lazy[what]
+
     @property
     def constraint_normals(self) -> np.ndarray | None:
         """(C, 3) the source's unit normals at ``constraint_points``, fitted to CONSTRAINT_NORMAL_NEIGHBOURS points

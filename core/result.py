@@ -75,6 +75,7 @@ class GlobalDetails:
     candidate_sources: dict
     found_by: str = ""
     constraint: object = None  # core.threshold.Constraint at the pose: what the matched overlap pins
+    intrusion: float | None = None  # core.intrusion.intrusion at the pose (None: not measured)
 
     @property
     def pinned(self) -> bool:
@@ -84,6 +85,7 @@ class GlobalDetails:
     def to_json(self) -> dict:
         return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
                 **({} if self.constraint is None else {"constraint": self.constraint.to_json()}),
+                **({} if self.intrusion is None else {"intrusion": self.intrusion}),
                 "within_region": self.within_region, "region": self.region.to_json(), "beyond": self.beyond,
                 "score": self.score, "candidates": self.candidates, "candidate_sources": dict(self.candidate_sources),
                 "found_by": self.found_by}
@@ -152,6 +154,11 @@ class Result:
                     f"{d.misfit:.3g} < {factor:g})")
         elif d.misfit is None:
             text = "too little of the scans overlaps at this pose to judge it"
+        elif d.misfit < factor and d.intrusion is not None and d.intrusion >= d.threshold.max_intrusion:
+            text = (f"where the scans overlap they agree at the noise level, but {100 * d.intrusion:.0f} % of one "
+                    "scan's points lie inside the other's hull far from any of its points, where that scan saw nothing "
+                    f"(trusted below {100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a "
+                    "room's corner fits itself turned about its diagonal")
         elif not d.pinned and d.misfit < factor:
             c = d.constraint
             if not c.matched:

@@ -15,6 +15,7 @@ import numpy as np
 
 from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
+from .intrusion import MAX_INTRUSION, intrusion
 from .noise import noise_floors
 from .problem import Problem
 from .rows import cross
@@ -347,17 +348,19 @@ class PairThreshold:
     min_constraint: float = MIN_CONSTRAINT
     min_rise: float = MIN_RISE
     min_stable_rise: float = MIN_STABLE_RISE
+    max_intrusion: float = MAX_INTRUSION
     derivation: str = ("sqrt(median matched d^2 / noise floor) x (median normal angle / angle floor) < factor on "
                        "the fixed basis; >= 30 % of the source sample matched; overlap both ways; the matched "
                        "point-to-plane system's smallest / largest eigenvalue >= min_constraint and, below "
                        f"{WEAK_BELOW:g} ({WEAK_BELOW_UNSTRUCTURED:g} onto an unstructured scan), the score rising by "
                        "min_rise when slid along its weakest motion, or the score of the points facing that motion by "
-                       "min_stable_rise")
+                       "min_stable_rise; less than max_intrusion of either scan's points inside the other's hull and "
+                       "far from it")
 
     def to_json(self) -> dict:
         return {"value": self.value, "floor": self.floor, "angle_floor_deg": self.angle_floor, "factor": self.factor,
                 "min_overlap": self.min_overlap, "min_constraint": self.min_constraint, "min_rise": self.min_rise,
-                "min_stable_rise": self.min_stable_rise,
+                "min_stable_rise": self.min_stable_rise, "max_intrusion": self.max_intrusion,
                 "derivation": self.derivation}
 
     def misfit(self, basis: Basis, T: np.ndarray, scores: Scores | None = None) -> float:
@@ -373,22 +376,24 @@ class PairThreshold:
 
     def holds(self, basis: Basis, T: np.ndarray, scores: Scores | None = None, misfit: float | None = None) -> bool:
         """Whether pose T (4, 4) passes: it overlaps enough (notes above), its misfit is below the factor
-        (``scores``, ``misfit``: T's, when computed already) and the matched overlap pins all six degrees of
-        freedom (:func:`constraint`)."""
+        (``scores``, ``misfit``: T's, when computed already), neither scan puts its points where the other saw
+        nothing (core.intrusion) and the matched overlap pins all six degrees of freedom (:func:`constraint`)."""
         s = basis.evaluate(np.asarray(T)[None]) if scores is None else scores
         if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP):
             return False
         if not (self.misfit(basis, T, s) if misfit is None else misfit) < self.factor:
             return False
-        return constraint(basis, T).pins(self.min_constraint)
+        return intrusion(basis, T) < self.max_intrusion and constraint(basis, T).pins(self.min_constraint)
 
     def weakly_pinned(self, basis: Basis, T: np.ndarray) -> bool:
         """Whether pose T (4, 4) passes every test but the last: it overlaps enough, its misfit is below the factor,
-        its ratio reaches ``min_constraint``, and only the score's rise along its weakest motion falls short of
-        MIN_RISE (the 10-stop turntable's right pairs that are doubted: rises 1.01-1.19). The pair alone cannot
-        tell such a pose from its slides; a campaign's loops can (core.merge_graph.corroborate)."""
+        neither scan intrudes on the other (core.intrusion), its ratio reaches ``min_constraint``, and only the score's
+        rise along its weakest motion falls short of MIN_RISE (the 10-stop turntable's right pairs that are doubted:
+        rises 1.01-1.19). The pair alone cannot tell such a pose from its slides; a campaign's loops can
+        (core.merge_graph.corroborate)."""
         s = basis.evaluate(np.asarray(T)[None])
-        if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor):
+        if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor
+                and intrusion(basis, T) < self.max_intrusion):
             return False
         c = constraint(basis, T)
         return (c.matched > 0 and c.ratio >= self.min_constraint and c.rise is not None and c.rise < MIN_RISE

@@ -56,3 +56,16 @@ def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided(scene):
     out = beyond.to_json()
     assert out["trusted"] is True and out["within_region"] is False and out["beyond"].startswith("found 41 deg")
     assert out["iterations"] == {"icp": 3, "sa": 0, "candidates": 4} and out["region"]["rotation_deg"] == 15.0
+
+
+def test_a_pose_whose_scans_cut_through_each_others_rooms_is_doubted_in_those_words(scene):
+    from rangereg.core.guess import Guess
+
+    source, target = scene("corner")
+    region = Guess.identity().region(source, target)
+    details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 1.7, region, True, "", 0.1, 4, {"guess": 1}, "guess",
+                            None, 0.24)
+    r = Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
+               trusted=False, details=details)
+    assert "24 % of one scan's points lie inside the other's hull" in r.trust_text
+    assert "trusted below 7.3 %" in r.trust_text and r.to_json()["intrusion"] == 0.24

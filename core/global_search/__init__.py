@@ -53,6 +53,7 @@ from ..config import Config
 from ..errors import InputError
 from ..events import Cancelled, Listener
 from ..guess import Guess
+from ..intrusion import intrusion
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
@@ -155,6 +156,7 @@ def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut:
     trusted = setup.threshold.holds(setup.basis, T, s, misfit)
     details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
                             setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]),
-                            run.n["candidates"], sources, found_by, constraint(setup.basis, T))
+                            run.n["candidates"], sources, found_by, constraint(setup.basis, T),
+                            intrusion(setup.basis, T))
     return Result(T, last_cut.error(T), run.iterations(), local_minima, run.total(), time.perf_counter() - setup.t0,
                   "global", setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)

@@ -47,8 +47,16 @@ RECENT_POSES = 8  # single poses a basis remembers its answers for (Basis.evalua
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 # RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
 # confidence, after log(0.001) / log(1 - w^3) draws when a share w of the mutual matches is right: 20,000
-# serve w >= 0.07. The full 100,000 cost ~5 s here on a pair where nothing matches, where it never stops early.
+# serve w >= 0.07. The full 100,000 cost ~5 s here on a pair where nothing matches, where it never stops early:
+# measured again (2026-12-06) on the FPFH grid of 2 spacings, the bunny's bun000 against a mirrored bun045 (no rigid
+# pose fits) takes 7.9 s at 20,000 and 29 s at 100,000.
 RANSAC_ITERATIONS = 20_000
+# ... but on the coarse grid (FEATURE_SPACINGS, the scene's voxel, as Open3D's recipe and the peers run it) the
+# recipe's 100,000: a thin overlap leaves few right matches. Measured there: the TSDF fragments tsdf-13 (PLY, 23 %
+# overlap) refine to the truth from the 100,000 draws' hypothesis and to a 99-degree twin from the 20,000's (three runs
+# of 20,000 find the truth too); the cost 0.95 -> 1.29 s on that pair, 0.58 -> 1.18 s on a 15-frame walk, 0.24 -> 0.34 s on a
+# room against a Kinect frame, 4.25 -> 3.75 s on the bunny against its mirror, 0.23 -> 0.22 s on bun000 -> bun045.
+RANSAC_ITERATIONS_COARSE = 100_000
 # cells of the coarser FPFH grid below which the finer grid is tried too: 5-spacing cells per scan,
 # measured: the bunny scans 4.0-4.6k, their crops (app/crops.py) 1.1-2.3k; the simulated turntables'
 # scans 115-277 (8 stops, 0.7-1.0k points) and 246-277 (24 stops, 1.7-1.9k points)
@@ -493,10 +501,15 @@ def voxel_cells(scan: Scan, size: float) -> int:
     return len(np.unique(np.floor(scan.points / size).astype(np.int64), axis=0))
 
 
+def ransac_iterations(voxel_spacings: float) -> int:
+    """RANSAC's bound on draws on an FPFH grid of ``voxel_spacings`` feature spacings (notes above)."""
+    return RANSAC_ITERATIONS_COARSE if voxel_spacings >= FEATURE_SPACINGS else RANSAC_ITERATIONS
+
+
 def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[float, ...], seeds: int,
                     seed: int) -> list[np.ndarray]:
     """RANSAC hypotheses on FPFH matches (Open3D's documented recipe, voxel sizes in point spacings:
-    matches within 1.5 voxels, edge-length check 0.9, 100,000 iterations at 0.999 confidence)."""
+    matches within 1.5 voxels, edge-length check 0.9, at most :func:`ransac_iterations` draws at 0.999 confidence)."""
     import open3d as o3d
 
     reg = o3d.pipelines.registration
@@ -513,6 +526,6 @@ def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[fl
                 res = reg.registration_ransac_based_on_feature_matching(
                     src, tgt, fs, ft, True, dist, reg.TransformationEstimationPointToPoint(False), 3,
                     [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(dist)],
-                    reg.RANSACConvergenceCriteria(RANSAC_ITERATIONS, 0.999))
+                    reg.RANSACConvergenceCriteria(ransac_iterations(v), 0.999))
             out.append(np.asarray(res.transformation).copy())
     return out

@@ -34,10 +34,15 @@ ways instead of their mean: 1.5 at 5, 1.3 at 10. Ten, not five: a real fusion's 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from .scan import Scan, ScanKind
+
+if TYPE_CHECKING:
+    from .candidates import Basis
 
 INTRUSION_SPACINGS = 10  # "far from every point": see the module notes
 INTRUSION_SAMPLE = 1500  # points each way (a share to +-0.01)
@@ -71,18 +76,17 @@ def uniform_sample(scan: Scan, n: int, seed: int) -> np.ndarray:
     return scan.points[np.sort(rng.choice(len(scan.points), min(n, len(scan.points)), replace=False))]
 
 
-def intrusion(basis, T: np.ndarray) -> float:
+def intrusion(basis: Basis, T: np.ndarray) -> float:
     """The share of one scan's points at pose T (4, 4) T_target_source inside the other's hull and far from it
     (:func:`intruding_share`), the mean of the two ways, each counted only into an unstructured scan (module notes);
-    0 where none counts or the basis holds no source scan. ``basis``: the pair's
-    core.candidates.Basis (its scans, hulls and samples kept on it)."""
+    0 where none counts or the basis holds no source scan. ``basis`` keeps the hulls and samples."""
     T = np.asarray(T, dtype=np.float64).reshape(4, 4)
     if basis.source is None:
         return 0.0
     return basis._remembered("intrusion", T, lambda: _intrusion(basis, T))
 
 
-def _intrusion(basis, T: np.ndarray) -> float:
+def _intrusion(basis: Basis, T: np.ndarray) -> float:
     s, t = basis.source, basis.target
     src = basis.once("intrusion source", lambda: (uniform_sample(s, INTRUSION_SAMPLE, 11), _hull_of(s)))
     tgt = basis.once("intrusion target", lambda: (uniform_sample(t, INTRUSION_SAMPLE, 12), _hull_of(t)))

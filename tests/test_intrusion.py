@@ -3,6 +3,7 @@ the rest of the room cutting through the other's; the truth does not."""
 
 from __future__ import annotations
 
+from functools import cache
 from types import SimpleNamespace
 
 import numpy as np
@@ -108,30 +109,71 @@ def test_inputs_come_back_unmodified():
     assert np.array_equal(room.points, before) and np.array_equal(pts, pts_before)
 
 
-def test_fused_fragments_refined_onto_a_room_corners_twin_pass_every_other_test_and_not_this_one():
-    # sim-fragments-2 (the sensor sweep's): the truth turned a third of a turn about the diagonal of the room's corner
-    # at (7, 0, 0) and refined as the pipeline refines ends 120 deg off, matched and pinned at the noise level
+@cache
+def _fragments_twin():
+    """sim-fragments-2 (the sensor sweep's): its setup at the truth, the truth, and the truth turned a third of a turn
+    about the diagonal of the room's corner at (7, 0, 0), refined as the pipeline refines: it ends 120 deg off."""
     from rangereg.app.sweep_sensors import SensorPair
     from rangereg.core.candidates import for_search
     from rangereg.core.config import Config
     from rangereg.core.global_search import refine
     from rangereg.core.global_search.setup import prepare_setup
     from rangereg.core.guess import Guess
-    from rangereg.core.threshold import MIN_TRUST_OVERLAP, constraint
-    from rangereg.core.transforms import invert, pose_error
+    from rangereg.core.transforms import invert
 
     s0, t0, T_true = SensorPair("sim-fragments", "sim-fragments-2", seed=2).load()
     s, t = for_search(s0), for_search(t0)
     setup = prepare_setup(s, t, Guess(T_true), Config(method="global", seed=0))
-    basis, thr = setup.basis, setup.threshold
     corner = np.array([7.0, 0.0, 0.0])
     W = np.eye(4)
     W[:3, :3] = rotation_matrix(np.array([-1.0, 1.0, 1.0]) / np.sqrt(3) * -2 * np.pi / 3)
     W[:3, 3] = corner - W[:3, :3] @ corner
     T, _ = refine(s, t, setup.surface, Guess.identity(90.0, 0.3 * t.size).at(invert(t0.pose) @ W @ s0.pose), Config())
-    assert pose_error(T, T_true, s.centroid)[0] > 100
+    return setup, T_true, T
+
+
+def test_fused_fragments_refined_onto_a_room_corners_twin_pass_every_other_test_and_not_this_one():
+    from rangereg.core.threshold import MIN_TRUST_OVERLAP, constraint
+    from rangereg.core.transforms import pose_error
+
+    setup, T_true, T = _fragments_twin()
+    basis, thr = setup.basis, setup.threshold
+    assert pose_error(T, T_true, setup.source.centroid)[0] > 100
     scores = basis.evaluate(T[None])
     assert scores.inliers[0] >= MIN_TRUST_OVERLAP and thr.misfit(basis, T, scores) < thr.factor
     assert constraint(basis, T).pins(thr.min_constraint)
     assert intrusion(basis, T) >= MAX_INTRUSION and not thr.holds(basis, T)
     assert intrusion(basis, T_true) < MAX_INTRUSION and thr.holds(basis, T_true)
+
+
+def test_a_twin_neither_undercuts_the_truth_nor_is_returned_before_it():
+    # a room corner's twin may score below the truth on the basis (tsdf-13: 8.5e-5 against 9.1e-5); known wrong by
+    # where it puts the fragments, it does not take the truth's trust away, and when nothing is trusted the truth
+    # (or any pose clear of the other's room) is returned before it
+    from dataclasses import replace
+
+    from rangereg.core.global_search.refinement import best_refined, undercut
+
+    setup, T_true, T = _fragments_twin()
+    cheaper = replace(setup, basis=_ScoredBelow(setup.basis, T))  # the twin scoring lowest, as on tsdf-13
+    assert cheaper.basis.evaluate(np.stack([T, T_true])).score[0] < cheaper.basis.evaluate(T_true[None]).score[0]
+    assert not undercut(cheaper, [T], T_true)
+    assert best_refined(cheaper, [T, T_true])[0] is T_true
+    assert best_refined(cheaper, [T])[0] is T  # alone, it is still the best found
+
+
+class _ScoredBelow:
+    """A basis that scores pose ``low`` below every other (its other answers the basis's own)."""
+
+    def __init__(self, basis, low):
+        self._basis, self._low = basis, low
+
+    def __getattr__(self, name):
+        return getattr(self._basis, name)
+
+    def evaluate(self, poses):
+        from dataclasses import replace
+
+        s = self._basis.evaluate(poses)
+        low = np.array([np.allclose(P, self._low) for P in np.asarray(poses).reshape(-1, 4, 4)])
+        return replace(s, score=np.where(low, 0.5 * s.score.min(), s.score))

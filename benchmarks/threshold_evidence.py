@@ -228,8 +228,8 @@ def rise_main(a) -> int:
 
 def room_fragment_cases():
     """Fused fragments of the furnished room (core.scenes_sensor: the sweep's sim-fragments, the walks and the TSDF
-    fragments of benchmarks/written_files.py, same seeds): (family, name, source, target, T_target_source). Each
-    fragment carries its true pose in the room (``pose``), whose corners the twins turn about."""
+    fragments of benchmarks/written_files.py, same seeds): (family, name, source, target). Each fragment carries its
+    true pose in the room (``pose``), whose corners the twins turn about."""
     from rangereg.core import scenes_sensor as ss
 
     for seed in range(3):
@@ -242,11 +242,15 @@ def room_fragment_cases():
         yield ("tsdf", f"tsdf-{seed}", *ss.tsdf_fragment_pair(seed))
 
 
-def corner_turns(size=(7.0, 5.0, 2.8)):
+def corner_turns() -> np.ndarray:
     """(16, 4, 4) T_world_world: the room turned a third of a turn either way about each corner's diagonal (the
     turn that lays a corner's floor on its wall: the twins of a room's corner)."""
+    import inspect
+
+    from rangereg.core.scenes_sensor import room_mesh
     from rangereg.core.transforms import rotation_matrix
 
+    size = inspect.signature(room_mesh).parameters["size"].default  # the room every family is fused in
     out = []
     for corner in itertools.product(*[(0.0, x) for x in size]):
         c = np.array(corner)
@@ -259,15 +263,18 @@ def corner_turns(size=(7.0, 5.0, 2.8)):
     return np.array(out)
 
 
-def intrusion_main(a) -> int:
+def intrusion_main(a: argparse.Namespace) -> int:
     """The evidence for core.intrusion (its module notes): per fused room fragment pair, on the basis the global
     method builds at the truth (the search's thinned scans), the intrusion at the truth and at every twin (the
     truth turned about a room corner's diagonal, refined as the pipeline refines, and the wrong minima of seeded
     starts) that passes every other test of the pair threshold: the poses it must reject. Then the bound, and the
     bound fitted with each family left out."""
+    from dataclasses import replace
+
+    from rangereg.core import intrusion as intrusion_module
     from rangereg.core.candidates import for_search
     from rangereg.core.global_search.setup import prepare_setup
-    from rangereg.core.intrusion import MAX_INTRUSION, intrusion
+    from rangereg.core.intrusion import METRES, intrusion
 
     rows = []
     for family, name, s0, t0 in room_fragment_cases():
@@ -287,15 +294,35 @@ def intrusion_main(a) -> int:
             except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
                 continue
             rot, trans = pose_error(T, T_true, s.centroid)
-            if (rot >= 1.0 or trans >= 0.05) and _passes_but_intrusion(thr, basis, T):
+            if (rot >= 1.0 or trans >= 0.05) and replace(thr, max_intrusion=np.inf).holds(basis, T):
                 if not any(pose_error(T, o[1], s.centroid)[0] < 1.0 for o in twins):
                     twins.append((intrusion(basis, T), T, rot, trans))
         truth = intrusion(basis, T_true)
         rows.append((family, name, truth, [w[0] for w in twins]))
         print(f"{name:16s} truth {truth:.3f} | {len(twins)} twins pass every other test: "
               + (", ".join(f"{w[0]:.3f} ({w[2]:.0f} deg, {w[3]:.2f} m)" for w in twins) or "-"), flush=True)
-    if not rows:
-        return 0
+    if rows:
+        _intrusion_fit(rows)
+    print("\nnot used to fit, at the truths (or the trusted poses):")
+    for name, s0, t0, T in other_kind_cases(Path(a.folder).parent):
+        s, t = for_search(s0), for_search(t0)
+        setup = prepare_setup(s, t, Guess(T), Config(method="global", seed=0))
+        x = intrusion(setup.basis, T)
+        sizes = ", ".join(f"{scan.size * (METRES.get(scan.units) or np.nan):.2f} m" for scan in (s, t))
+        every_size = intrusion_module.SCENE_METRES
+        intrusion_module.SCENE_METRES = 0.0  # as if asked of every unstructured scan, whatever its size
+        try:
+            y = intrusion(prepare_setup(s, t, Guess(T), Config(method="global", seed=0)).basis, T)
+        finally:
+            intrusion_module.SCENE_METRES = every_size
+        print(f"  {name:34s} {'not asked' if x is None else f'{x:.3f}'} (sizes {sizes}; asked of any size: "
+              f"{y:.3f})", flush=True)
+    return 0
+
+
+def _intrusion_fit(rows: list) -> None:
+    """Print the bound fitted on ``rows`` ((family, name, truth, twins)) and with each family left out."""
+    from rangereg.core.intrusion import MAX_INTRUSION
 
     def bound(rs):
         hi, lo = max(r[2] for r in rs), min((w for r in rs for w in r[3]), default=np.inf)
@@ -312,17 +339,49 @@ def intrusion_main(a) -> int:
         mine = [r for r in rows if r[0] == fam]
         ok = all(r[2] < k for r in mine) and all(w >= k for r in mine for w in r[3])
         print(f"  without {fam:14s} bound {k:.3f}: {fam}'s truths below and twins above it: {'holds' if ok else 'FAILS'}")
-    return 0
 
 
-def _passes_but_intrusion(thr, basis, T: np.ndarray) -> bool:
-    """Whether pose T passes every test of the pair threshold but the intrusion: enough matched, the misfit, the
-    constraint."""
-    from rangereg.core.threshold import constraint
+def other_kind_cases(data: Path):
+    """(name, source, target, T_target_source) of other kinds: the shared Kinect frames read as unstructured (at the
+    poses the pipeline trusts on them as captured), the shared LiDAR pair thinned on voxels (the assembly calls them
+    unstructured), and fused fragments of the bunny (two scans merged, against a third; an object seen from outside)."""
+    import open3d as o3d
+    from rangereg.core.io import load_pair
+    from rangereg.core.register import register
+    from rangereg.core.scan import Scan, ScanKind
 
-    sc = basis.evaluate(T[None])
-    return bool(basis.valid(sc)[0] and sc.inliers[0] >= MIN_TRUST_OVERLAP and thr.misfit(basis, T, sc) < thr.factor
-                and constraint(basis, T).pins(thr.min_constraint))
+    kinect = sorted((data / "kinect").glob("capture*.pcd"))
+    for a_, b_ in zip(kinect[1:], kinect[:-1]):
+        s, t = load_pair(a_, b_)
+        T = register(s, t, Guess.identity(), Config(method="global", seed=0)).transform
+        su, tu = load_pair(a_, b_, kind="unstructured")
+        yield f"kinect {a_.stem}->{b_.stem}", su, tu, T
+    lidar = data / "lidar"
+    if (lidar / "relative.txt").exists():
+        from rangereg.core.io import read_raw
+
+        T = np.loadtxt(lidar / "relative.txt")
+        for v in (0.1, 0.25, 0.5):
+            scans = []
+            for name in ("251371071", "251370668"):
+                p = read_raw(lidar / f"{name}.pcd").points
+                p = p[np.all(np.isfinite(p), axis=1) & np.any(p != 0, axis=1)]
+                p = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p)).voxel_down_sample(v).points)
+                scans.append(Scan(points=p, viewpoint=np.zeros(3), name=name, units="m", kind=ScanKind.UNSTRUCTURED))
+            yield f"lidar thinned at {v:g} m", scans[0], scans[1], T
+    bunny = data / "bunny"
+    if (bunny / "bun.conf").exists():
+        world = {}
+        for n in ("bun000", "bun045", "bun090", "bun315"):
+            sc = load_scan(bunny / f"{n}.ply")
+            world[n] = sc.points @ sc.pose[:3, :3].T + sc.pose[:3, 3]  # the poses of bun.conf
+
+        def fused(*names):
+            return Scan(points=np.concatenate([world[n] for n in names]), viewpoint=np.zeros(3), name="+".join(names),
+                        units="m", kind=ScanKind.UNSTRUCTURED)
+
+        for src, tgt in ((("bun000", "bun045"), ("bun090",)), (("bun090",), ("bun000", "bun315"))):
+            yield f"bunny {'+'.join(src)} -> {'+'.join(tgt)}", fused(*src), fused(*tgt), np.eye(4)
 
 
 def print_constraint(r: dict) -> None:

@@ -16,7 +16,9 @@ candidate must overlap the other scan by at least ``min_overlap`` both ways.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -47,9 +49,8 @@ RECENT_POSES = 8  # single poses a basis remembers its answers for (Basis.evalua
 ROTATION_SAMPLES = 720  # super-Fibonacci samples over all of SO(3): neighbours ~15 deg apart
 # RANSAC draws at most this many 3-match samples (Open3D's recipe: 100,000); it stops sooner at 0.999
 # confidence, after log(0.001) / log(1 - w^3) draws when a share w of the mutual matches is right: 20,000
-# serve w >= 0.07. The full 100,000 cost ~5 s here on a pair where nothing matches, where it never stops early:
-# measured again (2026-12-06) on the FPFH grid of 2 spacings, the bunny's bun000 against a mirrored bun045 (no rigid
-# pose fits) takes 7.9 s at 20,000 and 29 s at 100,000.
+# serve w >= 0.07. Where nothing matches it never stops early: on the FPFH grid of 2 spacings the bunny's bun000
+# against a mirrored bun045 (no rigid pose fits) takes 7.9 s at 20,000 draws and 29 s at 100,000 (2026-12-06).
 RANSAC_ITERATIONS = 20_000
 # ... but on the coarse grid (FEATURE_SPACINGS, the scene's voxel, as Open3D's recipe and the peers run it) the
 # recipe's 100,000: a thin overlap leaves few right matches. Measured there: the TSDF fragments tsdf-13 (PLY, 23 %
@@ -263,8 +264,9 @@ class Basis:
             self._recent[key] = compute()
         return self._recent[key]
 
-    def once(self, what: str, make):
-        """``make()``, made when first asked for ``what`` and kept (what a few poses' tests need: hulls, samples)."""
+    def once(self, what: str, make: Callable[[], Any]) -> Any:
+        """``make()``, made when first asked for ``what`` and kept (what a few poses' tests need: normals, hulls,
+        samples)."""
         if what not in self._lazy:
             self._lazy[what] = make()
         return self._lazy[what]
@@ -275,12 +277,10 @@ class Basis:
         when first asked for (core.threshold.stable_rise: few poses need them); None without the source."""
         if self.source is None or self.constraint_points is None:
             return None
-        if "constraint normals" not in self._lazy:
-            src = self.source
-            k = min(CONSTRAINT_NORMAL_NEIGHBOURS, len(src.points))
-            idx = src.tree.query(self.constraint_points, k)[1].reshape(-1, k)
-            self._lazy["constraint normals"] = pca_normals(src.points, idx)
-        return self._lazy["constraint normals"]
+        src = self.source
+        k = min(CONSTRAINT_NORMAL_NEIGHBOURS, len(src.points))
+        return self.once("constraint normals", lambda: pca_normals(
+            src.points, src.tree.query(self.constraint_points, k)[1].reshape(-1, k)))
 
     def evaluate(self, poses: np.ndarray) -> Scores:
         """Score (P, 4, 4) T_target_source poses; all closest points in one query."""

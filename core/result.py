@@ -155,7 +155,7 @@ class Result:
         elif d.misfit is None:
             text = "too little of the scans overlaps at this pose to judge it"
         elif d.misfit < factor and d.intrusion is not None and d.intrusion >= d.threshold.max_intrusion:
-            text = (f"where the scans overlap they agree at the noise level, but {100 * d.intrusion:.0f} % of one "
+            text = (f"where the scans overlap they agree at the noise level, but {100 * d.intrusion:.1f} % of one "
                     "scan's points lie inside the other's hull far from any of its points, where that scan saw nothing "
                     f"(trusted below {100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a "
                     "room's corner fits itself turned about its diagonal")

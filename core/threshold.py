@@ -15,7 +15,7 @@ import numpy as np
 
 from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
-from .intrusion import MAX_INTRUSION, intrusion
+from .intrusion import MAX_INTRUSION, clear
 from .noise import noise_floors
 from .problem import Problem
 from .rows import cross
@@ -383,7 +383,7 @@ class PairThreshold:
             return False
         if not (self.misfit(basis, T, s) if misfit is None else misfit) < self.factor:
             return False
-        return intrusion(basis, T) < self.max_intrusion and constraint(basis, T).pins(self.min_constraint)
+        return clear(basis, T, self.max_intrusion) and constraint(basis, T).pins(self.min_constraint)
 
     def weakly_pinned(self, basis: Basis, T: np.ndarray) -> bool:
         """Whether pose T (4, 4) passes every test but the last: it overlaps enough, its misfit is below the factor,
@@ -393,7 +393,7 @@ class PairThreshold:
         (core.merge_graph.corroborate)."""
         s = basis.evaluate(np.asarray(T)[None])
         if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor
-                and intrusion(basis, T) < self.max_intrusion):
+                and clear(basis, T, self.max_intrusion)):
             return False
         c = constraint(basis, T)
         return (c.matched > 0 and c.ratio >= self.min_constraint and c.rise is not None and c.rise < MIN_RISE

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from rangereg.core.intrusion import MAX_INTRUSION
 from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
 from rangereg.core.threshold import pair_threshold
 
@@ -67,5 +68,5 @@ def test_a_pose_whose_scans_cut_through_each_others_rooms_is_doubted_in_those_wo
                             None, 0.24)
     r = Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
                trusted=False, details=details)
-    assert "24 % of one scan's points lie inside the other's hull" in r.trust_text
-    assert "trusted below 7.3 %" in r.trust_text and r.to_json()["intrusion"] == 0.24
+    assert "24.0 % of one scan's points lie inside the other's hull" in r.trust_text
+    assert f"trusted below {100 * MAX_INTRUSION:g} %" in r.trust_text and r.to_json()["intrusion"] == 0.24

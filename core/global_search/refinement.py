@@ -13,7 +13,7 @@ from ..config import Config
 from ..errors import InputError
 from ..guess import Guess
 from ..icp import IcpConfig, icp
-from ..intrusion import intrusion
+from ..intrusion import clear
 from ..lock import LockFrame
 from ..problem import Problem, ProblemConfig, prepare, resample
 from ..region import offsets
@@ -219,7 +219,7 @@ def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:
 
 def _clear(setup: Setup, T: np.ndarray) -> bool:
     """Whether pose T puts neither fused scan's points through the other's seen room (core.intrusion)."""
-    return intrusion(setup.basis, T) < setup.threshold.max_intrusion
+    return clear(setup.basis, T, setup.threshold.max_intrusion)
 
 
 def best_refined(setup: Setup, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:

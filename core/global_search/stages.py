@@ -10,6 +10,7 @@ import numpy as np
 
 from ..candidates import FPFH_FINER_BELOW, feature_spacing, fpfh_candidates, rotation_candidates, voxel_cells
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
+from ..scan import ScanKind
 from .setup import Setup
 
 
@@ -77,7 +78,13 @@ def stages(setup: Setup) -> Iterator[Stage]:
     """The stages, cheapest first. A rotation stated within ``guess_first_deg``: the guess alone, then
     KISS-Matcher's one hypothesis (computed ahead, in its own process), then the rotation samples. A wider
     one: the guess and KISS-Matcher's hypothesis scored together (the lower refined first), then the
-    samples. FPFH + RANSAC last: it costs about what the whole Open3D pipeline does."""
+    samples. FPFH + RANSAC last: it costs about what the whole Open3D pipeline does. But with no guess, where either
+    scan is a fused cloud, FPFH + RANSAC instead of the rotation samples: the samples place each turn by the
+    centroids, which partly overlapping fragments of a room do not share. Measured (benchmarks/written_files.py, 24
+    fused pairs from no guess; the sensor sweep's fragments family): no right pose came from them, but twins of a
+    room's corner did (tsdf-13, whose truth FPFH found after them in 6.1-6.4 s, and without them in 3.3-3.7 s); the
+    pairs nothing registers end 2-3 s sooner (tsdf-14 7.8-9.1 -> 5.4-6.2 s, walk15-1 7.0-7.4 -> 4.2-4.8 s), at the
+    same poses; the sensor sweep's fragments family is bitwise as before."""
     cc = setup.config.candidates
     kiss = cc.enabled and cc.kiss_matcher
     guess = Hypotheses([setup.T_guess], labels=("guess",))
@@ -89,7 +96,22 @@ def stages(setup: Setup) -> Iterator[Stage]:
             yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1)
     if not cc.enabled:
         return
+    if setup.guess.is_none and ScanKind.UNSTRUCTURED in (setup.source.kind, setup.target.kind):
+        yield from fpfh_stages(setup)
+        yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
+        return
     yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
+    yield from fpfh_stages(setup)
+
+
+# why a fused cloud with no guess gets no rotation samples (stages' notes)
+UNPLACED = ("not run: with no guess a fused cloud's samples are placed by the centroids, which partly overlapping "
+            "fragments do not share")
+
+
+def fpfh_stages(setup: Setup) -> Iterator[Stage]:
+    """FPFH + RANSAC, the coarse grid first; a finer one only where the coarser left too few cells."""
+    cc = setup.config.candidates
     coarser = None
     for v in sorted(cc.fpfh_voxels, reverse=True):  # coarse first: 5 spacings costs ~1/5 of 2 spacings
         if coarser is not None and not too_few_cells(setup, coarser):

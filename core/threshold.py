@@ -354,8 +354,8 @@ class PairThreshold:
                        "point-to-plane system's smallest / largest eigenvalue >= min_constraint and, below "
                        f"{WEAK_BELOW:g} ({WEAK_BELOW_UNSTRUCTURED:g} onto an unstructured scan), the score rising by "
                        "min_rise when slid along its weakest motion, or the score of the points facing that motion by "
-                       "min_stable_rise; less than max_intrusion of either scan's points inside the other's hull and "
-                       "far from it")
+                       "min_stable_rise; between fused clouds of a space, less than max_intrusion of the points (the mean of the "
+                       "two ways) inside the other's hull and far from it")
 
     def to_json(self) -> dict:
         return {"value": self.value, "floor": self.floor, "angle_floor_deg": self.angle_floor, "factor": self.factor,

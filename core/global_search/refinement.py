@@ -229,8 +229,8 @@ def best_refined(setup: Setup, poses: list[np.ndarray]) -> tuple[np.ndarray, flo
     s = setup.basis.evaluate(np.stack(poses))
     valid = setup.basis.valid(s)
     inside = setup.region.contains(np.stack(poses))
-    clear = np.array([bool(ok) and _clear(setup, T) for T, ok in zip(poses, valid)])
-    for ok in (valid & inside & clear, valid & inside, valid & clear, valid, np.ones(len(poses), dtype=bool)):
+    apart = np.array([bool(ok) and _clear(setup, T) for T, ok in zip(poses, valid)])  # clear of the other's room
+    for ok in (valid & inside & apart, valid & inside, valid & apart, valid, np.ones(len(poses), dtype=bool)):
         if ok.any():
             k = int(np.argmin(np.where(ok, s.score, np.inf)))
             return poses[k], float(s.score[k])

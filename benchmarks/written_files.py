@@ -2,6 +2,7 @@
 PCL and Open3D put into every file) and PLY (no viewpoint), no sidecar, registered with no guess.
 
     python benchmarks/written_files.py [--seeds 4] [--formats pcd,ply] [--families walk15,tsdf,lidar,kinect,...]
+    python benchmarks/written_files.py --first-seed 4 --seeds 6 --families walk15,walk30,tsdf  # held-out rooms
     python benchmarks/written_files.py --smallest   # one small walk pair, PCD: a check that it runs
 
 The sensor sweep hands its simulated scans over in memory with their kind, and its real files are frames as
@@ -72,18 +73,18 @@ def thinned(path: Path, voxel: float | None = None) -> np.ndarray:
     return np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p)).voxel_down_sample(voxel).points)
 
 
-def pairs(families: list[str], seeds: int, small: bool):
+def pairs(families: list[str], seeds: int, small: bool, first: int = 0):
     """(family, name, source points, target points, T_target_source, reference note, the source's sensor (3,)) per
     pair: right is judged at that sensor."""
     cam = ss.DepthCamera(cols=80, rows=60) if small else ss.DepthCamera(cols=240, rows=180)
     for fam in families:
         if fam in WALKS:
-            for seed in range(seeds):
+            for seed in range(first, first + seeds):
                 frames, shared = WALKS[fam]
                 s, t = ss.fragment_pair(seed, frames, cam, shared)
                 yield fam, f"{fam}-{seed}", s.points, t.points, invert(t.pose) @ s.pose, "truth", ORIGIN
         elif fam == "tsdf":
-            for seed in range(11, 11 + seeds):
+            for seed in range(11 + first, 11 + first + seeds):
                 s, t = ss.tsdf_fragment_pair(seed)
                 yield fam, f"tsdf-{seed}", s.points, t.points, invert(t.pose) @ s.pose, "truth", ORIGIN
         elif fam == "lidar" and (SHARED / "lidar").is_dir():
@@ -143,6 +144,8 @@ def main() -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=4, help="walk pairs per family (default 4)")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="the walks' first seed (the TSDF rooms': 11 + it); pairs seen while building: seeds 0-3")
     ap.add_argument("--formats", default="pcd,ply", help="comma-separated of pcd, ply")
     ap.add_argument("--families", default="walk15,walk30,tsdf,lidar,kinect,lidar-world")
     ap.add_argument("--no-peer", action="store_true", help="leave Open3D's pipeline out")
@@ -150,14 +153,14 @@ def main() -> int:
     a = ap.parse_args()
     if a.smallest:
         a.seeds, a.formats, a.families = 1, "pcd", "walk15"
-    if a.seeds < 1:
-        ap.error("--seeds must be >= 1")
+    if a.seeds < 1 or a.first_seed < 0:
+        ap.error("--seeds must be >= 1 and --first-seed >= 0")
     formats = [f for f in a.formats.split(",") if f]
     if not set(formats) <= {"pcd", "ply"}:
         ap.error("--formats takes pcd and ply")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for fam, name, ps, pt, T_ref, ref, sensor in pairs(a.families.split(","), a.seeds, a.smallest):
+        for fam, name, ps, pt, T_ref, ref, sensor in pairs(a.families.split(","), a.seeds, a.smallest, a.first_seed):
             peer_text = ""
             for fmt in formats:
                 src, tgt = Path(tmp) / f"source.{fmt}", Path(tmp) / f"target.{fmt}"

@@ -133,6 +133,12 @@ class CandidateConfig:
     fpfh_voxels: tuple[float, ...] = (2.0, 5.0)
     fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
+    # KISS-Matcher's grids (point spacings) tried after its one at the coarse FPFH voxel, before FPFH + RANSAC,
+    # where a fused cloud is registered with no guess (core.global_search.stages). Its hypothesis moves a lot with
+    # the grid on a room's fragments: on 10 TSDF fragment pairs (rooms 11-20, 300k points; 15-20 held out) the one
+    # at 5 spacings refined right on 7; on the others it lay 14-21 deg off and refined to a twin, while 4, 6 or 8
+    # spacings lay 0.9-1.9 deg off. Each costs ~0.1-0.4 s in KISS-Matcher's process, RANSAC 1.2 s.
+    kiss_grids: tuple[float, ...] = (4.0, 6.0, 8.0)
     refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)
     # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations
     # on the same robust E; "point" is the paper's Horn step
@@ -201,6 +207,8 @@ class CandidateConfig:
             raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):
             raise InputError(f"FPFH voxel sizes must be positive, got {self.fpfh_voxels}")
+        if any(not v > 0 for v in self.kiss_grids):
+            raise InputError(f"KISS-Matcher's grids must be positive, got {self.kiss_grids}")
         for name in ("guess_first_deg", "refine_rotation_deg", "distinct_rotation_deg"):
             if not 0 < getattr(self, name) <= 180:
                 raise InputError(f"{name} must be in (0, 180] degrees, got {getattr(self, name)}")

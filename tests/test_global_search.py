@@ -8,6 +8,7 @@ import json
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.transforms import invert, pose_error, rotation_matrix
@@ -222,6 +223,59 @@ def test_with_no_guess_a_fused_cloud_is_matched_by_features_instead_of_rotation_
     assert samples.poses == [] and "centroids" in samples.why_none  # said in the run's candidate sources
     assert order(source, Guess.none()) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
     assert order(fused, Guess.identity(30.0, 0.05)) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
+
+
+def test_with_no_guess_a_fused_cloud_tries_kiss_matchers_other_grids_and_its_features_made_ahead_are_the_same(bunny):
+    # on TSDF fragments of rooms KISS-Matcher's pose moves with its grid: where the first is doubted, its other grids
+    # come before FPFH + RANSAC; both are made while the first stage's poses are refined, and RANSAC made on that
+    # thread gives the bits it gives when made in turn (one Open3D thread under its seed either way)
+    from types import SimpleNamespace
+
+    from rangereg.core.candidates import CandidateConfig
+    from rangereg.core.global_search.stages import stages
+    from rangereg.core.kiss_matcher_candidates import kiss_available
+    from rangereg.core.scan import ScanKind
+
+    source, target = bunny("bun045"), bunny("bun000")
+    fused = replace(source, points=source.points[::3].copy(), kind=ScanKind.UNSTRUCTURED, grid=None, faces=None)
+
+    def setup_of(cc):
+        return SimpleNamespace(source=fused, target=target, T_guess=np.eye(4), guess=Guess.none(),
+                               config=Config(candidates=cc, seed=3), region=SimpleNamespace(stated_rotation_deg=180.0))
+
+    if kiss_available():
+        assert [s.name for s in stages(setup_of(CandidateConfig()))] == [
+            "guess, kiss-matcher", "kiss-matcher, other grids", "fpfh-ransac 5 spacings", "rotation samples"]
+    assert [s.name for s in stages(setup_of(CandidateConfig(kiss_grids=())))][1:] == [
+        "fpfh-ransac 5 spacings", "rotation samples"]
+    cc = CandidateConfig(kiss_matcher=False)
+    in_turn = [s for s in stages(setup_of(cc)) if s.name.startswith("fpfh")][0].make()
+    first, *rest = list(stages(setup_of(cc)))
+    first.doubted()  # a pose of the first stage doubted: RANSAC starts on its thread
+    made_ahead = [s for s in rest if s.name.startswith("fpfh")][0].make()
+    assert len(in_turn.poses) == len(made_ahead.poses) == 1
+    assert np.array_equal(in_turn.poses[0], made_ahead.poses[0])
+    assert made_ahead.labels == ("fpfh-ransac 5 spacings",)
+
+
+def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_where_it_is_reached():
+    from rangereg.core.errors import InputError
+    from rangereg.core.global_search.stages import Ahead, Hypotheses
+
+    made = []
+    ahead = Ahead(lambda: made.append(1) or Hypotheses([np.eye(4)], labels=("x",)))
+    ahead.start()
+    ahead.start()  # once only
+    assert ahead().labels == ("x",) and ahead().labels == ("x",) and made == [1]
+    assert Ahead(lambda: Hypotheses([], "none found"))().why_none == "none found"  # never started: made when reached
+
+    def broken():
+        raise InputError("no overlap")
+
+    failing = Ahead(broken)
+    failing.start()
+    with pytest.raises(InputError, match="no overlap"):
+        failing()
 
 
 def _two_stops_apart():

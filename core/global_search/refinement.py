@@ -128,9 +128,11 @@ class Found:
         return next((src for R, src in zip(self.refined, self.sources) if R is T), "")
 
 
-def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Found) -> None:
+def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Found,
+              doubted: Callable[[], None] | None = None) -> None:
     """Score the hypotheses in one query (events of phase 'candidates'); refine the best ``n`` by score,
-    those inside the region first (once each: near-duplicates are skipped), until one is trusted inside."""
+    those inside the region first (once each: near-duplicates are skipped), until one is trusted inside;
+    ``doubted()`` is called when a refined pose is not trusted."""
     cc, poses = setup.config.candidates, hyp.poses
     poses = poses[:run.budget.grant("candidates", len(poses))]  # the guess and the cheap first, as they come
     if not poses:
@@ -181,6 +183,8 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         elif cc.end_on_weak and setup.region.inside(T) and setup.threshold.weakly_pinned(setup.basis, T):
             found.weak = True
             return
+        elif doubted is not None:
+            doubted()
 
 
 # A pose lower than a weakly pinned one it is compared with lies along that pose's free motion when their move
@@ -259,7 +263,7 @@ def search_stages(setup: Setup, run: EventStream, confirm: Callable[[np.ndarray]
             hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none, hyp.labels)
         sources[stage.name] = hyp.source_note
         if hyp.poses:
-            run_stage(setup, run, hyp, stage.refine, found)
+            run_stage(setup, run, hyp, stage.refine, found, stage.doubted)
         if found.inside is not None:
             break
     return found, sources

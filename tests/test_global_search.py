@@ -225,10 +225,11 @@ def test_with_no_guess_a_fused_cloud_is_matched_by_features_instead_of_rotation_
     assert order(fused, Guess.identity(30.0, 0.05)) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
 
 
-def test_with_no_guess_a_fused_cloud_tries_kiss_matchers_other_grids_and_its_features_made_ahead_are_the_same(bunny):
+def test_a_fused_cloud_tries_kiss_matchers_other_grids_and_features_made_ahead_are_the_same(bunny):
     # on TSDF fragments of rooms KISS-Matcher's pose moves with its grid: where the first is doubted, its other grids
-    # come before FPFH + RANSAC; both are made while the first stage's poses are refined, and RANSAC made on that
-    # thread gives the bits it gives when made in turn (one Open3D thread under its seed either way)
+    # come next (with no guess before FPFH + RANSAC, with one before the rotation samples); with no guess both are made
+    # while the first stage's poses are refined, and RANSAC made on that thread gives the bits it gives when made in
+    # turn (one Open3D thread under its seed either way); a single view keeps its stages
     from types import SimpleNamespace
 
     from rangereg.core.candidates import CandidateConfig
@@ -246,6 +247,12 @@ def test_with_no_guess_a_fused_cloud_tries_kiss_matchers_other_grids_and_its_fea
     if kiss_available():
         assert [s.name for s in stages(setup_of(CandidateConfig()))] == [
             "guess, kiss-matcher", "kiss-matcher, other grids", "fpfh-ransac 5 spacings", "rotation samples"]
+        told = SimpleNamespace(**{**vars(setup_of(CandidateConfig())), "guess": Guess.identity(10.0, 0.05),
+                                  "region": SimpleNamespace(stated_rotation_deg=10.0)})
+        assert [s.name for s in stages(told)] == [  # with a guess: before the rotation samples
+            "guess", "kiss-matcher", "kiss-matcher, other grids", "rotation samples", "fpfh-ransac 5 spacings"]
+        one_view = SimpleNamespace(**{**vars(setup_of(CandidateConfig())), "source": source})
+        assert "kiss-matcher, other grids" not in [s.name for s in stages(one_view)]
     assert [s.name for s in stages(setup_of(CandidateConfig(kiss_grids=())))][1:] == [
         "fpfh-ransac 5 spacings", "rotation samples"]
     cc = CandidateConfig(kiss_matcher=False)

@@ -96,30 +96,34 @@ def stages(setup: Setup) -> Iterator[Stage]:
     fused pairs from no guess; the sensor sweep's fragments family): no right pose came from them, but twins of a
     room's corner did (tsdf-13, whose truth FPFH found after them in 6.1-6.4 s, and without them in 3.3-3.7 s); the
     pairs nothing registers end 2-3 s sooner (tsdf-14 7.8-9.1 -> 5.4-6.2 s, walk15-1 7.0-7.4 -> 4.2-4.8 s), at the
-    same poses; the sensor sweep's fragments family is bitwise as before. There, before FPFH + RANSAC, KISS-Matcher
-    on other grids (``kiss_grids``: 10 TSDF fragment pairs, 6 held out, 9 -> 10 right and 8 -> 9 trusted, the pairs
-    whose first KISS-Matcher pose was doubted 3.8 -> 2.9 s and 6.4 -> 3.4 s); and both are made ahead (:class:`Ahead`)
-    from when the first stage doubts a pose, KISS-Matcher in its process, RANSAC on a thread, while that stage's other
-    poses are refined."""
+    same poses; the sensor sweep's fragments family is bitwise as before. Where either scan is fused, KISS-Matcher on other
+    grids follows its first pose (``kiss_grids``), before FPFH + RANSAC with no guess and before the rotation samples
+    with one. Measured on 10 TSDF fragment pairs (rooms 11-20, 6 held out) from no guess: 9 -> 10 right, 8 -> 9
+    trusted, the two pairs whose first KISS-Matcher pose was doubted 3.8 -> 2.9 s and 6.4 -> 3.4 s; from the identity
+    and 15-60 deg about the sensor: tsdf-17 wrong -> right from the identity and 60 deg, tsdf-13 4.1-10.8 -> 1.8-4.1
+    s. Both are made ahead (:class:`Ahead`) from when KISS-Matcher's first pose (or, with no guess, any pose of the
+    first stage) is doubted: KISS-Matcher in its process, RANSAC on a thread, while that stage's other poses are
+    refined."""
     cc = setup.config.candidates
     kiss = cc.enabled and cc.kiss_matcher
     guess = Hypotheses([setup.T_guess], labels=("guess",))
-    fused = cc.enabled and setup.guess.is_none and ScanKind.UNSTRUCTURED in (setup.source.kind, setup.target.kind)
-    ahead = Ahead(lambda: matched(setup, "fpfh-ransac", (max(cc.fpfh_voxels),))) if fused else None
+    fused = cc.enabled and ScanKind.UNSTRUCTURED in (setup.source.kind, setup.target.kind)
+    unplaced = fused and setup.guess.is_none  # FPFH + RANSAC instead of the rotation samples
     grids = Ahead(lambda: matched(setup, "kiss-matcher", cc.kiss_grids)) if fused and kiss and cc.kiss_grids else None
+    ahead = Ahead(lambda: matched(setup, "fpfh-ransac", (max(cc.fpfh_voxels),))) if unplaced else None
     doubted = _starting(grids, ahead) if fused else None
-
     if setup.region.stated_rotation_deg > cc.guess_first_deg and kiss:
         yield Stage("guess, kiss-matcher", lambda: guess + matched(setup, "kiss-matcher"), 2, doubted=doubted)
     else:
-        yield Stage("guess", lambda: guess, 1, doubted=doubted)
+        # (grids started while the guess is refined would hold KISS-Matcher's process from the next stage's pose)
+        yield Stage("guess", lambda: guess, 1, doubted=_starting(ahead) if unplaced else None)
         if kiss:
             yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1, doubted=doubted)
     if not cc.enabled:
         return
-    if fused:
-        if grids is not None:
-            yield Stage("kiss-matcher, other grids", grids, 2, doubted=doubted)
+    if grids is not None:
+        yield Stage("kiss-matcher, other grids", grids, 2, doubted=doubted)
+    if unplaced:
         yield from fpfh_stages(setup, ahead)
         yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
         return

@@ -31,8 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rangereg.app.sweep_sensors import OK_ROT, OK_TRANS, sensor_start, told  # noqa: E402
 from rangereg.core import scenes_sensor as ss  # noqa: E402
+from rangereg.core.global_search.stages import wait_ahead  # noqa: E402
 from rangereg.core.transforms import invert, pose_error  # noqa: E402
-from written_files import rigid_fit, write  # noqa: E402
+from written_files import fit_note, rigid_fit, write  # noqa: E402
 
 STARTS = (("identity", 0.0, 0.0), ("sensor", 15.0, 0.25), ("sensor", 30.0, 0.5), ("sensor", 60.0, 1.0),
           ("no-guess", 0.0, 0.0))
@@ -67,7 +68,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             s, t = ss.tsdf_fragment_pair(seed, **small)
-            T_ref = rigid_fit(s.points, t.points, invert(t.pose) @ s.pose)
+            T_cameras = invert(t.pose) @ s.pose
+            T_ref = rigid_fit(s.points, t.points, T_cameras)
+            print(f"  tsdf-{seed}: against {fit_note(T_ref, T_cameras)}", flush=True)
             for fmt in formats:
                 src, tgt = Path(tmp) / f"source.{fmt}", Path(tmp) / f"target.{fmt}"
                 write(s.points, src)
@@ -78,6 +81,7 @@ def main() -> int:
                     source, target = load_pair(src, tgt)
                     r = register(source, target, told(mode, rot, trans, T0), Config(method="global"))
                     sec = time.perf_counter() - t0
+                    wait_ahead()  # the search's stages made ahead end before the next run
                     e_rot, e_tr = pose_error(r.transform, T_ref)
                     ok = bool(e_rot < OK_ROT and e_tr < OK_TRANS)
                     label = mode if mode != "sensor" else f"sensor {rot:g} deg"

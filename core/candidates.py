@@ -133,11 +133,12 @@ class CandidateConfig:
     fpfh_voxels: tuple[float, ...] = (2.0, 5.0)
     fpfh_seeds: int = 1  # RANSAC runs per voxel size (one at 2 spacings costs ~ the Open3D peer's)
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
-    # KISS-Matcher's grids (point spacings) tried after its one at the coarse FPFH voxel, before FPFH + RANSAC,
-    # where a fused cloud is registered with no guess (core.global_search.stages). Its hypothesis moves a lot with
-    # the grid on a room's fragments: on 10 TSDF fragment pairs (rooms 11-20, 300k points; 15-20 held out) the one
-    # at 5 spacings refined right on 7; on the others it lay 14-21 deg off and refined to a twin, while 4, 6 or 8
-    # spacings lay 0.9-1.9 deg off. Each costs ~0.1-0.4 s in KISS-Matcher's process, RANSAC 1.2 s.
+    # KISS-Matcher's grids (point spacings) tried after its one at the coarse FPFH voxel where either scan is a fused
+    # cloud (core.global_search.stages: before FPFH + RANSAC with no guess, before the rotation samples with one).
+    # Its hypothesis moves a lot with the grid on a room's fragments: on 10 TSDF fragment pairs (rooms 11-20, 300k
+    # points; 15-20 held out) the one at 5 spacings refined right on 7; on the others it lay 14-21 deg off and refined
+    # to a twin, while 4, 6 or 8 spacings lay 0.9-1.9 deg off. Each costs ~0.1-0.4 s in KISS-Matcher's process,
+    # RANSAC 1.2 s. Measured on fused rooms only: other kinds keep their stages.
     kiss_grids: tuple[float, ...] = (4.0, 6.0, 8.0)
     refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)
     # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations
@@ -168,8 +169,10 @@ class CandidateConfig:
     # every machine, however busy. Steps are ICP iterations and annealing moves over every refinement and the
     # fallback; a refinement takes at most 2 x refine_iterations (80), and the stages refine at most ~8 poses
     # (the guess, KISS-Matcher, 3 rotation samples, FPFH at two grids), so 1000 lets every stage run to its own
-    # end and leaves the hybrid its share. Candidates: the rotation samples (at most ROTATION_SAMPLES) and the
-    # feature matches, so 2000 bounds only a config asking for more samples than that.
+    # end and leaves the hybrid its share. A fused cloud's two poses of KISS-Matcher's other grids make that 10
+    # with a guess: there the hybrid's share shrinks when every refinement runs to its cap. Candidates: the rotation
+    # samples (at most ROTATION_SAMPLES) and the feature matches, so 2000 bounds only a config asking for more samples
+    # than that.
     search_steps: int | None = 1000
     max_candidates: int | None = 2000
     # When no candidate is trusted the paper's hybrid searches round the best one, for at most this many of the
@@ -207,8 +210,8 @@ class CandidateConfig:
             raise InputError(f"a normal needs at least 3 neighbours, got {self.normal_neighbours}")
         if any(not v > 0 for v in self.fpfh_voxels):
             raise InputError(f"FPFH voxel sizes must be positive, got {self.fpfh_voxels}")
-        if any(not v > 0 for v in self.kiss_grids):
-            raise InputError(f"KISS-Matcher's grids must be positive, got {self.kiss_grids}")
+        if any(not (np.isfinite(v) and v > 0) for v in self.kiss_grids):
+            raise InputError(f"KISS-Matcher's grids must be positive point spacings, got {self.kiss_grids}")
         for name in ("guess_first_deg", "refine_rotation_deg", "distinct_rotation_deg"):
             if not 0 < getattr(self, name) <= 180:
                 raise InputError(f"{name} must be in (0, 180] degrees, got {getattr(self, name)}")
@@ -515,20 +518,25 @@ def ransac_iterations(voxel_spacings: float) -> int:
 
 
 def fpfh_candidates(source: Scan, target: Scan, spacing: float, voxels: tuple[float, ...], seeds: int,
-                    seed: int) -> list[np.ndarray]:
+                    seed: int, wanted: Callable[[], bool] = lambda: True) -> list[np.ndarray]:
     """RANSAC hypotheses on FPFH matches (Open3D's documented recipe, voxel sizes in point spacings:
-    matches within 1.5 voxels, edge-length check 0.9, at most :func:`ransac_iterations` draws at 0.999 confidence)."""
+    matches within 1.5 voxels, edge-length check 0.9, at most :func:`ransac_iterations` draws at 0.999 confidence);
+    ``wanted()`` is asked before each grid's features and each RANSAC, which are skipped once it says no."""
     import open3d as o3d
 
     reg = o3d.pipelines.registration
     out = []
     for v in voxels:
+        if not wanted():
+            break
         voxel = v * spacing
         src, tgt = _o3d_cloud(source, voxel), _o3d_cloud(target, voxel)
         param = o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
         fs, ft = reg.compute_fpfh_feature(src, param), reg.compute_fpfh_feature(tgt, param)
         dist = 1.5 * voxel
         for k in range(seeds):
+            if not wanted():
+                break
             with open3d_one_thread():  # repeatable only on one thread (core.threads)
                 o3d.utility.random.seed(seed * 1000 + k)
                 res = reg.registration_ransac_based_on_feature_matching(

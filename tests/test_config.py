@@ -46,7 +46,9 @@ def test_threshold_config_refuses_nonsense(bad):
 
 @pytest.mark.parametrize("bad, message", [(dict(refine_metric="planar"), "refinement's ICP metric"),
                                           (dict(refine=0), "refine >= 1"), (dict(sample=5), "at least 10"),
-                                          (dict(normal_neighbours=2), "at least 3 neighbours")])
+                                          (dict(normal_neighbours=2), "at least 3 neighbours"),
+                                          (dict(kiss_grids=(4.0, float("inf"))), "grids must be positive"),
+                                          (dict(kiss_grids=(-1.0,)), "grids must be positive")])
 def test_candidate_config_refuses_nonsense(bad, message):
     from rangereg.core.candidates import CandidateConfig
 

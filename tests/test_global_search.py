@@ -225,64 +225,133 @@ def test_with_no_guess_a_fused_cloud_is_matched_by_features_instead_of_rotation_
     assert order(fused, Guess.identity(30.0, 0.05)) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
 
 
-def test_a_fused_cloud_tries_kiss_matchers_other_grids_and_features_made_ahead_are_the_same(bunny):
-    # on TSDF fragments of rooms KISS-Matcher's pose moves with its grid: where the first is doubted, its other grids
-    # come next (with no guess before FPFH + RANSAC, with one before the rotation samples); with no guess both are made
-    # while the first stage's poses are refined, and RANSAC made on that thread gives the bits it gives when made in
-    # turn (one Open3D thread under its seed either way); a single view keeps its stages
+def _fused_setup(bunny, cc, guess=None, kind=None):
+    """A stand-in for the global method's setup: bun045 (every third point) onto bun000, the source fused (or of
+    ``kind``), with no guess unless told."""
     from types import SimpleNamespace
 
-    from rangereg.core.candidates import CandidateConfig
-    from rangereg.core.global_search.stages import stages
-    from rangereg.core.kiss_matcher_candidates import kiss_available
     from rangereg.core.scan import ScanKind
 
     source, target = bunny("bun045"), bunny("bun000")
-    fused = replace(source, points=source.points[::3].copy(), kind=ScanKind.UNSTRUCTURED, grid=None, faces=None)
+    if kind is None:
+        source = replace(source, points=source.points[::3].copy(), kind=ScanKind.UNSTRUCTURED, grid=None, faces=None)
+    guess = guess or Guess.none()
+    return SimpleNamespace(source=source, target=target, T_guess=np.eye(4), guess=guess,
+                           config=Config(candidates=cc, seed=3),
+                           region=SimpleNamespace(stated_rotation_deg=guess.rotation_deg))
 
-    def setup_of(cc):
-        return SimpleNamespace(source=fused, target=target, T_guess=np.eye(4), guess=Guess.none(),
-                               config=Config(candidates=cc, seed=3), region=SimpleNamespace(stated_rotation_deg=180.0))
 
-    if kiss_available():
-        assert [s.name for s in stages(setup_of(CandidateConfig()))] == [
-            "guess, kiss-matcher", "kiss-matcher, other grids", "fpfh-ransac 5 spacings", "rotation samples"]
-        told = SimpleNamespace(**{**vars(setup_of(CandidateConfig())), "guess": Guess.identity(10.0, 0.05),
-                                  "region": SimpleNamespace(stated_rotation_deg=10.0)})
-        assert [s.name for s in stages(told)] == [  # with a guess: before the rotation samples
-            "guess", "kiss-matcher", "kiss-matcher, other grids", "rotation samples", "fpfh-ransac 5 spacings"]
-        one_view = SimpleNamespace(**{**vars(setup_of(CandidateConfig())), "source": source})
-        assert "kiss-matcher, other grids" not in [s.name for s in stages(one_view)]
-    assert [s.name for s in stages(setup_of(CandidateConfig(kiss_grids=())))][1:] == [
-        "fpfh-ransac 5 spacings", "rotation samples"]
+def _names(setup):
+    from rangereg.core.global_search.stages import stages
+
+    return [s.name for s in stages(setup)]
+
+
+@pytest.mark.skipif(not __import__("rangereg.core.kiss_matcher_candidates", fromlist=["x"]).kiss_available(),
+                    reason="kiss-matcher is not installed")
+def test_a_fused_cloud_tries_kiss_matchers_other_grids_next_and_a_single_view_keeps_its_stages(bunny):
+    # on TSDF fragments of rooms KISS-Matcher's pose moves with its grid: where its first is doubted, its other grids
+    # come next (with no guess before FPFH + RANSAC, with one before the rotation samples); a single view's stages are
+    # those it had, none started ahead
+    from rangereg.core.candidates import CandidateConfig
+    from rangereg.core.global_search.stages import stages
+
+    cc = CandidateConfig()
+    assert _names(_fused_setup(bunny, cc)) == [
+        "guess, kiss-matcher", "kiss-matcher, other grids", "fpfh-ransac 5 spacings", "rotation samples"]
+    assert _names(_fused_setup(bunny, cc, Guess.identity(10.0, 0.05))) == [
+        "guess", "kiss-matcher", "kiss-matcher, other grids", "rotation samples", "fpfh-ransac 5 spacings"]
+    assert _names(_fused_setup(bunny, CandidateConfig(kiss_grids=(5.0,)))) == [  # 5: the first pose's grid
+        "guess, kiss-matcher", "fpfh-ransac 5 spacings", "rotation samples"]
+    for guess in (None, Guess.identity(10.0, 0.05), Guess.identity(30.0, 0.05)):
+        one_view = _fused_setup(bunny, cc, guess, kind="as read")
+        listed = list(stages(one_view))
+        assert [s.name for s in listed] == (["guess, kiss-matcher"] if guess is None or guess.rotation_deg > 20 else
+                                           ["guess", "kiss-matcher"]) + ["rotation samples", "fpfh-ransac 5 spacings"]
+        assert all(s.doubted is None for s in listed)
+
+
+def test_features_made_ahead_are_the_ones_made_in_turn_and_a_doubted_pose_starts_them(bunny, monkeypatch):
+    # RANSAC made on the stage's thread gives the bits it gives when made in turn (one Open3D thread under its seed
+    # either way), and the stage's maker is the one started when the first stage's pose is doubted
+    from rangereg.core.candidates import CandidateConfig
+    from rangereg.core.global_search import stages as st
+
     cc = CandidateConfig(kiss_matcher=False)
-    in_turn = [s for s in stages(setup_of(cc)) if s.name.startswith("fpfh")][0].make()
-    first, *rest = list(stages(setup_of(cc)))
-    first.doubted()  # a pose of the first stage doubted: RANSAC starts on its thread
-    made_ahead = [s for s in rest if s.name.startswith("fpfh")][0].make()
+    in_turn = st.matched(_fused_setup(bunny, cc), "fpfh-ransac", (5.0,))
+    started = []
+    monkeypatch.setattr(st.Ahead, "start", lambda self, start=st.Ahead.start: (started.append(self), start(self))[1])
+    ordered = st.stages(_fused_setup(bunny, cc))
+    next(ordered).doubted()  # a pose of the first stage doubted
+    fpfh = next(s for s in ordered if s.name.startswith("fpfh"))
+    assert started == [fpfh.make]  # the stage's own maker, started by the doubt
+    made_ahead = fpfh.make()
+    ordered.close()
     assert len(in_turn.poses) == len(made_ahead.poses) == 1
     assert np.array_equal(in_turn.poses[0], made_ahead.poses[0])
     assert made_ahead.labels == ("fpfh-ransac 5 spacings",)
 
 
-def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_where_it_is_reached():
+def test_a_doubted_pose_starts_the_stages_ahead_a_trusted_one_does_not_and_the_search_end_cancels_them(bunny,
+                                                                                                     monkeypatch):
+    from rangereg.core.candidates import CandidateConfig
+    from rangereg.core.global_search import stages as st
+    from rangereg.core.scan import ScanKind
+
+    source, target = bunny("bun045"), bunny("bun000")
+    fused = replace(source, points=source.points[::3].copy(), kind=ScanKind.UNSTRUCTURED, grid=None, faces=None)
+    T_true = invert(target.pose) @ source.pose
+    calls = []
+    for name in ("start", "cancel"):
+        monkeypatch.setattr(st.Ahead, name, lambda self, name=name, f=getattr(st.Ahead, name): (calls.append(name),
+                                                                                              f(self))[1])
+    config = Config(method="global", candidates=CandidateConfig(kiss_matcher=False))
+    res = register(fused, target, Guess.none(T_true), config)  # the first cut at the truth: the guess is trusted
+    assert res.trusted and res.details.found_by.startswith("guess")
+    assert calls == ["cancel"]
+    calls.clear()
+    T0 = _about_origin(T_true, 120.0, np.array([0.3, 1.0, -0.2]), np.zeros(3))
+    register(fused, target, Guess.none(T0), config)  # cut 120 degrees off: the guess's refinement is doubted
+    assert calls[0] == "start" and calls[-1] == "cancel"
+
+
+def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_and_stops_when_cancelled():
+    import threading
+
     from rangereg.core.errors import InputError
-    from rangereg.core.global_search.stages import Ahead, Hypotheses
+    from rangereg.core.global_search.stages import Ahead, Hypotheses, wait_ahead
 
     made = []
-    ahead = Ahead(lambda: made.append(1) or Hypotheses([np.eye(4)], labels=("x",)))
+    ahead = Ahead(lambda wanted: made.append(1) or Hypotheses([np.eye(4)], labels=("x",)))
     ahead.start()
     ahead.start()  # once only
     assert ahead().labels == ("x",) and ahead().labels == ("x",) and made == [1]
-    assert Ahead(lambda: Hypotheses([], "none found"))().why_none == "none found"  # never started: made when reached
+    assert Ahead(lambda wanted: Hypotheses([], "none found"))().why_none == "none found"  # never started: made now
 
-    def broken():
+    def broken(wanted):
         raise InputError("no overlap")
 
     failing = Ahead(broken)
     failing.start()
     with pytest.raises(InputError, match="no overlap"):
         failing()
+
+    gate, steps = threading.Event(), []
+
+    def slow(wanted):
+        for k in range(100):
+            gate.wait()
+            if not wanted():
+                break
+            steps.append(k)
+        return Hypotheses([], "cancelled")
+
+    stopped = Ahead(slow)
+    stopped.start()
+    stopped.cancel()
+    gate.set()
+    wait_ahead()
+    assert steps == [] and stopped().why_none == "cancelled"
 
 
 def _two_stops_apart():

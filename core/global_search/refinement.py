@@ -132,7 +132,8 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
               doubted: Callable[[], None] | None = None) -> None:
     """Score the hypotheses in one query (events of phase 'candidates'); refine the best ``n`` by score,
     those inside the region first (once each: near-duplicates are skipped), until one is trusted inside;
-    ``doubted()`` is called when a refined pose is not trusted."""
+    ``doubted()`` is called after a refined pose that does not end the stage (not trusted inside the region, nor
+    weakly pinned where the search ends there)."""
     cc, poses = setup.config.candidates, hyp.poses
     poses = poses[:run.budget.grant("candidates", len(poses))]  # the guess and the cheap first, as they come
     if not poses:
@@ -247,25 +248,29 @@ def search_stages(setup: Setup, run: EventStream, confirm: Callable[[np.ndarray]
     notes: stages, verdict); ``confirm``: :attr:`Found.confirm`. Returns what was found and, per stage, how many
     poses it gave or why none."""
     found, sources = Found(confirm=confirm), {}
-    for stage in stages(setup):
-        if found.stopped is not None or run.budget.spent() is not None or run.budget.left("candidates") == 0:
-            sources[stage.name] = "not reached within the search's bound"
-            continue
-        if found.weak and found.beyond is None:
-            sources[stage.name] = "not run: a weakly pinned pose was found, and the search was asked to end there"
-            continue
-        if found.beyond is not None and stage.costly:
-            sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "
-                                   "ignores the guess (it would give that pose again, not one inside)")
-            continue
-        hyp = stage.make()
-        if setup.frame is not None:
-            hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none, hyp.labels)
-        sources[stage.name] = hyp.source_note
-        if hyp.poses:
-            run_stage(setup, run, hyp, stage.refine, found, stage.doubted)
-        if found.inside is not None:
-            break
+    ordered = stages(setup)
+    try:
+        for stage in ordered:
+            if found.stopped is not None or run.budget.spent() is not None or run.budget.left("candidates") == 0:
+                sources[stage.name] = "not reached within the search's bound"
+                continue
+            if found.weak and found.beyond is None:
+                sources[stage.name] = "not run: a weakly pinned pose was found, and the search was asked to end there"
+                continue
+            if found.beyond is not None and stage.costly:
+                sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "
+                                       "ignores the guess (it would give that pose again, not one inside)")
+                continue
+            hyp = stage.make()
+            if setup.frame is not None:
+                hyp = Hypotheses([setup.frame.pose(setup.frame.free(T)) for T in hyp.poses], hyp.why_none, hyp.labels)
+            sources[stage.name] = hyp.source_note
+            if hyp.poses:
+                run_stage(setup, run, hyp, stage.refine, found, stage.doubted)
+            if found.inside is not None:
+                break
+    finally:  # the stages started ahead are told the search has ended
+        ordered.close()
     return found, sources
 
 

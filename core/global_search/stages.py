@@ -3,7 +3,6 @@ core.kiss_matcher_candidates, Open3D's FPFH + RANSAC)."""
 
 from __future__ import annotations
 
-import os
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
@@ -49,20 +48,24 @@ def sampled(setup: Setup) -> Hypotheses:
     return Hypotheses(poses, labels=("rotation samples",) * len(poses))
 
 
-def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None) -> Hypotheses:
-    """Feature-matching hypotheses of ``method`` ("fpfh-ransac" at ``voxels`` spacings, or "kiss-matcher"),
-    wherever they lie (the region orders them, it drops none)."""
+def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None,
+            wanted: Callable[[], bool] = lambda: True) -> Hypotheses:
+    """Feature-matching hypotheses of ``method`` ("fpfh-ransac" at ``voxels`` spacings, or "kiss-matcher", at
+    ``voxels`` when given), wherever they lie (the region orders them, it drops none); ``wanted()`` is asked before
+    each costly step, which is skipped once it says no (a stage made ahead for a search that has ended)."""
     cc, source, target = setup.config.candidates, setup.source, setup.target
     spacing = feature_spacing(source, target)
     if method == "fpfh-ransac":
         voxels = voxels or cc.fpfh_voxels
-        poses = fpfh_candidates(source, target, spacing, voxels, cc.fpfh_seeds, setup.config.seed)
+        poses = fpfh_candidates(source, target, spacing, voxels, cc.fpfh_seeds, setup.config.seed, wanted)
         return Hypotheses(poses, labels=(f"fpfh-ransac {max(voxels):g} spacings",) * len(poses))
     if not kiss_available():
         return Hypotheses([], "not installed (pip kiss-matcher; wheels for Python 3.11/3.12)")
     if voxels:
         poses, labels = [], []
         for v in voxels:
+            if not wanted():
+                break
             found = kiss_candidates(source, target, spacing, v)
             poses += found
             labels += [f"kiss-matcher {v:g} spacings"] * len(found)
@@ -98,37 +101,44 @@ def stages(setup: Setup) -> Iterator[Stage]:
     pairs nothing registers end 2-3 s sooner (tsdf-14 7.8-9.1 -> 5.4-6.2 s, walk15-1 7.0-7.4 -> 4.2-4.8 s), at the
     same poses; the sensor sweep's fragments family is bitwise as before. Where either scan is fused, KISS-Matcher on other
     grids follows its first pose (``kiss_grids``), before FPFH + RANSAC with no guess and before the rotation samples
-    with one. Measured on 10 TSDF fragment pairs (rooms 11-20, 6 held out) from no guess: 9 -> 10 right, 8 -> 9
-    trusted, the two pairs whose first KISS-Matcher pose was doubted 3.8 -> 2.9 s and 6.4 -> 3.4 s; from the identity
-    and 15-60 deg about the sensor: tsdf-17 wrong -> right from the identity and 60 deg, tsdf-13 4.1-10.8 -> 1.8-4.1
-    s. Both are made ahead (:class:`Ahead`) from when KISS-Matcher's first pose (or, with no guess, any pose of the
-    first stage) is doubted: KISS-Matcher in its process, RANSAC on a thread, while that stage's other poses are
-    refined."""
+    with one. Measured on 10 TSDF fragment pairs (rooms 11-20, 6 held out; right: within 1 deg / 5 cm of the rigid fit
+    nearest the cameras' poses, benchmarks/tsdf_modes.py) from no guess: 9 -> 10 right, 8 -> 9 trusted, the two pairs
+    whose first KISS-Matcher pose was doubted 3.8 -> 2.9 s and 6.4 -> 3.4 s; from the identity and 15-60 deg about the
+    sensor: tsdf-17 wrong -> right from the identity and 60 deg, tsdf-13 4.1-10.8 -> 1.8-4.1 s. The other grids are
+    made ahead (:class:`Ahead`, in KISS-Matcher's process) from when a pose of the stage holding KISS-Matcher's first
+    is doubted, and with no guess FPFH + RANSAC too (on a thread: only its RANSAC lets this one run meanwhile), from
+    when any pose of the first stage is; both stop when the search ends."""
     cc = setup.config.candidates
     kiss = cc.enabled and cc.kiss_matcher
     guess = Hypotheses([setup.T_guess], labels=("guess",))
     fused = cc.enabled and ScanKind.UNSTRUCTURED in (setup.source.kind, setup.target.kind)
     unplaced = fused and setup.guess.is_none  # FPFH + RANSAC instead of the rotation samples
-    grids = Ahead(lambda: matched(setup, "kiss-matcher", cc.kiss_grids)) if fused and kiss and cc.kiss_grids else None
-    ahead = Ahead(lambda: matched(setup, "fpfh-ransac", (max(cc.fpfh_voxels),))) if unplaced else None
+    other = tuple(v for v in cc.kiss_grids if v != max(cc.fpfh_voxels))  # the first KISS-Matcher pose's grid
+    grids = Ahead(lambda wanted: matched(setup, "kiss-matcher", other, wanted)) if fused and kiss and other else None
+    ahead = Ahead(lambda wanted: matched(setup, "fpfh-ransac", (max(cc.fpfh_voxels),), wanted)) if unplaced else None
     doubted = _starting(grids, ahead) if fused else None
-    if setup.region.stated_rotation_deg > cc.guess_first_deg and kiss:
-        yield Stage("guess, kiss-matcher", lambda: guess + matched(setup, "kiss-matcher"), 2, doubted=doubted)
-    else:
-        # (grids started while the guess is refined would hold KISS-Matcher's process from the next stage's pose)
-        yield Stage("guess", lambda: guess, 1, doubted=_starting(ahead) if unplaced else None)
-        if kiss:
-            yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1, doubted=doubted)
-    if not cc.enabled:
-        return
-    if grids is not None:
-        yield Stage("kiss-matcher, other grids", grids, 2, doubted=doubted)
-    if unplaced:
-        yield from fpfh_stages(setup, ahead)
-        yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
-        return
-    yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
-    yield from fpfh_stages(setup)
+    try:
+        if setup.region.stated_rotation_deg > cc.guess_first_deg and kiss:
+            yield Stage("guess, kiss-matcher", lambda: guess + matched(setup, "kiss-matcher"), 2, doubted=doubted)
+        else:
+            # (grids started while the guess is refined would hold KISS-Matcher's process from the next stage's pose)
+            yield Stage("guess", lambda: guess, 1, doubted=_starting(ahead) if unplaced else None)
+            if kiss:
+                yield Stage("kiss-matcher", lambda: matched(setup, "kiss-matcher"), 1, doubted=doubted)
+        if not cc.enabled:
+            return
+        if grids is not None:
+            yield Stage("kiss-matcher, other grids", grids, 2, doubted=doubted)
+        if unplaced:
+            yield from fpfh_stages(setup, ahead)
+            yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
+            return
+        yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
+        yield from fpfh_stages(setup)
+    finally:  # the search has ended (or moved past them): what was started ahead stops at its next step
+        for a in (grids, ahead):
+            if a is not None:
+                a.cancel()
 
 
 # why a fused cloud with no guess gets no rotation samples (stages' notes)
@@ -150,33 +160,53 @@ def fpfh_stages(setup: Setup, ahead: Ahead | None = None) -> Iterator[Stage]:
 
 
 class Ahead:
-    """A stage's hypotheses, made on a thread of their own from :meth:`start` on, while the search refines the
-    poses of the stages before (the same hypotheses as made when reached: Open3D's RANSAC runs on one thread under
-    its seed either way, core.threads). The thread is a daemon: a search that ends before the stage neither waits
-    for it nor keeps a process from ending. Called before :meth:`start`, it starts it and waits."""
+    """A stage's hypotheses, made on a thread of their own from :meth:`start` on while the search refines the poses
+    of the stages before: ``make(wanted)`` -> Hypotheses, asking ``wanted()`` before each costly step. The same
+    hypotheses as made when the stage is reached (KISS-Matcher's process takes one request at a time; Open3D's RANSAC
+    runs on one thread under its seed either way, core.threads). Called before :meth:`start`, it starts and waits.
+    :meth:`cancel` (the search has ended) skips the steps not begun; the one under way (a RANSAC: ~1.2 s on a 300k
+    fragment pair) runs to its end on the daemon thread, holding Open3D's thread count at one (:func:`wait_ahead`)."""
 
-    def __init__(self, make: Callable[[], Hypotheses]) -> None:
+    def __init__(self, make: Callable[[Callable[[], bool]], Hypotheses]) -> None:
         self._make = make
         self._future: Future | None = None
         self._lock = threading.Lock()
+        self._cancelled = threading.Event()
 
     def start(self) -> None:
         with self._lock:
             if self._future is not None:
                 return
             self._future = Future()
-        threading.Thread(target=self._run, name="stage-ahead", daemon=True).start()
+        try:
+            threading.Thread(target=self._run, name=AHEAD_THREAD, daemon=True).start()
+        except RuntimeError as exc:  # no thread to be had: the stage says so where it is reached
+            self._future.set_exception(exc)
+
+    def cancel(self) -> None:
+        self._cancelled.set()
 
     def _run(self) -> None:
-        _yielding()
         try:
-            self._future.set_result(self._make())
+            self._future.set_result(self._make(lambda: not self._cancelled.is_set()))
         except BaseException as exc:  # handed to the search, which raises it where the stage is reached
             self._future.set_exception(exc)
 
     def __call__(self) -> Hypotheses:
         self.start()
         return self._future.result()
+
+
+AHEAD_THREAD = "stage-ahead"
+
+
+def wait_ahead() -> None:
+    """Wait for the stages made ahead that are still under way (of searches that have ended: cancelled, each ends
+    with its current step). For a benchmark that times runs one after another in one process, or runs a peer that
+    uses Open3D's threads, after one of ours."""
+    for t in threading.enumerate():
+        if t.name == AHEAD_THREAD:
+            t.join()
 
 
 def _starting(*aheads: Ahead | None) -> Callable[[], None]:
@@ -188,15 +218,6 @@ def _starting(*aheads: Ahead | None) -> Callable[[], None]:
                 a.start()
 
     return start
-
-
-def _yielding() -> None:
-    """This thread at the lowest priority (Linux keeps one a thread): the search's own threads, wanting both cores,
-    get them, and the stage ahead has the time they leave. Where it cannot be set, nothing changes."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-    except (AttributeError, OSError):
-        pass
 
 
 def too_few_cells(setup: Setup, voxel: float) -> bool:

@@ -20,14 +20,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
 import rangereg.app.sweep_sensors as S  # noqa: E402
+from tsdf_modes import seed_range  # noqa: E402
 
 SIMULATED = ("sim-street", "sim-room", "sim-fragments")
-
-
-def seeds_of(text: str) -> list[int]:
-    lo, _, hi = text.partition("-")
-    return list(range(int(lo), int(hi or lo) + 1))
 
 
 def main() -> int:
@@ -38,7 +36,7 @@ def main() -> int:
     ap.add_argument("--smallest", action="store_true", help="one quick pair, one start a mode")
     a = ap.parse_args()
     try:
-        seeds = seeds_of(a.seeds)
+        seeds = seed_range(a.seeds)
     except ValueError:
         ap.error("--seeds takes a seed or a range, e.g. 3-5")
     families = [f for f in a.families.split(",") if f]

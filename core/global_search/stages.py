@@ -79,8 +79,9 @@ def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None,
 class Stage:
     """name; make: the stage's hypotheses; refine: how many of them (the best by score) ICP refines;
     costly: skipped once a pose beyond the region is trusted (FPFH + RANSAC, about the cost of the whole
-    Open3D pipeline: start-free, it would give that pose again rather than a twin inside); doubted: called when
-    a pose it refined is not trusted (a later stage started ahead)."""
+    Open3D pipeline: start-free, it would give that pose again rather than a twin inside); doubted: called after
+    a pose it refined that does not end the search (core.global_search.refinement.run_stage): later stages start
+    ahead."""
 
     name: str
     make: Callable[[], Hypotheses]

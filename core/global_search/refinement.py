@@ -257,8 +257,8 @@ def search_stages(setup: Setup, run: EventStream, confirm: Callable[[np.ndarray]
             if found.weak and found.beyond is None:
                 sources[stage.name] = "not run: a weakly pinned pose was found, and the search was asked to end there"
                 continue
-            if found.beyond is not None and stage.costly:
-                sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this costly stage "
+            if found.beyond is not None and stage.start_free:
+                sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this stage "
                                        "ignores the guess (it would give that pose again, not one inside)")
                 continue
             hyp = stage.make()

@@ -78,15 +78,16 @@ def matched(setup: Setup, method: str, voxels: tuple[float, ...] | None = None,
 @dataclass(frozen=True)
 class Stage:
     """name; make: the stage's hypotheses; refine: how many of them (the best by score) ICP refines;
-    costly: skipped once a pose beyond the region is trusted (FPFH + RANSAC, about the cost of the whole
-    Open3D pipeline: start-free, it would give that pose again rather than a twin inside); doubted: called after
+    start_free: its hypotheses ignore the guess (KISS-Matcher's other grids; FPFH + RANSAC, about the cost of the
+    whole Open3D pipeline), so once a pose beyond the region is trusted it is skipped: it would give that pose again
+    rather than one inside (on the TSDF rooms from the identity the other grids cost 0.5 s for that); doubted: called after
     a pose it refined that does not end the search (core.global_search.refinement.run_stage): later stages start
     ahead."""
 
     name: str
     make: Callable[[], Hypotheses]
     refine: int
-    costly: bool = False
+    start_free: bool = False
     doubted: Callable[[], None] | None = None
 
 
@@ -130,7 +131,7 @@ def stages(setup: Setup) -> Iterator[Stage]:
         if not cc.enabled:
             return
         if grids is not None:
-            yield Stage("kiss-matcher, other grids", grids, 2, doubted=doubted)
+            yield Stage("kiss-matcher, other grids", grids, 2, start_free=True, doubted=doubted)
         if unplaced:
             yield from fpfh_stages(setup, ahead)
             yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
@@ -157,7 +158,7 @@ def fpfh_stages(setup: Setup, ahead: Ahead | None = None) -> Iterator[Stage]:
         if coarser is not None and not too_few_cells(setup, coarser):
             break  # the coarser grid held enough of both scans: a finer one adds cost, not poses
         make = ahead if ahead is not None and coarser is None else (lambda v=v: matched(setup, "fpfh-ransac", (v,)))
-        yield Stage(f"fpfh-ransac {v:g} spacings", make, cc.fpfh_seeds, costly=True)
+        yield Stage(f"fpfh-ransac {v:g} spacings", make, cc.fpfh_seeds, start_free=True)
         coarser = v
 
 

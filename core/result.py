@@ -156,9 +156,9 @@ class Result:
             text = "too little of the scans overlaps at this pose to judge it"
         elif d.misfit < factor and d.intrusion is not None and d.intrusion >= d.threshold.max_intrusion:
             text = (f"where the scans overlap they agree at the noise level, but {100 * d.intrusion:.1f} % of one "
-                    "scan's points lie inside the other's hull far from any of its points, where that scan saw nothing "
-                    f"(trusted below {100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a "
-                    "room's corner fits itself turned about its diagonal")
+                    "scan's points lie where the other's sensor looked through empty space (trusted below "
+                    f"{100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a room's corner fits "
+                    "itself turned about its diagonal, or a room itself turned a quarter turn")
         elif not d.pinned and d.misfit < factor:
             c = d.constraint
             if not c.matched:

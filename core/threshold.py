@@ -354,8 +354,9 @@ class PairThreshold:
                        "point-to-plane system's smallest / largest eigenvalue >= min_constraint and, below "
                        f"{WEAK_BELOW:g} ({WEAK_BELOW_UNSTRUCTURED:g} onto an unstructured scan), the score rising by "
                        "min_rise when slid along its weakest motion, or the score of the points facing that motion by "
-                       "min_stable_rise; between fused clouds of a space, less than max_intrusion of the points (the mean of the "
-                       "two ways) inside the other's hull and far from it")
+                       "min_stable_rise; where a scan is a fused cloud of a space or a panorama, less than max_intrusion of the "
+                       "points (the mean of the two ways) where the other's sensor looked through: inside a fused "
+                       "cloud's hull and far from it, or nearer a panorama's sensor than what it saw there")
 
     def to_json(self) -> dict:
         return {"value": self.value, "floor": self.floor, "angle_floor_deg": self.angle_floor, "factor": self.factor,
@@ -401,6 +402,6 @@ class PairThreshold:
 
 
 def pair_threshold(floor: float, angle_floor: float, min_overlap: float, factor: float = FACTOR,
-                   min_constraint: float = MIN_CONSTRAINT) -> PairThreshold:
+                   min_constraint: float = MIN_CONSTRAINT, max_intrusion: float = MAX_INTRUSION) -> PairThreshold:
     return PairThreshold(float(factor ** 2 * floor), float(floor), float(factor), float(min_overlap), float(angle_floor),
-                         float(min_constraint))
+                         float(min_constraint), max_intrusion=float(max_intrusion))

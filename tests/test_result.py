@@ -68,5 +68,5 @@ def test_a_pose_whose_scans_cut_through_each_others_rooms_is_doubted_in_those_wo
                             None, 0.24)
     r = Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
                trusted=False, details=details)
-    assert "24.0 % of one scan's points lie inside the other's hull" in r.trust_text
+    assert "24.0 % of one scan's points lie where the other's sensor looked through" in r.trust_text
     assert f"trusted below {100 * MAX_INTRUSION:g} %" in r.trust_text and r.to_json()["intrusion"] == 0.24

@@ -13,6 +13,7 @@ import numpy as np
 from ..candidates import Basis, CandidateConfig, feature_spacing, make_basis
 from ..config import Config
 from ..guess import Guess
+from ..intrusion import max_intrusion_of
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
 from ..noise import noise_floors_ahead
@@ -106,7 +107,8 @@ def prepare_setup(source: Scan, target: Scan, guess: Guess | np.ndarray | None, 
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
     floor = float(np.mean(floors()))
     basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
-    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap, min_constraint=min_constraint_of(target))
+    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap, min_constraint=min_constraint_of(target),
+                               max_intrusion=max_intrusion_of(source, target))
     region = guess.region(source, target)
     return Setup(source, target, config, problem, basis, threshold, region, frame, ahead, t0)
 

@@ -1,7 +1,7 @@
 """Sequences of spinning-LiDAR frames merged as odometry plus loop closure (`rangereg merge --pairs sequence`,
 core.merge_sequence), beside Open3D's point-to-plane ICP chained frame to frame from the identity.
 
-    python benchmarks/sequences.py [--seeds 2] [--scenes street,room] [--steps 0.5,1,2]
+    python benchmarks/sequences.py [--seeds 2] [--scenes street,room,rgbd] [--steps 0.5,1,2]
 
 Rules (fixed on 2026-12-06 before any result was seen). The merge's sequence step was measured before on a street
 of 8 frames 0.5 m apart and on the five shared Kinect frames only; at steps of 1 m or more single pairs of a street
@@ -16,6 +16,10 @@ frames on the merge):
   round an ellipse (radii 1.5 and 0.9 m about the room's middle), heading along its path +-5 degrees, the sensor
   1.2 m up; steps 0.25, 0.5 and 1 m (31, 16 and 8 frames; at 1 m the heading turns ~45 degrees a frame). The
   path closes on itself, so the loop closure has a loop to close.
+- rgbd (added the same day, before its first run): a depth camera (320 x 240, core.scenes_sensor.DepthCamera's
+  noise) carried round the room's ellipse at 1.4 m, looking along its path 10 degrees down, 16 frames; steps 0.1,
+  0.2 and 0.4 m (a hand-held camera's keyframes). Each frame goes through the assembly as an organised PCD would
+  (its grid with NaN cells, PCL's default VIEWPOINT), as the shared Kinect frames do.
 - seeds 0 .. --seeds - 1; every frame's pose judged in the reference frame the merge reports (the first frame
   unless its group is not the largest): right within 1 degree and 5 cm at the frame's sensor; placed and not
   right is placed wrong; the worst placed error is printed. Loops: how many the graph closed and the largest
@@ -44,6 +48,7 @@ from rangereg.core.transforms import invert, pose_error
 OK_ROT, OK_TRANS = 1.0, 0.05
 STREET_FRAMES = 10
 ROOM_CENTRE, ROOM_RADII = (3.5, 2.5), (1.5, 0.9)
+RGBD_FRAMES = 16
 
 
 def street_path(rng: np.random.Generator, step: float) -> list[np.ndarray]:
@@ -57,30 +62,55 @@ def street_path(rng: np.random.Generator, step: float) -> list[np.ndarray]:
     return poses
 
 
-def room_path(rng: np.random.Generator, step: float) -> list[np.ndarray]:
+def room_path(rng: np.random.Generator, step: float, frames: int | None = None) -> list[tuple[float, float, float]]:
+    """(x, y, heading in degrees) along the room's ellipse: once round in steps of about ``step`` m, or ``frames``
+    steps of ``step`` m."""
     (cx, cy), (a, b) = ROOM_CENTRE, ROOM_RADII
     t = np.linspace(0, 2 * np.pi, 4001)
     xy = np.c_[cx + a * np.cos(t), cy + b * np.sin(t)]
     arc = np.r_[0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
     n = int(np.ceil(arc[-1] / step))
+    spacing = arc[-1] / n if frames is None else step
     s0 = rng.uniform(0, arc[-1])
-    poses = []
-    for k in range(n):
-        s = (s0 + k * arc[-1] / n) % arc[-1]
-        i = int(np.searchsorted(arc, s))
-        i = min(max(i, 1), len(t) - 1)
+    out = []
+    for k in range(n if frames is None else frames):
+        s = (s0 + k * spacing) % arc[-1]
+        i = min(max(int(np.searchsorted(arc, s)), 1), len(t) - 1)
         heading = np.degrees(np.arctan2(*(xy[i] - xy[i - 1])[::-1]))
-        poses.append(pose_at(xy[i, 0], xy[i, 1], 1.2, heading + rng.uniform(-5, 5)))
-    return poses
+        out.append((xy[i, 0], xy[i, 1], heading + rng.uniform(-5, 5)))
+    return out
+
+
+def depth_scan(mesh, T_world_camera: np.ndarray, cam, rng: np.random.Generator, name: str):
+    """One depth frame through the assembly as an organised PCD holds it: its (rows, cols) grid, NaN where the camera
+    measured nothing, PCL's default VIEWPOINT."""
+    from rangereg.core.assemble import RawScan, assemble
+    from rangereg.core.scenes_sensor import _pixel_rays, depth_image
+
+    depth = depth_image(mesh, T_world_camera, cam, rng).ravel()
+    points = _pixel_rays(cam) * depth[:, None]
+    grid = np.where(np.isfinite(depth), np.arange(len(depth)), -1).reshape(cam.rows, cam.cols)
+    return assemble(RawScan(points=points, what=name, name=name, grid=grid, viewpoint=np.zeros(3),
+                            viewpoint_default=True, viewpoint_pose=True, units="m"))
 
 
 def frames(scene: str, step: float, seed: int):
+    """(scans, T_world_sensor per scan) of one drive (module notes)."""
     rng = np.random.default_rng(seed)
     if scene == "street":
         mesh, lidar, poses = street_mesh(), Spinning(), street_path(rng, step)
-    else:
-        mesh, poses = room_mesh(), room_path(rng, step)
+    elif scene == "room":
+        mesh, poses = room_mesh(), [pose_at(x, y, 1.2, h) for x, y, h in room_path(rng, step)]
         lidar = replace(Spinning(), elevation_deg=(-30.0, 30.0), noise=min(Spinning().noise, 0.01), min_range=0.3)
+    else:
+        from rangereg.core.scenes_sensor import DepthCamera, look_from
+
+        mesh, cam = room_mesh(), DepthCamera(cols=320, rows=240)
+        poses = []
+        for x, y, h in room_path(rng, step, RGBD_FRAMES):
+            eye = np.r_[x, y, 1.4]
+            poses.append(look_from(eye, eye + np.r_[np.cos(np.radians(h)), np.sin(np.radians(h)), -np.tan(np.radians(10.0))]))
+        return [depth_scan(mesh, T, cam, rng, f"{scene}-{k}") for k, T in enumerate(poses)], poses
     return [spin_scan(mesh, T, lidar, rng, name=f"{scene}-{k}") for k, T in enumerate(poses)], poses
 
 
@@ -113,10 +143,10 @@ def chained_icp(scans, voxel: float) -> list[np.ndarray]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=2)
-    ap.add_argument("--scenes", default="street,room")
+    ap.add_argument("--scenes", default="street,room,rgbd")
     ap.add_argument("--steps", default="", help="steps in m (default: the scene's three)")
     a = ap.parse_args()
-    default_steps = {"street": (0.5, 1.0, 2.0), "room": (0.25, 0.5, 1.0)}
+    default_steps = {"street": (0.5, 1.0, 2.0), "room": (0.25, 0.5, 1.0), "rgbd": (0.1, 0.2, 0.4)}
     rows = []
     print(f"load {os.getloadavg()[0]:.1f}", flush=True)
     for scene in a.scenes.split(","):

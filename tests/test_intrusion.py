@@ -13,13 +13,16 @@ from rangereg.core.intrusion import (
     FREE_MARGIN,
     INTRUSION_SPACINGS,
     MAX_INTRUSION,
-    MAX_INTRUSION_PANORAMA,
+    MAX_LOOKED_THROUGH,
+    VIEW_NEIGHBOURS,
     counts,
     hull_planes,
     intruding_share,
     intrusion,
     looked_through_share,
+    looked_through_view,
     max_intrusion_of,
+    seen_view,
 )
 from rangereg.core.scan import Scan, ScanKind
 from rangereg.core.transforms import rotation_matrix
@@ -97,19 +100,15 @@ def test_a_flat_scan_has_no_inside_and_no_intrusion():
     assert intruding_share(rng.uniform(0, 1, (10, 3)), flat, None) == 0.0
 
 
-def test_only_a_fused_scan_of_a_space_counts_its_hull_as_space_it_looked_through():
-    # a single view's hull holds what lies behind its surface, and an object fused from views round it holds its
-    # inside (module notes): the hull is asked only of unstructured scans at least SCENE_METRES wide (a panorama's
-    # own image is asked instead: the tests below)
-    source, target = _room(0, kind=ScanKind.SINGLE_VIEW), _room(1, kind=ScanKind.SINGLE_VIEW)
-    assert intrusion(_basis(source, target), _twin()) is None
-    one_way = intrusion(_basis(_room(0, kind=ScanKind.SINGLE_VIEW), _room(1)), _twin())
-    assert one_way > MAX_INTRUSION  # the single view's points inside the unstructured target's room count
+def test_a_fused_scan_counts_its_hull_only_as_a_space_in_known_units_and_a_single_view_counts_what_it_saw():
+    # an object fused from views round it holds its inside (module notes): a hull counts only for unstructured scans
+    # at least SCENE_METRES wide, in known units; a single view counts the directions it saw, whatever its size
     small = [replace(_room(k), points=_room(k).points * 0.05) for k in (0, 1)]  # the same shape 0.2 m wide: an object
     assert intrusion(_basis(*small), _twin()) is None and not counts(small[0]) and counts(_room(0))
     in_mm = [replace(_room(k), points=_room(k).points * 1000.0, units="mm") for k in (0, 1)]  # the room in mm
     assert intrusion(_basis(*in_mm), _twin()) == pytest.approx(intrusion(_basis(_room(0), _room(1)), _twin()))
     assert not counts(replace(_room(0), units="unknown"))
+    assert counts(replace(small[0], kind=ScanKind.SINGLE_VIEW)) and counts(replace(small[0], kind=ScanKind.PANORAMA))
 
 
 def test_inputs_come_back_unmodified():
@@ -208,7 +207,8 @@ def _turned(T: np.ndarray, deg: float) -> np.ndarray:
 def test_a_panorama_counts_the_space_its_sensor_looked_through_and_the_bound_is_its_own():
     s, t, _ = _lidar_room()
     assert counts(s) and counts(t)
-    assert max_intrusion_of(s, t) == MAX_INTRUSION_PANORAMA
+    assert max_intrusion_of(s, t) == MAX_LOOKED_THROUGH
+    assert max_intrusion_of(s, replace(t, kind=ScanKind.SINGLE_VIEW)) == MAX_LOOKED_THROUGH  # both sensors known
     assert max_intrusion_of(s, _room(0)) == MAX_INTRUSION  # a panorama and a fused cloud: the fused clouds' bound
 
 
@@ -235,22 +235,67 @@ def test_the_panorama_share_agrees_with_a_brute_force_look_up():
     q = rng.uniform(-4, 4, (500, 3))
     row, col, r, ok = image.cells(q)
     R, C = image.ranges.shape
-    expected = 0
+    judged = through = 0
     for k in range(len(q)):
         if not ok[k]:
             continue
         near = min(image.ranges[i, j % C] for i in range(max(row[k] - 1, 0), min(row[k] + 2, R))
                    for j in range(col[k] - 1, col[k] + 2))
-        expected += bool(np.isfinite(near) and r[k] < (1 - FREE_MARGIN) * near)
-    assert 0 < expected < len(q)
-    assert looked_through_share(q, image) == expected / len(q)
+        judged += bool(np.isfinite(near))
+        through += bool(np.isfinite(near) and r[k] < (1 - FREE_MARGIN) * near)
+    assert 0 < through < judged
+    assert looked_through_share(q, image) == through / judged
+
+
+def _camera_wall():
+    """A single view of a wall 3 m in front of a camera at the origin looking along +z: 2 x 2 m, 2 cm spacing."""
+    g = np.arange(-1.0, 1.0, 0.02)
+    u, v = np.meshgrid(g, g)
+    pts = np.c_[u.ravel(), v.ravel(), np.full(u.size, 3.0)]
+    return Scan(points=pts, viewpoint=np.zeros(3), name="wall", units="m", kind=ScanKind.SINGLE_VIEW)
+
+
+def test_points_in_front_of_a_single_views_surface_are_looked_through_and_behind_it_or_aside_are_not_judged_so():
+    wall = _camera_wall()
+    view = seen_view(wall)
+    rng = np.random.default_rng(0)
+    on = wall.points[rng.choice(len(wall.points), 300, replace=False)]
+    assert looked_through_view(on, view) == 0.0
+    assert looked_through_view(on * 0.5, view) == 1.0  # half way along the rays: the camera looked through them
+    assert looked_through_view(on * 1.5, view) == 0.0  # behind the wall: hidden
+    aside = on + [5.0, 0.0, 0.0]  # beside the field of view: nothing seen there, nothing judged
+    assert looked_through_view(aside * 0.5, view) == 0.0
+    half = np.r_[on * 0.5, aside * 0.5]  # the share is of the points judged
+    assert looked_through_view(half, view) == 1.0
+
+
+def test_the_single_view_share_agrees_with_a_brute_force_look_up():
+    wall = _camera_wall()
+    view = seen_view(wall)
+    rng = np.random.default_rng(2)
+    q = rng.uniform(-1.5, 1.5, (400, 3)) * [1, 1, 0] + np.c_[np.zeros((400, 2)), rng.uniform(0.5, 4.0, 400)]
+    rays = q @ view.basis.T
+    uv = rays[:, :2] / rays[:, 2:]
+    seen_uv = (wall.points @ view.basis.T)
+    seen_uv = seen_uv[:, :2] / seen_uv[:, 2:]  # the view holds every point of a scan this small (VIEW_POINTS)
+    ranges = np.linalg.norm(wall.points, axis=1)
+    judged = through = 0
+    for k in range(len(q)):
+        d = np.linalg.norm(seen_uv - uv[k], axis=1)
+        near = np.argsort(d)[:VIEW_NEIGHBOURS]
+        near = near[d[near] <= view.reach]
+        if len(near):
+            judged += 1
+            through += bool(np.linalg.norm(q[k]) < (1 - FREE_MARGIN) * ranges[near].min())
+    assert 0 < through < judged
+    assert looked_through_view(q, view) == pytest.approx(through / judged)
 
 
 def test_a_lidar_room_turned_a_quarter_turn_intrudes_and_its_truth_does_not():
     s, t, T = _lidar_room()
     basis = _basis(s, t)
-    assert intrusion(basis, T) < MAX_INTRUSION_PANORAMA / 3
-    assert intrusion(basis, _turned(T, 90)) > 3 * MAX_INTRUSION_PANORAMA
+    assert intrusion(basis, T) < MAX_LOOKED_THROUGH / 3
+    assert intrusion(basis, _turned(T, 90)) > 3 * MAX_LOOKED_THROUGH
 
 
 def test_a_guess_by_a_lidar_rooms_quarter_turn_is_not_trusted_there():
@@ -264,3 +309,20 @@ def test_a_guess_by_a_lidar_rooms_quarter_turn_is_not_trusted_there():
     r = register(s, t, Guess(_turned(T, 270)), Config(method="global", seed=0))
     rot, trans = pose_error(r.transform, T)
     assert not r.trusted or (rot < 1.0 and trans < 0.05), (rot, trans)
+
+
+def test_a_depth_frame_of_a_room_moved_into_the_room_the_other_saw_intrudes_and_its_truth_does_not():
+    from rangereg.core.scenes_sensor import DepthCamera, depth_frame, look_from, room_mesh
+    from rangereg.core.transforms import invert
+
+    mesh, cam, rng = room_mesh(), DepthCamera(), np.random.default_rng(0)
+    T_a = look_from(np.r_[2.0, 2.0, 1.4], np.r_[6.0, 3.0, 1.0])
+    T_b = look_from(np.r_[2.4, 2.2, 1.4], np.r_[6.0, 3.6, 1.0])
+    a, b = (Scan(points=depth_frame(mesh, T, cam, rng), viewpoint=np.zeros(3), name=n, units="m",
+                 kind=ScanKind.SINGLE_VIEW) for T, n in ((T_a, "a"), (T_b, "b")))
+    T = invert(T_a) @ T_b  # b into a's frame
+    nearer = np.eye(4)
+    nearer[2, 3] = -1.0  # b's walls a metre nearer a's camera, through the room a looked across
+    basis = _basis(b, a)
+    assert intrusion(basis, T) < MAX_LOOKED_THROUGH / 3
+    assert intrusion(basis, nearer @ T) > 3 * MAX_LOOKED_THROUGH

@@ -16,10 +16,11 @@ such points of a sample of each scan, the mean of the two ways, each way measure
   their cell of its spherical image and the 8 cells about it (core.panorama): the sensor looked through them. The
   nearest of 9 cells, so that a point beside a depth jump, or on the ground between two rings, is judged against the
   nearer surface; a direction with no return (the sky, beyond the reach) says nothing;
-- a single view (a depth camera's frame, an object scan): its points in front of its sensor and nearer than
-  (1 - FREE_MARGIN) x the range of every seen point about their direction (the VIEW_NEIGHBOURS nearest within
-  VIEW_REACH x the view's angular spacing, on a gnomonic projection about its mean ray; :class:`SeenView`); a direction
-  it saw nothing in says nothing. (Its hull would hold what lies behind its surface.) On an object scanned from a metre
+- a single view with a range grid (a depth camera's organised frame, an object scanner's range grid; :func:`sensed`):
+  its points in front of its sensor and nearer than (1 - FREE_MARGIN) x the range of every seen point about their
+  direction (the VIEW_NEIGHBOURS nearest within VIEW_REACH x the view's angular spacing, on a gnomonic projection about
+  its mean ray; :class:`SeenView`); a direction it saw nothing in says nothing. (Its hull would hold what lies behind
+  its surface.) On an object scanned from a metre
   a twin's points lie within the object's depth, far inside the margin: the test is for scenes, and costs objects
   nothing at their truths (0 on the five bunny pairs).
 
@@ -98,7 +99,6 @@ HULL_CHUNK = 256
 # Fused room fragments span 5-9 m; fused fragments of the bunny 0.2 m read 0.16-0.20 at their truths (a helper's
 # review, 2026-12-06: the other fragment's far side lies inside the hull of an object seen from outside).
 SCENE_METRES = 2.0
-SENSED = (ScanKind.PANORAMA, ScanKind.SINGLE_VIEW)  # kinds whose sensor's position is known: looked through by ray
 METRES = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "km": 1e3, "in": 0.0254, "ft": 0.3048}
 
 
@@ -233,9 +233,9 @@ def clear(basis: Basis, T: np.ndarray, bound: float = MAX_INTRUSION) -> bool:
 
 def counts(scan: Scan) -> bool:
     """Whether the space ``scan``'s sensor looked through is known (module notes): a panorama's (its spherical image),
-    a single view's (the directions it saw), or an unstructured scan's at least SCENE_METRES wide, in known units
-    (its hull)."""
-    if scan.kind in SENSED:
+    a single view's with a range grid (the directions it saw; :func:`sensed`), or an unstructured scan's at least
+    SCENE_METRES wide, in known units (its hull)."""
+    if sensed(scan):
         return True
     metres = METRES.get(scan.units)
     return scan.kind is ScanKind.UNSTRUCTURED and metres is not None and scan.size * metres >= SCENE_METRES
@@ -245,7 +245,16 @@ def max_intrusion_of(source: Scan, target: Scan) -> float:
     """The pair threshold's bound on :func:`intrusion` (module notes): MAX_LOOKED_THROUGH between two scans whose
     sensor is known (panoramas, single views), else MAX_INTRUSION (such a scan and a fused cloud: the mean of their
     ways at truths, <= 0.005 and <= 0.053, lies below it; not measured on such pairs)."""
-    return MAX_LOOKED_THROUGH if source.kind in SENSED and target.kind in SENSED else MAX_INTRUSION
+    return MAX_LOOKED_THROUGH if sensed(source) and sensed(target) else MAX_INTRUSION
+
+
+def sensed(scan: Scan) -> bool:
+    """Whether ``scan``'s sensor stood at its viewpoint, so that the rays from there are what it looked along: a
+    panorama (its spherical image about it), or a single view with a range grid (its cells are the sensor's rays: a
+    depth camera's organised frame, a range-grid PLY, a structured E57 scan). Bare points read as one view are not
+    asked (the measures rest on gridded views only): a LiDAR frame written in a world frame is read as one view from
+    the world's origin, 37 m from where its sensor stood, and reads 0.066 at its truth (tests/test_assembly)."""
+    return scan.kind is ScanKind.PANORAMA or (scan.kind is ScanKind.SINGLE_VIEW and scan.grid is not None)
 
 
 def _intrusion(basis: Basis, T: np.ndarray) -> float:
@@ -276,20 +285,19 @@ def supported(points: np.ndarray, scan: Scan, view: SeenView) -> np.ndarray:
 def pair_intrusion(source: Scan, target: Scan, src: tuple, tgt: tuple, T: np.ndarray, margin: float | None = None
                    ) -> float:
     """:func:`intrusion` of pose T (4, 4) from each scan's (sample, :func:`_seen_of`) ``src`` and ``tgt``: between two
-    scans whose sensors are known (SENSED), the larger of the two ways (a twin shows mostly one way: the view that
+    scans whose sensors are known (:func:`sensed`), the larger of the two ways (a twin shows mostly one way: the view that
     sees the other's turned walls in the room it looked through); else the mean of the ways that count."""
     R, p = T[:3, :3], T[:3, 3]
     ways = [_share(q, scan, seen, margin) for q, scan, seen in
             ((src[0] @ R.T + p, target, tgt[1]), ((tgt[0] - p) @ R, source, src[1])) if seen is not None]
     if not ways:
         return 0.0  # flat scans: no inside either way
-    sensed = source.kind in SENSED and target.kind in SENSED
-    return float(max(ways) if sensed else np.mean(ways))
+    return float(max(ways) if sensed(source) and sensed(target) else np.mean(ways))
 
 
 def _seen_of(scan: Scan):
-    """What tells the space ``scan``'s sensor looked through (:func:`counts`): a panorama's spherical image, an
-    unstructured scan's hull planes; None for the others (and a flat unstructured scan)."""
+    """What tells the space ``scan``'s sensor looked through (:func:`counts`): a panorama's spherical image, a gridded
+    single view's :class:`SeenView`, an unstructured scan's hull planes; None for the others (and a flat scan)."""
     if not counts(scan):
         return None
     if scan.kind is ScanKind.PANORAMA:

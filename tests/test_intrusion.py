@@ -24,7 +24,7 @@ from rangereg.core.intrusion import (
     max_intrusion_of,
     seen_view,
 )
-from rangereg.core.scan import Scan, ScanKind
+from rangereg.core.scan import RangeGrid, Scan, ScanKind
 from rangereg.core.transforms import rotation_matrix
 from scipy.spatial import Delaunay
 
@@ -108,7 +108,8 @@ def test_a_fused_scan_counts_its_hull_only_as_a_space_in_known_units_and_a_singl
     in_mm = [replace(_room(k), points=_room(k).points * 1000.0, units="mm") for k in (0, 1)]  # the room in mm
     assert intrusion(_basis(*in_mm), _twin()) == pytest.approx(intrusion(_basis(_room(0), _room(1)), _twin()))
     assert not counts(replace(_room(0), units="unknown"))
-    assert counts(replace(small[0], kind=ScanKind.SINGLE_VIEW)) and counts(replace(small[0], kind=ScanKind.PANORAMA))
+    assert counts(replace(small[0], kind=ScanKind.PANORAMA)) and counts(_camera_wall())  # a gridded single view
+    assert not counts(replace(_camera_wall(), grid=None))  # bare points read as one view: no sensor known there
 
 
 def test_inputs_come_back_unmodified():
@@ -208,7 +209,7 @@ def test_a_panorama_counts_the_space_its_sensor_looked_through_and_the_bound_is_
     s, t, _ = _lidar_room()
     assert counts(s) and counts(t)
     assert max_intrusion_of(s, t) == MAX_LOOKED_THROUGH
-    assert max_intrusion_of(s, replace(t, kind=ScanKind.SINGLE_VIEW)) == MAX_LOOKED_THROUGH  # both sensors known
+    assert max_intrusion_of(s, _camera_wall()) == MAX_LOOKED_THROUGH  # both sensors known
     assert max_intrusion_of(s, _room(0)) == MAX_INTRUSION  # a panorama and a fused cloud: the fused clouds' bound
 
 
@@ -252,7 +253,8 @@ def _camera_wall():
     g = np.arange(-1.0, 1.0, 0.02)
     u, v = np.meshgrid(g, g)
     pts = np.c_[u.ravel(), v.ravel(), np.full(u.size, 3.0)]
-    return Scan(points=pts, viewpoint=np.zeros(3), name="wall", units="m", kind=ScanKind.SINGLE_VIEW)
+    return Scan(points=pts, viewpoint=np.zeros(3), name="wall", units="m", kind=ScanKind.SINGLE_VIEW,
+                grid=RangeGrid(np.arange(u.size).reshape(u.shape)))
 
 
 def test_points_in_front_of_a_single_views_surface_are_looked_through_and_behind_it_or_aside_are_not_judged_so():
@@ -312,14 +314,21 @@ def test_a_guess_by_a_lidar_rooms_quarter_turn_is_not_trusted_there():
 
 
 def test_a_depth_frame_of_a_room_moved_into_the_room_the_other_saw_intrudes_and_its_truth_does_not():
-    from rangereg.core.scenes_sensor import DepthCamera, depth_frame, look_from, room_mesh
+    from rangereg.core.scenes_sensor import DepthCamera, _pixel_rays, depth_image, look_from, room_mesh
     from rangereg.core.transforms import invert
 
     mesh, cam, rng = room_mesh(), DepthCamera(), np.random.default_rng(0)
     T_a = look_from(np.r_[2.0, 2.0, 1.4], np.r_[6.0, 3.0, 1.0])
     T_b = look_from(np.r_[2.4, 2.2, 1.4], np.r_[6.0, 3.6, 1.0])
-    a, b = (Scan(points=depth_frame(mesh, T, cam, rng), viewpoint=np.zeros(3), name=n, units="m",
-                 kind=ScanKind.SINGLE_VIEW) for T, n in ((T_a, "a"), (T_b, "b")))
+    def frame(T, name):  # as an organised frame holds it: a grid of the pixels that measured a depth
+        depth = depth_image(mesh, T, cam, rng).ravel()
+        hit = np.isfinite(depth)
+        grid = np.full(depth.shape, -1)
+        grid[hit] = np.arange(np.count_nonzero(hit))
+        return Scan(points=_pixel_rays(cam)[hit] * depth[hit, None], viewpoint=np.zeros(3), name=name, units="m",
+                    kind=ScanKind.SINGLE_VIEW, grid=RangeGrid(grid.reshape(cam.rows, cam.cols)))
+
+    a, b = frame(T_a, "a"), frame(T_b, "b")
     T = invert(T_a) @ T_b  # b into a's frame
     nearer = np.eye(4)
     nearer[2, 3] = -1.0  # b's walls a metre nearer a's camera, through the room a looked across

@@ -7,7 +7,8 @@ truth, and the matched overlap pins all six motions: no test of the overlap tell
 corner scene of core.simulate is a twin by design). The rest of each scan does: at the twin, the source's turned
 ceiling and far walls cut through the target's room, where the target's sensor looked through empty space; at the
 truth, what one scan holds and the other lacks lies beyond the other's walls or behind what hid it. The share of
-such points of a sample of each scan, the mean of the two ways, each way measured by the kind of the scan looked into:
+such points of a sample of each scan, each way measured by the kind of the scan looked into, the two ways combined by
+:func:`pair_intrusion` (the larger where both sensors are known, else the mean):
 
 - an unstructured scan (fused fragments) at least SCENE_METRES wide: its points inside the other scan's convex hull and
   farther than INTRUSION_SPACINGS x its spacing from every point of it (no sensor position is known: the hull holds
@@ -20,9 +21,8 @@ such points of a sample of each scan, the mean of the two ways, each way measure
   its points in front of its sensor and nearer than (1 - FREE_MARGIN) x the range of every seen point about their
   direction (the VIEW_NEIGHBOURS nearest within VIEW_REACH x the view's angular spacing, on a gnomonic projection about
   its mean ray; :class:`SeenView`); a direction it saw nothing in says nothing. (Its hull would hold what lies behind
-  its surface.) On an object scanned from a metre
-  a twin's points lie within the object's depth, far inside the margin: the test is for scenes, and costs objects
-  nothing at their truths (0 on the five bunny pairs).
+  its surface.) On an object scanned from a metre a twin's points lie within the object's depth, far inside the
+  margin: the test is for scenes, and costs objects nothing at their truths (0 on the five bunny pairs).
 
 An object fused from views all round it holds its inside in its hull: fused fragments of the bunny read
 0.16-0.20 at their truths (a helper's review of this test found them "trust no"); objects wider than SCENE_METRES
@@ -88,9 +88,9 @@ if TYPE_CHECKING:
 INTRUSION_SPACINGS = 10  # "far from every point": see the module notes
 INTRUSION_SAMPLE = 1500  # points each way (a share to +-0.01)
 MAX_INTRUSION = 0.072  # see the module notes and benchmarks/threshold_evidence.py --intrusion
-# A panorama's seen space: nearer than this share of the ranges seen about a point's direction (module notes).
+# A known sensor's seen space: nearer than this share of the ranges it saw about a point's direction (module notes).
 FREE_MARGIN = 0.1
-MAX_LOOKED_THROUGH = 0.021  # between two scans whose sensors are known (panoramas, single views): module notes
+MAX_LOOKED_THROUGH = 0.021  # between two scans whose sensors are known (sensed): see the module notes
 # The hull is made of at most this many of the scan's points, evenly spread (a noisy ball of 100k points has ~200k
 # facets: 2.4 GB to test 1500 points against at once), and the points are tested against it in chunks.
 HULL_POINTS = 20_000
@@ -243,8 +243,8 @@ def counts(scan: Scan) -> bool:
 
 def max_intrusion_of(source: Scan, target: Scan) -> float:
     """The pair threshold's bound on :func:`intrusion` (module notes): MAX_LOOKED_THROUGH between two scans whose
-    sensor is known (panoramas, single views), else MAX_INTRUSION (such a scan and a fused cloud: the mean of their
-    ways at truths, <= 0.005 and <= 0.053, lies below it; not measured on such pairs)."""
+    sensor is known (:func:`sensed`), else MAX_INTRUSION (such a scan and a fused cloud: the mean of their ways at
+    truths, <= 0.012 and <= 0.053, lies below it; not measured on such pairs)."""
     return MAX_LOOKED_THROUGH if sensed(source) and sensed(target) else MAX_INTRUSION
 
 

@@ -93,6 +93,7 @@ from rangereg.core.candidates import for_search, make_basis  # noqa: E402
 from rangereg.core.config import Config  # noqa: E402
 from rangereg.core.global_search.setup import prepare_setup  # noqa: E402
 from rangereg.core.guess import Guess  # noqa: E402
+from rangereg.core.intrusion import max_intrusion_of  # noqa: E402
 from rangereg.core.scan import Scan, ScanKind  # noqa: E402
 from rangereg.core.threshold import pair_threshold  # noqa: E402
 from rangereg.core.transforms import invert, rotation_matrix  # noqa: E402
@@ -268,7 +269,7 @@ def judge(case: Case) -> dict:
         g = np.random.default_rng(config.seed)
         g.bit_generator.state = state
         basis = make_basis(s, t, setup.problem.surface, floor, g, cc, pc.frustum)
-        thr = pair_threshold(floor, basis.angle_floor, cc.min_overlap)
+        thr = pair_threshold(floor, basis.angle_floor, cc.min_overlap, max_intrusion=max_intrusion_of(s, t))
         if rule == "random":  # the replay is the pipeline's own basis
             assert np.isclose(basis.cap, setup.basis.cap) and np.isclose(floor, setup.threshold.floor)
         rows = []
@@ -342,7 +343,8 @@ def profile() -> None:
         g = np.random.default_rng(config.seed)
         g.bit_generator.state = state
         basis = make_basis(s, t, setup.problem.surface, floor, g, config.candidates, config.problem.frustum)
-        thr = pair_threshold(floor, basis.angle_floor, config.candidates.min_overlap)
+        thr = pair_threshold(floor, basis.angle_floor, config.candidates.min_overlap,
+                             max_intrusion=max_intrusion_of(s, t))
         for base, name in ((case.T, "relative.txt"), (found, "pipeline")):
             cells = []
             for d in steps:

@@ -1,5 +1,5 @@
-"""Sequences of spinning-LiDAR frames merged as odometry plus loop closure (`rangereg merge --pairs sequence`,
-core.merge_sequence), beside Open3D's point-to-plane ICP chained frame to frame from the identity.
+"""Sequences of spinning-LiDAR frames and of depth frames merged as odometry plus loop closure (`rangereg merge --pairs
+sequence`, core.merge_sequence), beside Open3D's point-to-plane ICP chained frame to frame from the identity.
 
     python benchmarks/sequences.py [--seeds 2] [--scenes street,room,rgbd] [--steps 0.5,1,2]
     python benchmarks/sequences.py --smallest   # a street of 3 small frames: a check that it runs

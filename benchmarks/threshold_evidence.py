@@ -47,6 +47,7 @@ from rangereg.core.candidates import CandidateConfig, make_basis  # noqa: E402
 from rangereg.core.config import Config  # noqa: E402
 from rangereg.core.global_search import refine  # noqa: E402
 from rangereg.core.guess import Guess  # noqa: E402
+from rangereg.core.intrusion import max_intrusion_of  # noqa: E402
 from rangereg.core.io import load_scan  # noqa: E402
 from rangereg.core.noise import noise_floor  # noqa: E402
 from rangereg.core.simulate import SCENES, make_scene, true_transform  # noqa: E402
@@ -411,7 +412,7 @@ def measure(name, s, t, T_true, ok_rot, ok_trans, starts: int, config: Candidate
     rng = np.random.default_rng(0)
     floor = float(np.mean([noise_floor(x, rng, 300) for x in (s, t)]))
     basis = make_basis(s, t, surface, floor, rng, config)
-    thr = pair_threshold(floor, basis.angle_floor, basis.min_overlap)
+    thr = pair_threshold(floor, basis.angle_floor, basis.min_overlap, max_intrusion=max_intrusion_of(s, t))
 
     def misfit(T: np.ndarray) -> tuple[float, float, float, float]:
         """(misfit, distance ratio, angle ratio, matched share) of pose T, whatever its overlap."""

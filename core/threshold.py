@@ -354,9 +354,10 @@ class PairThreshold:
                        "point-to-plane system's smallest / largest eigenvalue >= min_constraint and, below "
                        f"{WEAK_BELOW:g} ({WEAK_BELOW_UNSTRUCTURED:g} onto an unstructured scan), the score rising by "
                        "min_rise when slid along its weakest motion, or the score of the points facing that motion by "
-                       "min_stable_rise; where a scan is a fused cloud of a space or a panorama, less than max_intrusion of the "
-                       "points (the mean of the two ways) where the other's sensor looked through: inside a fused "
-                       "cloud's hull and far from it, or nearer a panorama's sensor than what it saw there")
+                       "min_stable_rise; where a scan is a fused cloud of a space, a panorama or a single view with a "
+                       "range grid, less than max_intrusion of the points where the other's sensor looked through "
+                       "(core.intrusion: inside a fused cloud's hull and far from it, or nearer a known sensor than "
+                       "what it saw there; between two known sensors the larger of the two ways, else their mean)")
 
     def to_json(self) -> dict:
         return {"value": self.value, "floor": self.floor, "angle_floor_deg": self.angle_floor, "factor": self.factor,

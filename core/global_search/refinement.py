@@ -204,8 +204,8 @@ def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:
     turned half a turn, 1.086e-4 and well pinned, and was trusted 180 deg off. Not counted: a pose beyond
     the stated region, where T is inside it (the corner scene's twin 120 deg off scores 18.2, the truth 27.0);
     where T is weakly pinned, its slides (:data:`ALONG_THE_FREE_MOTION`), which may score lower (a room's floor and walls
-    fit as well slid) and which the pair threshold's rise tests judged; a pose that puts one fused scan's points
-    through the other's seen room (core.intrusion: a room corner's twin scores below the truth, tsdf-13 8.5e-5
+    fit as well slid) and which the pair threshold's rise tests judged; a pose that puts one scan's points where the
+    other's sensor looked through (core.intrusion: a room corner's twin scores below the truth, tsdf-13 8.5e-5
     against 9.1e-5)."""
     cc = setup.config.candidates
     others = [R for R in refined if not _near([R], T, setup.source.centroid, np.radians(cc.distinct_rotation_deg),
@@ -223,14 +223,14 @@ def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:
 
 
 def _clear(setup: Setup, T: np.ndarray) -> bool:
-    """Whether pose T puts neither fused scan's points through the other's seen room (core.intrusion)."""
+    """Whether pose T puts neither scan's points where the other's sensor looked through (core.intrusion)."""
     return clear(setup.basis, T, setup.threshold.max_intrusion)
 
 
 def best_refined(setup: Setup, poses: list[np.ndarray]) -> tuple[np.ndarray, float]:
     """The lowest score among ``poses`` that overlap both ways, those inside the region first, and before the others
-    those that put neither fused scan's points through the other's seen room (:func:`_clear`: a room corner's twin
-    scores below the truth)."""
+    those that put neither scan's points where the other's sensor looked through (:func:`_clear`: a room corner's
+    twin scores below the truth)."""
     s = setup.basis.evaluate(np.stack(poses))
     valid = setup.basis.valid(s)
     inside = setup.region.contains(np.stack(poses))
@@ -260,6 +260,7 @@ def search_stages(setup: Setup, run: EventStream, confirm: Callable[[np.ndarray]
             if found.beyond is not None and stage.start_free:
                 sources[stage.name] = ("not run: a pose beyond the stated region is trusted, and this stage "
                                        "ignores the guess (it would give that pose again, not one inside)")
+                getattr(stage.make, "cancel", lambda: None)()  # made ahead (stages.Ahead): it stops at its next step
                 continue
             hyp = stage.make()
             if setup.frame is not None:

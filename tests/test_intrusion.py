@@ -335,3 +335,28 @@ def test_a_depth_frame_of_a_room_moved_into_the_room_the_other_saw_intrudes_and_
     basis = _basis(b, a)
     assert intrusion(basis, T) < MAX_LOOKED_THROUGH / 3
     assert intrusion(basis, nearer @ T) > 3 * MAX_LOOKED_THROUGH
+
+
+def test_a_single_views_lone_returns_in_front_of_its_surface_are_not_measured():
+    # the paper's scenes return 3 % of their points on no surface: alone in front of it, they would read as looked
+    # through at the truth (core.intrusion.supported)
+    from rangereg.core.intrusion import sample_and_seen, supported
+
+    wall = _camera_wall()
+    lone = np.array([[0.1, 0.2, 1.5], [-0.4, 0.3, 2.0], [0.5, -0.5, 1.0]])  # a metre and more in front, each alone
+    noisy = replace(wall, points=np.r_[wall.points, lone])
+    kept = supported(np.r_[wall.points[:50], lone], noisy, seen_view(noisy))
+    assert len(kept) == 50 and not any(np.any(np.all(kept == p, axis=1)) for p in lone)
+    sample, seen = sample_and_seen(noisy, 11)
+    assert looked_through_view(sample, seen_view(wall)) == 0.0  # measured against the wall: no lone point left
+
+
+def test_between_known_sensors_the_larger_way_counts_and_otherwise_the_mean(monkeypatch):
+    import rangereg.core.intrusion as intr
+
+    source = _camera_wall()
+    monkeypatch.setattr(intr, "_share", lambda points, scan, seen, margin=None: 0.02 if scan is source else 0.1)
+    known, fused = replace(_camera_wall(), name="other"), replace(_camera_wall(), kind=ScanKind.UNSTRUCTURED, grid=None)
+    sample = (np.zeros((1, 3)), object())  # what each way measures is stubbed: the rule that joins them is tested
+    assert intr.pair_intrusion(source, known, sample, sample, np.eye(4)) == pytest.approx(0.1)  # the larger
+    assert intr.pair_intrusion(source, fused, sample, sample, np.eye(4)) == pytest.approx(0.06)  # the mean

@@ -86,6 +86,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .rows import norms
 from .scan import Scan, ScanKind
+from .surface import view_basis
 
 if TYPE_CHECKING:
     from .candidates import Basis
@@ -180,10 +181,7 @@ def seen_view(scan: Scan) -> SeenView | None:
     axis = rays.mean(0)
     if not np.linalg.norm(axis) > 0:
         return None
-    axis = axis / np.linalg.norm(axis)
-    u = np.cross(axis, np.eye(3)[np.argmin(np.abs(axis))])
-    u /= np.linalg.norm(u)
-    basis = np.stack([u, np.cross(axis, u), axis])
+    basis = view_basis(axis)
     local = rays @ basis.T
     front = local[:, 2] > 0
     if np.count_nonzero(front) < 3:

@@ -97,17 +97,20 @@ def view_projection(points: np.ndarray, viewpoint: np.ndarray,
     axis = rays.mean(0) if axis is None else np.array(axis, dtype=np.float64)
     if not np.linalg.norm(axis) > 0:
         raise InputError("the viewpoint sits at the centre of the points; give the sensor position")
-    axis /= np.linalg.norm(axis)
-    helper = np.eye(3)[np.argmin(np.abs(axis))]
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
-    basis = np.stack([u, v, axis])
+    basis = view_basis(axis)
     local = rays @ basis.T
     depth = local[:, 2]
     if np.any(depth <= 1e-12 * np.abs(local).max()):
         raise InputError("some points lie beside or behind the viewpoint; check the sensor position")
     return local[:, :2] / depth[:, None], basis
+
+
+def view_basis(axis: np.ndarray) -> np.ndarray:
+    """(3, 3) rows u, v, the unit ``axis`` (3,): the plane :func:`view_projection` projects onto, and its normal."""
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    u = np.cross(axis, np.eye(3)[np.argmin(np.abs(axis))])
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(axis, u), axis])
 
 
 def triangulate(scan: Scan, axis: np.ndarray | None = None) -> np.ndarray:

@@ -84,16 +84,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    s = sub.add_parser("info", help="describe a scan file", description="Describe a scan: points, bounds, units, "
+    s = sub.add_parser("info", help="describe scan files", description="Describe scans: points, bounds, units, "
                        "viewpoint, range grid, surface triangles, point spacing.")
-    s.add_argument("scan", help="scan file (.ply .pcd .xyz .txt .csv .pts .obj .stl .off .e57 .las .laz, KITTI or "
-                   "nuScenes LiDAR .bin); an .e57 "
+    s.add_argument("scan", nargs="+", help="scan files (.ply .pcd .xyz .txt .csv .pts .obj .stl .off .e57 .las .laz, "
+                   "KITTI or nuScenes LiDAR .bin), each described in turn; an .e57 "
                    "alone lists its scans, FILE.e57#K (K from 0) or FILE.e57#NAME describes one")
-    s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated)")
+    s.add_argument("--viewpoint", type=_vec3, help="sensor position x,y,z (overrides stored/estimated; one scan only)")
     scan_kind(s)
     s.add_argument("--triangles", action="store_true", help="count the surface's triangles even for a large scan "
                    "without a range grid (a 2.5-D Delaunay: about 30 s for 2M points)")
-    s.add_argument("--json", action="store_true", help="print one JSON object")
+    s.add_argument("--json", action="store_true", help="print one JSON object per file, a line each")
 
     pc, cfg = ProblemConfig(), Config()
 

@@ -31,6 +31,18 @@ def test_info_json_on_a_bundled_scene(rangereg):
     assert info["grid"] and not info["viewpoint_estimated"] and 4000 < info["points"] < 8000
 
 
+def test_info_describes_several_files_in_turn_and_says_which_could_not_be_read(rangereg, tmp_path):
+    code, out, err = rangereg("info", CORNER_TGT, tmp_path / "missing.ply", CORNER_SRC, "--json")
+    assert code == 2
+    described = [json.loads(line) for line in out.splitlines()]
+    assert [d["file"] for d in described] == [CORNER_TGT, CORNER_SRC]  # the unreadable one skipped, the rest said
+    assert err.count("error:") == 1 and "missing.ply" in err
+    code, out, _ = rangereg("info", CORNER_TGT, CORNER_SRC)
+    assert code == 0 and out.count("  kind ") == 2 and "\n\n" in out
+    code, _, err = rangereg("info", CORNER_TGT, CORNER_SRC, "--viewpoint", "1,2,3")
+    assert code == 2 and "one scan" in err
+
+
 def test_register_json_contract_and_trace_drawn_by_slice(rangereg, tmp_path):
     trace = tmp_path / "t.jsonl"
     code, out, err = rangereg("register", CORNER_SRC, CORNER_TGT, "--json", "--seed", "1", "--trace", trace)

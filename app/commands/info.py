@@ -1,5 +1,7 @@
-"""``rangereg info``: describe a scan (points, kind, bounds, units, viewpoint, range grid, triangles, spacing),
-each with where it came from (core.assemble); an E57 file given without ``#K`` is listed scan by scan (core.e57)."""
+"""``rangereg info``: describe scans (points, kind, bounds, units, viewpoint, range grid, triangles, spacing),
+each with where it came from (core.assemble); an E57 file given without ``#K`` is listed scan by scan (core.e57).
+Several files are described in turn (``rangereg info frames/*.pcd``): one that cannot be read gets its one error
+line and the others are still described; the status is then 2."""
 
 from __future__ import annotations
 
@@ -14,18 +16,43 @@ COUNT_TRIANGLES_UP_TO = 200_000
 
 
 def run(a: Namespace) -> int:
+    from rangereg.core.errors import InputError
+
+    paths = [a.scan] if isinstance(a.scan, str) else list(a.scan)
+    if len(paths) == 1:
+        return describe(a, paths[0])
+    if a.viewpoint is not None:
+        raise InputError("--viewpoint is for one scan: give it with one file")
+    from rangereg.app.cli import _failed
+
+    status = 0
+    for k, path in enumerate(paths):
+        try:
+            describe(a, path)
+        except BrokenPipeError:
+            raise
+        except (InputError, OSError, MemoryError) as exc:  # said in one line; the other files are still described
+            status = _failed("info", exc)
+            continue
+        if not a.json and k < len(paths) - 1:
+            print()  # a blank line between two descriptions
+    return status
+
+
+def describe(a: Namespace, path: str) -> int:
+    """Print the description of one scan file (``path``; an E57 without ``#K``: its list of scans)."""
     from rangereg.core.assemble import kind_text, units_text, viewpoint_text
     from rangereg.core.e57 import SUFFIX, split_selection
     from rangereg.core.io import load_scan
     from rangereg.core.scan import Origin
 
-    file, selector = split_selection(a.scan)
+    file, selector = split_selection(path)
     if file.suffix.lower() == SUFFIX and selector is None:
         return list_e57(a, file)
-    scan = load_scan(a.scan, viewpoint=a.viewpoint, kind=getattr(a, "scan_kind", None))
+    scan = load_scan(path, viewpoint=a.viewpoint, kind=getattr(a, "scan_kind", None))
     tri, why_not = _triangles(scan, a.triangles)
     has_vp = scan.viewpoint_from is not Origin.NONE
-    info = {"points": len(scan.points), "bounds": [scan.points.min(0).tolist(), scan.points.max(0).tolist()],
+    info = {"file": str(path), "points": len(scan.points), "bounds": [scan.points.min(0).tolist(), scan.points.max(0).tolist()],
             "kind": str(scan.kind), "kind_from": str(scan.kind_from),
             "units": scan.units, "units_from": str(scan.units_from),
             "viewpoint": scan.viewpoint.tolist() if has_vp else None, "viewpoint_from": str(scan.viewpoint_from),
@@ -40,7 +67,7 @@ def run(a: Namespace) -> int:
     lo, hi = info["bounds"]
     dropped = [f"{scan.dropped} NaN/inf"] if scan.dropped else []
     dropped += [f"{scan.at_sensor} on the sensor (no return)"] if scan.at_sensor else []
-    print(f"{a.scan}")
+    print(f"{path}")
     print(f"  points      {info['points']}" + (f" ({', '.join(dropped)} dropped)" if dropped else "")
           + (", with intensity" if scan.intensity is not None else ""))
     print(f"  kind        {kind_text(scan)}")

@@ -5,7 +5,9 @@ or its misfit far above their median: the scans of one campaign share a sensor, 
 at much the same level). A pair the pair threshold did not trust is used too where the campaign
 corroborates it: its misfit is at the trusted pairs' level and it closes a triangle, within the graph's
 cycle tolerance, with two other such pairs of which one is trusted (three registrations that agree
-about one motion: the campaign's own evidence, which a pair alone cannot give). The graph
+about one motion: the campaign's own evidence, which a pair alone cannot give), unless the two not
+trusted share a scan that both leave free along one motion (:func:`alike`: the triangle closes wherever
+along it both ended). The graph
 (core.posegraph) keeps the pairs that close; the poses are in the first scan's frame when its group is
 the largest, else in the largest group's first scan's. A scan the kept pairs join only so loosely that
 its pose is in doubt is not placed (:func:`drift`): right pairs are each a little off, and along an
@@ -33,6 +35,7 @@ from .posegraph import (
     solve,
     spread,
 )
+from .threshold import ALONG_THE_FREE_MOTION
 from .transforms import apply, invert
 
 # core.merge's campaign state and knobs, by name only: core.merge imports this module
@@ -118,11 +121,37 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float,
             if T_i_k is None or T_k_j is None or not (on_trust(i, k) or on_trust(k, j)):
                 continue
             rot, move = residual(c.pairs[i, j].T_i_j, np.eye(4), T_i_k @ T_k_j, c.centers[j])
-            if tol.holds((rot, move)):
+            if tol.holds((rot, move)) and not alike(c, (i, j), (i, k) if on_trust(k, j) else (k, j)):
                 out[i, j] = (f"not trusted alone (misfit {c.pairs[i, j].misfit:.3g}); used: it closes the loop "
                              f"through {c.scans[k].name} within {rot:.2g} deg / {move:.3g}")
                 break
     return out
+
+
+def alike(c: _Campaign, p: tuple[int, int], q: tuple[int, int]) -> bool:
+    """Whether pairs p and q (keys either way round), neither trusted, share a scan that both leave free along
+    one motion: each slid along its free motion (its overlap's weakest, core.threshold.Constraint) moves the shared
+    scan's points against its partner alike, |cosine| >= ALONG_THE_FREE_MOTION (a pair whose overlap pins every
+    motion moves nothing: False). Their triangle then closes wherever along that motion both ended, and says
+    nothing of where."""
+    p, q = (k if k in c.pairs else k[::-1] for k in (p, q))
+    if p == q or c.pairs[p].free is None or c.pairs[q].free is None:
+        return False
+    (s,) = set(p) & set(q)
+    scan = c.scans[s]
+    pts = scan.points[::max(1, len(scan.points) // 2000)]
+    moves = [apply(slid_scan(c.pairs[k], s, c.spacing), pts) - pts for k in (p, q)]
+    size = float(np.linalg.norm(moves[0]) * np.linalg.norm(moves[1]))
+    cosine = abs(float(np.sum(moves[0] * moves[1]))) / size if size > 0 else 0.0
+    return cosine >= ALONG_THE_FREE_MOTION
+
+
+def slid_scan(pair: PairResult, s: int, step: float) -> np.ndarray:
+    """(4, 4) scan s of ``pair`` moved against the pair's other scan by ``step`` units along the pair's free motion,
+    in s's own frame (s's points p go to M p)."""
+    T = pair.T_i_j
+    T_slid = pair.free.slid(T, np.array([step]))[0]
+    return invert(T) @ T_slid if s == pair.j else T @ invert(T_slid)
 
 
 def weight(p: PairResult) -> float:

@@ -5,7 +5,7 @@ pair's registration started, whether it was used and why not, whether a scan is 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -73,6 +73,9 @@ class PairResult:
     earlier: str | None = None
     stop: Stop | None = None
     failure: str = ""  # why the registration refused the pair ('' when it registered)
+    # not trusted, its overlap leaving a motion free at T_i_j: what that overlap pins (core.threshold.Constraint, in
+    # scan i's frame); None otherwise
+    free: object = field(default=None, repr=False)
     rejection: Rejection | None = None
 
     @property

@@ -26,6 +26,7 @@ from .register import Config, register
 from .result import Stop
 from .scan import Scan
 from .surface import Surface
+from .threshold import Constraint
 from .transforms import apply, from_params, invert, pose_error
 
 FEATURE_VOXEL = 5.0  # FPFH voxel in point spacings: Open3D's recipe scale (~1/60 of a bunny scan)
@@ -88,6 +89,7 @@ class PairOutcome:
     stop: Stop | None
     seconds: float
     failure: str = ""
+    free: Constraint | None = None  # not trusted and its overlap leaves a motion free at T: what it pins (core.threshold)
 
 
 def verdict(res) -> tuple[bool, float | None, bool | None]:
@@ -244,8 +246,10 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
         rot, move = pose_error(P, T, source.centroid)
         if rot < 1.0 and move < 2 * spacing:  # a polish only polishes: one that wanders is not taken
             T = P
+    d = res.details
+    free = d.constraint if d is not None and not trusted and not d.pinned else None
     return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
-                       res.stop, time.perf_counter() - t0)
+                       res.stop, time.perf_counter() - t0, free=free)
 
 
 def polish(points: np.ndarray, target: Scan, surface: Surface, normals: np.ndarray, T: np.ndarray,

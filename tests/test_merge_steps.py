@@ -14,6 +14,7 @@ from rangereg.core.merge_progress import Counter, MergeProgress, Step
 from rangereg.core.merge_result import PairResult, PairStatus, Rejection, ScanStatus, Start
 from rangereg.core.register import Config
 from rangereg.core.result import Stop, StopReason
+from rangereg.core.threshold import Constraint
 from rangereg.core.transforms import from_params, invert
 from rangereg.core.turntable import arc_ends, make_campaign, shared_axis
 
@@ -114,6 +115,32 @@ def test_an_untrusted_pair_is_used_where_a_triangle_with_a_trusted_pair_corrobor
     used = {p.key: p for p in merge_report.pair_statuses(c, g, screened)}
     assert used[3, 5].status is PairStatus.USED and "closes the loop through" in used[3, 5].reason
     assert used[4, 6].status is PairStatus.REJECTED and used[4, 6].rejection is Rejection.NOT_TRUSTED
+
+
+def _free_along(camp, i, j, move_j) -> Constraint:
+    """A constraint of pair (i, j) that leaves free a translation ``move_j`` (3,) of scan j (in j's frame)."""
+    R_i_j = _truth(camp, i, j)[:3, :3]
+    return Constraint(np.r_[1e-4, np.ones(5)], np.r_[R_i_j @ move_j, 0.0, 0.0, 0.0], 1e-4, 500, np.zeros(3), 1.0)
+
+
+@pytest.mark.parametrize("frees", [("same", False), ("apart", True), ("pinned", True)])
+def test_two_pairs_free_along_one_motion_of_the_scan_they_share_do_not_vouch_for_each_other(camp, frees):
+    # (3, 5) and (4, 5), neither trusted, close their triangle with the trusted (3, 4); where both leave scan 5 free
+    # to slide one way they would close it as well slid alike (two views of a floor and a wall: the RGB-D drives'
+    # frames placed 7-14 cm along a wall), so they corroborate nothing; free along different ways, they pin it
+    how, vouched = frees
+    c = _campaign(camp)
+    for i in range(4):
+        _pair(c, camp, i, i + 1)
+    for i in (3, 4):
+        _pair(c, camp, i, 5, trusted=False, misfit=0.6, stop=BOUND)
+    x, y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    if how != "pinned":
+        c.pairs[3, 5] = replace(c.pairs[3, 5], free=_free_along(camp, 3, 5, x))
+        c.pairs[4, 5] = replace(c.pairs[4, 5], free=_free_along(camp, 4, 5, x if how == "same" else y))
+    s = merge_graph.screen(c)
+    assert (sorted(s.corroborated) == [(3, 5), (4, 5)]) is vouched
+    assert merge_graph.alike(c, (3, 5), (4, 5)) is (how == "same")
 
 
 # ---- rounds ----

@@ -21,7 +21,7 @@ from ..result import Stop
 from ..scan import Scan
 from ..search.budget import BudgetSpent
 from ..surface import Surface
-from ..threshold import constraint
+from ..threshold import ALONG_THE_FREE_MOTION, constraint
 from ..transforms import pose_error
 from .setup import Setup
 from .slide import along_the_free_motion
@@ -188,11 +188,6 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
             doubted()
 
 
-# A pose lower than a weakly pinned one it is compared with lies along that pose's free motion when their move
-# is this close to it (|cosine| in the pair threshold's units, core.threshold.Constraint.alignment): the
-# slides the rise tests judged already. Measured (2026-12-06): the sim-fragments-0 truth and the slides 0.2-0.8 m
-# along the room that score below it, 0.998-0.999; the 15-frame fragments' half turn against the truth, 0.
-ALONG_THE_FREE_MOTION = 0.95
 
 
 def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:

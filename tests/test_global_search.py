@@ -315,6 +315,40 @@ def test_a_doubted_pose_starts_the_stages_ahead_a_trusted_one_does_not_and_the_s
     assert calls[0] == "start" and calls[-1] == "cancel"
 
 
+def test_a_start_free_stage_skipped_after_a_trusted_pose_beyond_the_region_cancels_what_was_made_ahead(monkeypatch):
+    from types import SimpleNamespace
+
+    from rangereg.core.global_search import refinement as rf
+    from rangereg.core.global_search.stages import Hypotheses, Stage
+    from rangereg.core.search.budget import Budget
+
+    made, cancelled = [], []
+
+    class MadeAhead:  # as stages.Ahead: called when the stage is reached, cancelled when it never will be
+        def __call__(self):
+            made.append(1)
+            return Hypotheses([np.eye(4)], labels=("kiss-matcher",))
+
+        def cancel(self):
+            cancelled.append(1)
+
+    def fake_stages(setup):
+        yield Stage("guess", lambda: Hypotheses([np.eye(4)], labels=("guess",)), 1)
+        yield Stage("other grids", MadeAhead(), 2, start_free=True)
+        yield Stage("rotation samples", lambda: Hypotheses([], "none in the region"), 1)
+
+    def trusted_beyond(setup, run, hyp, n, found, doubted=None):
+        found.beyond = hyp.poses[0]  # the guess stage's pose: trusted, beyond the stated region
+
+    monkeypatch.setattr(rf, "stages", fake_stages)
+    monkeypatch.setattr(rf, "run_stage", trusted_beyond)
+    found, sources = rf.search_stages(SimpleNamespace(frame=None), SimpleNamespace(budget=Budget()))
+    assert found.beyond is not None and found.inside is None
+    assert made == [] and cancelled == [1]  # skipped, and what was started ahead for it told to stop
+    assert sources["other grids"].startswith("not run: a pose beyond the stated region is trusted")
+    assert sources["rotation samples"] == "none in the region"  # a stage that heeds the guess still runs
+
+
 def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_and_stops_when_cancelled():
     import threading
 

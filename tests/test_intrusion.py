@@ -15,6 +15,7 @@ from rangereg.core.intrusion import (
     MAX_INTRUSION,
     MAX_LOOKED_THROUGH,
     VIEW_NEIGHBOURS,
+    VIEW_POINTS,
     counts,
     hull_planes,
     intruding_share,
@@ -269,6 +270,21 @@ def test_points_in_front_of_a_single_views_surface_are_looked_through_and_behind
     assert looked_through_view(aside * 0.5, view) == 0.0
     half = np.r_[on * 0.5, aside * 0.5]  # the share is of the points judged
     assert looked_through_view(half, view) == 1.0
+
+
+def test_a_single_view_larger_than_its_sample_still_judges_every_direction_it_saw():
+    # 90k points, more than the view keeps (VIEW_POINTS): the reach follows the sample's own gaps, so no direction
+    # of the wall falls between two sampled ones unjudged
+    g = np.arange(-1.0, 1.0, 2.0 / 300)
+    u, v = np.meshgrid(g, g)
+    wall = Scan(points=np.c_[u.ravel(), v.ravel(), np.full(u.size, 3.0)], viewpoint=np.zeros(3), name="big wall",
+                units="m", kind=ScanKind.SINGLE_VIEW, grid=RangeGrid(np.arange(u.size).reshape(u.shape)))
+    assert len(wall.points) > VIEW_POINTS
+    view = seen_view(wall)
+    assert len(view.ranges) == VIEW_POINTS
+    on = wall.points[np.random.default_rng(1).choice(len(wall.points), 2000, replace=False)]
+    assert looked_through_view(on, view) == 0.0 and looked_through_view(on * 1.5, view) == 0.0
+    assert looked_through_view(np.r_[on, on * 0.5], view) == 0.5  # every one of the 4000 judged
 
 
 def test_the_single_view_share_agrees_with_a_brute_force_look_up():

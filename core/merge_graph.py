@@ -129,30 +129,36 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float,
 
 
 def alike(c: _Campaign, p: tuple[int, int], q: tuple[int, int]) -> bool:
-    """Whether pairs p and q (keys either way round), neither trusted, share a scan that both leave free along
-    one motion: each slid along its free motion (its overlap's weakest, core.threshold.Constraint) moves the shared
-    scan's points against its partner alike, |cosine| >= ALONG_THE_FREE_MOTION (a pair whose overlap pins every
-    motion has none: False). Their triangle then closes wherever along that motion both ended, and says nothing of
-    where. Measured (2026-12-06, benchmarks/sequences.py, RGB-D at 0.2 m, seed 0): frame 7's no-guess pairs onto
-    frames 10 and 11, 0.50 and 0.54 m along one slide, 0.9997; on the simulated turntable's crops 0 the refused
-    triangles were 0.98-0.995, and no campaign there placed a scan differently."""
+    """Whether pairs p and q (keys either way round), neither trusted, share a scan that both leave free along one
+    motion: among the motions each pair's overlap pins least (core.threshold.Constraint.weak: the weakest, and any as
+    weak where a plane leaves several), slid, one that moves the shared scan's points against its partner as one of
+    the other's does, |cosine| >= ALONG_THE_FREE_MOTION (the two sets' nearest directions; a pair whose overlap pins
+    every motion has none: False). Their triangle then closes wherever along that motion both ended, and says
+    nothing of where. Measured (2026-12-06, benchmarks/sequences.py, RGB-D at 0.2 m, seed 0): frame 7's no-guess
+    pairs onto frames 10 and 11, 0.50 and 0.54 m along one slide, 0.9997; on the simulated turntable's crops 0 the
+    refused triangles were 0.98-0.995, and the crop campaigns placed as many scans right before and after."""
     p, q = (k if k in c.pairs else k[::-1] for k in (p, q))
     if p == q or c.pairs[p].free is None or c.pairs[q].free is None:
         return False
     (s,) = set(p) & set(q)
     scan = c.scans[s]
     pts = scan.points[::max(1, len(scan.points) // 2000)]
-    moves = [apply(slid_scan(c.pairs[k], s, c.spacing), pts) - pts for k in (p, q)]
-    size = float(np.linalg.norm(moves[0]) * np.linalg.norm(moves[1]))
-    cosine = abs(float(np.sum(moves[0] * moves[1]))) / size if size > 0 else 0.0
-    return cosine >= ALONG_THE_FREE_MOTION
+    bases = []
+    for k in (p, q):
+        moves = np.stack([(apply(slid_scan(c.pairs[k], s, c.spacing, v), pts) - pts).ravel()
+                          for v in c.pairs[k].free.weak()], axis=1)
+        basis, r = np.linalg.qr(moves)
+        bases.append(basis[:, np.abs(np.diag(r)) > 1e-12 * max(float(np.abs(r).max()), 1e-300)])
+    if not all(b.shape[1] for b in bases):
+        return False
+    return float(np.linalg.svd(bases[0].T @ bases[1], compute_uv=False).max()) >= ALONG_THE_FREE_MOTION
 
 
-def slid_scan(pair: PairResult, s: int, step: float) -> np.ndarray:
-    """(4, 4) scan s of ``pair`` moved against the pair's other scan by ``step`` units along the pair's free motion,
-    in s's own frame (s's points p go to M p)."""
+def slid_scan(pair: PairResult, s: int, step: float, motion: np.ndarray | None = None) -> np.ndarray:
+    """(4, 4) scan s of ``pair`` moved against the pair's other scan by ``step`` units along the pair's free motion
+    (or ``motion``, core.threshold.Constraint.slid), in s's own frame (s's points p go to M p)."""
     T = pair.T_i_j
-    T_slid = pair.free.slid(T, np.array([step]))[0]
+    T_slid = pair.free.slid(T, np.array([step]), motion)[0]
     return invert(T) @ T_slid if s == pair.j else T @ invert(T_slid)
 
 

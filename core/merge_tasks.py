@@ -247,7 +247,7 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
         if rot < 1.0 and move < 2 * spacing:  # a polish only polishes: one that wanders is not taken
             T = P
     d = res.details
-    free = d.constraint if d is not None and not trusted and not d.pinned else None
+    free = d.constraint if d is not None and not trusted and not d.pinned and d.constraint.matched else None
     return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
                        res.stop, time.perf_counter() - t0, free=free)
 

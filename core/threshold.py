@@ -113,11 +113,6 @@ CONSTRAINT_NEIGHBOURS = 30
 # fragments' 0.021 and the bound 0.0055, just above the bowl. So the bowl is the one object near the bound.
 MIN_CONSTRAINT = 0.0028
 
-# A pose lower than a weakly pinned one it is compared with lies along that pose's free motion when their move
-# is this close to it (Constraint.alignment) (|cosine| in the pair threshold's units): the
-# slides the rise tests judged already. Measured (2026-12-06): the sim-fragments-0 truth and the slides 0.2-0.8 m
-# along the room that score below it, 0.998-0.999; the 15-frame fragments' half turn against the truth, 0.
-ALONG_THE_FREE_MOTION = 0.95
 # A panorama's matched points are another matter: on its own surface (core.panorama, measured since it exists) a
 # corridor of planes is not free by this ratio. benchmarks/slid_guesses.py (guesses slid 6-36 m along the corridor,
 # both seeds) ends 0.38-8.7 m along it with ratios 0.0027-0.0053, and 9 of 16 were trusted (the capped score rises
@@ -191,6 +186,14 @@ def weak_below_of(target: Scan) -> float:
     return WEAK_BELOW_UNSTRUCTURED if target.kind is ScanKind.UNSTRUCTURED else WEAK_BELOW
 
 
+# A pose lower than a weakly pinned one it is compared with lies along that pose's free motion when their move
+# is this close to it (|cosine| in the pair threshold's units, Constraint.alignment): the slides the rise tests
+# judged already. Measured (2026-12-06): the sim-fragments-0 truth and the slides 0.2-0.8 m along the room that
+# score below it, 0.998-0.999; the 15-frame fragments' half turn against the truth, 0. A campaign reuses the bound,
+# not measured for it, for two pairs' free motions of the scan they share (core.merge_graph.alike).
+ALONG_THE_FREE_MOTION = 0.95
+
+
 @dataclass(frozen=True)
 class Constraint:
     """What the matched overlap pins at a pose: eigenvalues (6,) of the unit-free point-to-plane system, smallest
@@ -206,6 +209,17 @@ class Constraint:
     radius: float = 1.0  # their RMS distance from it: the rotation's unit in ``weakest``
     rise: float | None = None  # the score's rise along the weakest motion (notes above); None: not tried
     stable_rise: float | None = None  # the same, weighted by what each point pins of it (notes above); None: not tried
+    # (6, 6) every eigenvector, a column each beside ``eigenvalues`` (the first is ``weakest``); None: not kept
+    vectors: np.ndarray | None = field(default=None, repr=False)
+
+    def weak(self, below: float = WEAK_BELOW) -> np.ndarray:
+        """(k, 6) the motions the overlap pins least: the eigenvectors whose eigenvalue is under ``below`` x the
+        largest, at least the weakest (a plane alone leaves three)."""
+        if self.vectors is None or not self.eigenvalues[-1] > 0:
+            return self.weakest[None]
+        keep = self.eigenvalues < below * self.eigenvalues[-1]
+        keep[0] = True
+        return self.vectors[:, keep].T
 
     @property
     def free_motion(self) -> str:
@@ -228,10 +242,12 @@ class Constraint:
         """Whether the score of the points that pin the weakest motion rises along it by MIN_STABLE_RISE."""
         return self.stable_rise is not None and self.stable_rise >= MIN_STABLE_RISE
 
-    def slid(self, T: np.ndarray, distances: np.ndarray) -> np.ndarray:
-        """(S, 4, 4) pose T (4, 4) moved along the weakest motion (its translation and its rotation about
-        ``center``, target frame) so that the matched points move ~``distances`` (S,) (units) each."""
-        v = self.weakest / np.linalg.norm(self.weakest)
+    def slid(self, T: np.ndarray, distances: np.ndarray, motion: np.ndarray | None = None) -> np.ndarray:
+        """(S, 4, 4) pose T (4, 4) moved along the weakest motion (or ``motion`` (6,), in its units: translation,
+        then rotation about ``center`` in units of ``radius``; target frame) so that the matched points move
+        ~``distances`` (S,) (units) each."""
+        v = self.weakest if motion is None else np.asarray(motion, dtype=np.float64)
+        v = v / np.linalg.norm(v)
         out = np.repeat(np.asarray(T, dtype=np.float64)[None], len(distances), axis=0)
         for k, s in enumerate(np.asarray(distances, dtype=np.float64)):
             R = rotation_matrix(v[3:] * s / self.radius)
@@ -337,7 +353,7 @@ def point_to_plane_system(q: np.ndarray, n: np.ndarray) -> Constraint:
     vals, vecs = np.linalg.eigh(J.T @ J / len(q))
     vals = np.clip(vals, 0.0, None)
     ratio = float(vals[0] / vals[-1]) if vals[-1] > 0 else 0.0
-    return Constraint(vals, vecs[:, 0], ratio, len(q), c, L)
+    return Constraint(vals, vecs[:, 0], ratio, len(q), c, L, vectors=vecs)
 
 
 @dataclass(frozen=True)

@@ -117,30 +117,45 @@ def test_an_untrusted_pair_is_used_where_a_triangle_with_a_trusted_pair_corrobor
     assert used[4, 6].status is PairStatus.REJECTED and used[4, 6].rejection is Rejection.NOT_TRUSTED
 
 
-def _free_along(camp, i, j, move_j) -> Constraint:
-    """A constraint of pair (i, j) that leaves free a translation ``move_j`` (3,) of scan j (in j's frame)."""
-    R_i_j = _truth(camp, i, j)[:3, :3]
-    return Constraint(np.r_[1e-4, np.ones(5)], np.r_[R_i_j @ move_j, 0.0, 0.0, 0.0], 1e-4, 500, np.zeros(3), 1.0)
+def _free(camp, i, j, moves: list[np.ndarray], of: int) -> Constraint:
+    """A constraint of pair (i, j) whose weakest motions are the translations ``moves`` (each (3,)) of scan ``of`` (i or
+    j), each in that scan's own frame: the constraint's frame is the target's, i's."""
+    R = _truth(camp, i, j)[:3, :3] if of == j else np.eye(3)
+    free = [np.r_[R @ m, 0.0, 0.0, 0.0] for m in moves]
+    vectors = np.linalg.qr(np.column_stack(free + list(np.eye(6))))[0][:, :6]  # spanning the free ones first
+    values = np.r_[[1e-4] * len(moves), np.ones(6 - len(moves))]
+    return Constraint(values, vectors[:, 0], 1e-4, 500, np.zeros(3), 1.0, vectors=vectors)
 
 
-@pytest.mark.parametrize("frees", [("same", False), ("apart", True), ("pinned", True)])
-def test_two_pairs_free_along_one_motion_of_the_scan_they_share_do_not_vouch_for_each_other(camp, frees):
-    # (3, 5) and (4, 5), neither trusted, close their triangle with the trusted (3, 4); where both leave scan 5 free
+LAYOUTS = {"its source": ((3, 5), (4, 5), (3, 4)), "its target": ((3, 4), (3, 5), (4, 5)),
+           "one of each": ((3, 5), (5, 6), (3, 6))}
+X, Y, Z = np.eye(3)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("how, vouched", [("same", False), ("apart", True), ("pinned", True),
+                                          ("a plane's, one shared", False), ("planes, none shared", True)])
+def test_two_pairs_free_along_one_motion_of_the_scan_they_share_do_not_vouch_for_each_other(camp, layout, how,
+                                                                                          vouched):
+    # two pairs, neither trusted, close their triangle with a trusted one; where both leave the scan they share free
     # to slide one way they would close it as well slid alike (two views of a floor and a wall: the RGB-D drives'
     # frames placed 7-14 cm along a wall), so they corroborate nothing; free along different ways, they pin it
-    how, vouched = frees
+    p, q, trusted = LAYOUTS[layout]
+    (shared,) = set(p) & set(q)
     c = _campaign(camp)
-    for i in range(4):
-        _pair(c, camp, i, i + 1)
-    for i in (3, 4):
-        _pair(c, camp, i, 5, trusted=False, misfit=0.6, stop=BOUND)
-    x, y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
-    if how != "pinned":
-        c.pairs[3, 5] = replace(c.pairs[3, 5], free=_free_along(camp, 3, 5, x))
-        c.pairs[4, 5] = replace(c.pairs[4, 5], free=_free_along(camp, 4, 5, x if how == "same" else y))
+    _pair(c, camp, *trusted)
+    for i, j in (p, q):
+        _pair(c, camp, i, j, trusted=False, misfit=0.6, stop=BOUND)
+    _pair(c, camp, 0, 1)  # the level's trusted pairs: three at misfit 0.5
+    _pair(c, camp, 1, 2)
+    moves = {"same": ([X], [X]), "apart": ([X], [Y]), "a plane's, one shared": ([X], [Y, X]),
+             "planes, none shared": ([X, Z], [Y])}.get(how)
+    if moves is not None:
+        for (i, j), m in zip((p, q), moves):
+            c.pairs[i, j] = replace(c.pairs[i, j], free=_free(camp, i, j, m, shared))
     s = merge_graph.screen(c)
-    assert (sorted(s.corroborated) == [(3, 5), (4, 5)]) is vouched
-    assert merge_graph.alike(c, (3, 5), (4, 5)) is (how == "same")
+    assert sorted(s.corroborated) == (sorted([p, q]) if vouched else [])
+    assert merge_graph.alike(c, p, q) is (not vouched) and merge_graph.alike(c, q[::-1], p) is (not vouched)
 
 
 # ---- rounds ----

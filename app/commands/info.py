@@ -25,31 +25,54 @@ def run(a: Namespace) -> int:
         raise InputError("--viewpoint is for one scan: give it with one file")
     from rangereg.app.cli import _failed
 
-    status = 0
-    for k, path in enumerate(paths):
+    status, said = 0, False
+    for path in paths:
         try:
-            describe(a, path)
-        except BrokenPipeError:
-            raise
-        except (InputError, OSError, MemoryError) as exc:  # said in one line; the other files are still described
+            scan = read(a, path)
+        except OSError as exc:
+            if exc.filename is None:  # not the file's: the output's (a full disk, a closed pipe)
+                raise
             status = _failed("info", exc)
             continue
-        if not a.json and k < len(paths) - 1:
+        except (InputError, MemoryError) as exc:  # said in one line; the other files are still described
+            status = _failed("info", exc)
+            continue
+        if said and not a.json:
             print()  # a blank line between two descriptions
+        show(a, path, scan)
+        said = True
     return status
 
 
 def describe(a: Namespace, path: str) -> int:
     """Print the description of one scan file (``path``; an E57 without ``#K``: its list of scans)."""
-    from rangereg.core.assemble import kind_text, units_text, viewpoint_text
-    from rangereg.core.e57 import SUFFIX, split_selection
+    show(a, path, read(a, path))
+    return 0
+
+
+def read(a: Namespace, path: str):
+    """What ``path`` holds: its Scan, or for an E57 without ``#K`` the list of its scans' headers (core.e57)."""
+    from rangereg.core.e57 import SUFFIX, list_scans, split_selection
+    from rangereg.core.errors import InputError
     from rangereg.core.io import load_scan
-    from rangereg.core.scan import Origin
 
     file, selector = split_selection(path)
     if file.suffix.lower() == SUFFIX and selector is None:
-        return list_e57(a, file)
-    scan = load_scan(path, viewpoint=a.viewpoint, kind=getattr(a, "scan_kind", None))
+        if a.viewpoint is not None:
+            raise InputError(f"{file}: --viewpoint is for one scan; pick it with {file}#K")
+        return list_scans(file)
+    return load_scan(path, viewpoint=a.viewpoint, kind=getattr(a, "scan_kind", None))
+
+
+def show(a: Namespace, path: str, scan) -> None:
+    """Print what :func:`read` gave for ``path``."""
+    from rangereg.core.assemble import kind_text, units_text, viewpoint_text
+    from rangereg.core.e57 import split_selection
+    from rangereg.core.scan import Origin
+
+    if isinstance(scan, list):
+        list_e57(a, split_selection(path)[0], scan)
+        return
     tri, why_not = _triangles(scan, a.triangles)
     has_vp = scan.viewpoint_from is not Origin.NONE
     info = {"file": str(path), "points": len(scan.points), "bounds": [scan.points.min(0).tolist(), scan.points.max(0).tolist()],
@@ -63,7 +86,7 @@ def describe(a: Namespace, path: str) -> int:
             "ground_truth": scan.pose is not None, "stored_pose": scan.guess is not None, "notes": list(scan.notes)}
     if a.json:
         print(json.dumps(info))
-        return 0
+        return
     lo, hi = info["bounds"]
     dropped = [f"{scan.dropped} NaN/inf"] if scan.dropped else []
     dropped += [f"{scan.at_sensor} on the sensor (no return)"] if scan.at_sensor else []
@@ -86,7 +109,6 @@ def describe(a: Namespace, path: str) -> int:
         print(f"  stored pose {_pose_text(scan.guess)} (the rough guess)")
     for note in scan.notes:
         print(f"  note        {note}")
-    return 0
 
 
 def _triangles(scan, asked: bool) -> tuple[int | None, str]:
@@ -115,14 +137,9 @@ def _pose_text(T: np.ndarray) -> str:
     return f"t={np.round(T[:3, 3], 4).tolist()} rotation {np.degrees(rotation_angle(T[:3, :3])):.2f} deg"
 
 
-def list_e57(a: Namespace, path) -> int:
-    """The scans of an E57 file from its headers: index, name, points, coordinates, grid, pose."""
-    from rangereg.core.e57 import list_scans
-    from rangereg.core.errors import InputError
-
-    if a.viewpoint is not None:
-        raise InputError(f"{path}: --viewpoint is for one scan; pick it with {path}#K")
-    entries = list_scans(path)
+def list_e57(a: Namespace, path, entries: list) -> int:
+    """The scans of an E57 file from its headers (``entries``, core.e57.list_scans): index, name, points,
+    coordinates, grid, pose."""
     if a.json:
         print(json.dumps({"file": str(path), "scans": [
             {"index": e.index, "name": e.name, "points": e.points, "coordinates": e.coordinates,

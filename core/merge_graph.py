@@ -81,15 +81,19 @@ def screen(c: _Campaign) -> Screened:
                 why[k] = (Rejection.OUTLIER, f"misfit far above the other trusted pairs' ({p.misfit:.3g}, "
                                              f"{p.misfit / typical:.3g} x their median)")
     usable = [k for k in trusted if k not in why]
-    corroborated = corroborate(c, usable, bound, error_bound) if bound and error_bound else {}
+    refused: dict[tuple[int, int], str] = {}
+    corroborated = corroborate(c, usable, bound, error_bound, refused) if bound and error_bound else {}
     for k in corroborated:
         del why[k]
+    for k, note in refused.items():
+        why[k] = (why[k][0], why[k][1] + note)
     return Screened(usable + sorted(corroborated), why, corroborated)
 
 
-def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float,
-                error_bound: float) -> dict[tuple[int, int], str]:
-    """The untrusted pairs the campaign corroborates (module notes), each with the triangle's words.
+def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error_bound: float,
+                refused: dict[tuple[int, int], str] | None = None) -> dict[tuple[int, int], str]:
+    """The untrusted pairs the campaign corroborates (module notes), each with the triangle's words; ``refused``
+    receives, for a pair not corroborated whose triangle closed, why that triangle did not count (:func:`alike`).
 
     ``usable``: the trusted pairs kept so far; ``bound``, ``error_bound``: the misfit and the E (squared
     units) of the trusted pairs' level (the outlier bounds). Measured on the 24-stop simulated
@@ -98,6 +102,7 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float,
     right (0.2-0.7 deg off); a triangle closed by any registered pairs would have let in 2 wrong ones too
     (a crop flipped 171 deg onto two neighbouring scans; misfit 3.6 and 7.3, the bound 1.7). From no
     poses: 180 untrusted, 14 at the level, all right, 9 corroborated."""
+    refused = {} if refused is None else refused
     level = set(usable) | {k for k, p in c.pairs.items() if not p.trusted and p.registered and p.misfit is not None
                             and p.misfit <= bound and p.error <= error_bound}
     trusted = set(usable)
@@ -121,10 +126,19 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float,
             if T_i_k is None or T_k_j is None or not (on_trust(i, k) or on_trust(k, j)):
                 continue
             rot, move = residual(c.pairs[i, j].T_i_j, np.eye(4), T_i_k @ T_k_j, c.centers[j])
-            if tol.holds((rot, move)) and not alike(c, (i, j), (i, k) if on_trust(k, j) else (k, j)):
-                out[i, j] = (f"not trusted alone (misfit {c.pairs[i, j].misfit:.3g}); used: it closes the loop "
-                             f"through {c.scans[k].name} within {rot:.2g} deg / {move:.3g}")
-                break
+            if not tol.holds((rot, move)):
+                continue
+            other = (i, k) if on_trust(k, j) else (k, j)
+            if alike(c, (i, j), other):
+                shared = c.scans[(set(other) & {i, j}).pop()].name
+                refused.setdefault((i, j), f"; it closes the loop through {c.scans[k].name}, but it and the pair "
+                                           f"{c.scans[other[0]].name}-{c.scans[other[1]].name}, not trusted either, "
+                                           f"leave {shared} free along one motion (the loop says nothing of where)")
+                continue
+            out[i, j] = (f"not trusted alone (misfit {c.pairs[i, j].misfit:.3g}); used: it closes the loop "
+                         f"through {c.scans[k].name} within {rot:.2g} deg / {move:.3g}")
+            refused.pop((i, j), None)
+            break
     return out
 
 

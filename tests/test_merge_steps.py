@@ -155,6 +155,8 @@ def test_two_pairs_free_along_one_motion_of_the_scan_they_share_do_not_vouch_for
             c.pairs[i, j] = replace(c.pairs[i, j], free=_free(camp, i, j, m, shared))
     s = merge_graph.screen(c)
     assert sorted(s.corroborated) == (sorted([p, q]) if vouched else [])
+    if not vouched:  # the report says why the loop did not count
+        assert all("free along one motion" in s.why[k][1] and s.why[k][0] is Rejection.NOT_TRUSTED for k in (p, q))
     assert merge_graph.alike(c, p, q) is (not vouched) and merge_graph.alike(c, q[::-1], p) is (not vouched)
 
 

@@ -144,13 +144,14 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
 
 def alike(c: _Campaign, p: tuple[int, int], q: tuple[int, int]) -> bool:
     """Whether pairs p and q (keys either way round), neither trusted, share a scan that both leave free along one
-    motion: among the motions each pair's overlap pins least (core.threshold.Constraint.weak: the weakest, and any as
-    weak where a plane leaves several), slid, one that moves the shared scan's points against its partner as one of
-    the other's does, |cosine| >= ALONG_THE_FREE_MOTION (the two sets' nearest directions; a pair whose overlap pins
-    every motion has none: False). Their triangle then closes wherever along that motion both ended, and says
-    nothing of where. Measured (2026-12-06, benchmarks/sequences.py, RGB-D at 0.2 m, seed 0): frame 7's no-guess
-    pairs onto frames 10 and 11, 0.50 and 0.54 m along one slide, 0.9997; on the simulated turntable's crops 0 the
-    refused triangles were 0.98-0.995, and the crop campaigns placed as many scans right before and after."""
+    motion: among the motions each pair's overlap leaves free (core.threshold.Constraint.weak: the weakest, and
+    any other free by the eigenvalue ratio alone, as a plane leaves three), slid, one that moves the shared scan's
+    points against its partner as one of the other's does, |cosine| >= ALONG_THE_FREE_MOTION (the two sets'
+    nearest directions; a pair whose overlap pins every motion has none: False). Their triangle then closes
+    wherever along that motion both ended, and says nothing of where. Measured (2026-12-06,
+    benchmarks/sequences.py, RGB-D at 0.2 m, seed 0): frame 7's no-guess pairs onto frames 10 and 11, 0.50 and
+    0.54 m along one slide, 0.9997; on the simulated turntable's crops 0 the refused triangles were 0.98-0.995,
+    and the crop campaigns placed as many scans right before and after."""
     p, q = (k if k in c.pairs else k[::-1] for k in (p, q))
     if p == q or c.pairs[p].free is None or c.pairs[q].free is None:
         return False

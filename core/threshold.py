@@ -212,9 +212,10 @@ class Constraint:
     # (6, 6) every eigenvector, a column each beside ``eigenvalues`` (the first is ``weakest``); None: not kept
     vectors: np.ndarray | None = field(default=None, repr=False)
 
-    def weak(self, below: float = WEAK_BELOW) -> np.ndarray:
-        """(k, 6) the motions the overlap pins least: the eigenvectors whose eigenvalue is under ``below`` x the
-        largest, at least the weakest (a plane alone leaves three)."""
+    def weak(self, below: float = MIN_CONSTRAINT) -> np.ndarray:
+        """(k, 6) the motions the overlap leaves free: the weakest (the one the rise tests ask of), and any other
+        whose eigenvalue is under ``below`` x the largest (free by the ratio alone: a plane leaves three). Those
+        between ``below`` and WEAK_BELOW are not counted: the pair threshold asks a rise of the weakest only."""
         if self.vectors is None or not self.eigenvalues[-1] > 0:
             return self.weakest[None]
         keep = self.eigenvalues < below * self.eigenvalues[-1]

@@ -112,7 +112,6 @@ CONSTRAINT_NEIGHBOURS = 30
 # Left out one at a time every case keeps its side except the bowl: without it the lowest pinned truth is the
 # fragments' 0.021 and the bound 0.0055, just above the bowl. So the bowl is the one object near the bound.
 MIN_CONSTRAINT = 0.0028
-
 # A panorama's matched points are another matter: on its own surface (core.panorama, measured since it exists) a
 # corridor of planes is not free by this ratio. benchmarks/slid_guesses.py (guesses slid 6-36 m along the corridor,
 # both seeds) ends 0.38-8.7 m along it with ratios 0.0027-0.0053, and 9 of 16 were trusted (the capped score rises

@@ -188,8 +188,6 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
             doubted()
 
 
-
-
 def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:
     """Whether a pose among ``refined``, distinct from T (core.candidates.CandidateConfig's distinct
     rotation and translation) and overlapping both ways, scores lower than T on the basis: T is then not

@@ -8,14 +8,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from rangereg.core import merge_graph, merge_groups, merge_pairs, merge_report, merge_rounds
+from rangereg.core import merge_graph, merge_groups, merge_pairs, merge_report, merge_rounds, merge_tasks
 from rangereg.core.merge import MergeConfig, _Campaign, serial_map
 from rangereg.core.merge_progress import Counter, MergeProgress, Step
 from rangereg.core.merge_result import PairResult, PairStatus, Rejection, ScanStatus, Start
 from rangereg.core.register import Config
 from rangereg.core.result import Stop, StopReason
 from rangereg.core.threshold import Constraint
-from rangereg.core.transforms import from_params, invert
+from rangereg.core.transforms import apply, from_params, invert, pose_error
 from rangereg.core.turntable import arc_ends, make_campaign, shared_axis
 
 from tests.test_campaign import SMALL
@@ -45,6 +45,40 @@ def _pair(c, camp, i, j, trusted=True, misfit=0.5, error=1e-3, T=None, stop=TRUS
     c.pairs[i, j] = PairResult(i, j, _truth(camp, i, j) if T is None else T, error, 0.5, trusted, misfit, True, 0.1,
                                1, start, stop=stop if not failure else None, failure=failure)
     c.tried[i, j] = c.tried.get((i, j), 0) + 1
+
+
+# ---- the polish of a trusted pair ----
+
+def _turned(camp, i, j, degrees: float) -> np.ndarray:
+    """The true T_i_j turned by ``degrees`` about the moved source's centroid (a trusted pose that far off)."""
+    T = _truth(camp, i, j)
+    c = apply(T, camp.scans[j].centroid[None])[0]
+    R = from_params(np.r_[0.0, 0.0, 0.0, np.radians(degrees) * np.array([0.6, 0.0, 0.8])])
+    D = np.eye(4)
+    D[:3, :3], D[:3, 3] = R[:3, :3], c - R[:3, :3] @ c
+    return D @ T
+
+
+@pytest.mark.parametrize("degrees", [0.3, 1.5])
+def test_the_polish_of_a_trusted_pair_is_taken_where_it_only_polishes(camp, degrees):
+    # 1.5 deg: a larger step than the polish is taken for alone (POLISH_STEP_DEG), taken because more of the pair
+    # matches after it (as on the RGB-D drives, where a trusted pair 1.5 deg off was polished to 0.02 and refused)
+    c = _campaign(camp)
+    task = merge_tasks.PairTask(1, 2, np.eye(4), 15.0, None)
+    T = _turned(camp, 1, 2, degrees)
+    assert (pose_error(T, _truth(camp, 1, 2))[0] >= merge_tasks.POLISH_STEP_DEG) == (degrees > 1)
+    P = merge_tasks.polished(c.shared, task, T)
+    assert pose_error(P, _truth(camp, 1, 2))[0] < 0.25
+
+
+def test_a_polish_that_wanders_off_the_pair_is_not_taken(camp, monkeypatch):
+    c = _campaign(camp)
+    task = merge_tasks.PairTask(1, 2, np.eye(4), 15.0, None)
+    T = _turned(camp, 1, 2, 0.2)
+    slid = np.eye(4)
+    slid[:3, 3] = 10 * camp.scans[2].spacing * np.array([0.0, 0.6, 0.8])
+    monkeypatch.setattr(merge_tasks, "polish", lambda *args, **kwargs: slid @ T)
+    assert merge_tasks.polished(c.shared, task, T) is T
 
 
 # ---- pairs ----

@@ -320,6 +320,24 @@ def test_a_view_widens_with_the_angle(room_pair, kind):
     assert masks[-1].all() and masks[-2].sum() > masks[0].sum()
 
 
+def test_a_cloud_view_says_which_points_lie_within_a_distance_as_brute_force_does():
+    # the coarse subset (core.unstructured.COARSE_CELL_NEARS) only decides which points the whole tree is asked about
+    from scipy.spatial.distance import cdist
+
+    rng = np.random.default_rng(11)
+    xy = rng.uniform(-2, 2, (6000, 2))
+    pts = np.r_[np.c_[xy, 0.3 * np.sin(xy[:, 0]) * np.cos(xy[:, 1])], rng.uniform(2.5, 3.0, (20, 3))]  # and a speck
+    view = frustum_of(Scan(points=pts, viewpoint=np.zeros(3), units="m", kind=ScanKind.UNSTRUCTURED))
+    q = np.r_[rng.uniform(-4, 4, (3000, 3)), pts[rng.integers(0, len(pts), 500)] + rng.normal(0, 0.05, (500, 3))]
+    nearest = cdist(q, pts).min(axis=1)
+    for distance in (view.near, 2 * view.near, 10 * view.near, 0.5, 1.5):
+        clear = np.abs(nearest - distance) > 1e-9  # no tie at the bound
+        got = view.contains(q) if distance == view.near else view.guessed(None, q, np.zeros(len(q), bool),
+                                                                           distance - view.near)
+        assert np.array_equal(got[clear], (nearest <= distance)[clear])
+        assert 0 < got.sum() < len(q)
+
+
 def test_a_panorama_hides_what_lies_behind_its_surface(room_pair):
     scan = room_pair[1]
     view = frustum_of(scan)

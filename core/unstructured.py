@@ -298,7 +298,7 @@ class CloudView:
         rest = np.arange(len(pts))
         if distance > self.near and len(self.tree.data) > COARSE_MIN_POINTS:
             coarse, reach = self._coarse
-            d, _ = coarse.query(pts, distance_upper_bound=distance + reach)
+            d, _ = coarse.query(pts, distance_upper_bound=distance + reach, workers=-1 if len(pts) > PARALLEL_QUERY else 1)
             inside = d <= distance  # a point of the subset is a point of the cloud
             rest = np.flatnonzero(np.isfinite(d) & ~inside)
         if len(rest):

@@ -281,7 +281,10 @@ class CloudView:
         cell = COARSE_CELL_NEARS * self.near
         keys = np.floor((pts - pts.min(0)) / cell).astype(np.int64)
         dims = keys.max(0) + 1
-        _, first = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2], return_index=True)
+        if float(np.prod(dims.astype(np.float64))) < 2.0**62:  # one int64 a cube: a 1-D unique, ~20 x faster
+            _, first = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2], return_index=True)
+        else:
+            _, first = np.unique(keys, axis=0, return_index=True)
         return cKDTree(pts[np.sort(first)]), cell * np.sqrt(3.0) * (1 + 1e-9)
 
     def _within(self, points: np.ndarray, distance: float) -> np.ndarray:
@@ -296,10 +299,10 @@ class CloudView:
         pts = np.asarray(points, dtype=np.float64)
         inside = np.zeros(len(pts), dtype=bool)
         rest = np.arange(len(pts))
-        if distance > self.near and len(self.tree.data) > COARSE_MIN_POINTS:
+        if distance > self.near > 0 and len(self.tree.data) > COARSE_MIN_POINTS:
             coarse, reach = self._coarse
             d, _ = coarse.query(pts, distance_upper_bound=distance + reach, workers=-1 if len(pts) > PARALLEL_QUERY else 1)
-            inside = d <= distance  # a point of the subset is a point of the cloud
+            inside = d < distance  # a point of the subset is a point of the cloud (strictly within: as the tree's bound)
             rest = np.flatnonzero(np.isfinite(d) & ~inside)
         if len(rest):
             d, _ = self.tree.query(pts[rest], distance_upper_bound=distance,

@@ -334,8 +334,21 @@ def test_a_cloud_view_says_which_points_lie_within_a_distance_as_brute_force_doe
         clear = np.abs(nearest - distance) > 1e-9  # no tie at the bound
         got = view.contains(q) if distance == view.near else view.guessed(None, q, np.zeros(len(q), bool),
                                                                            distance - view.near)
-        assert np.array_equal(got[clear], (nearest <= distance)[clear])
+        assert np.array_equal(got[clear], (nearest < distance)[clear])
         assert 0 < got.sum() < len(q)
+
+
+def test_a_cloud_view_settles_the_shell_and_the_ties_at_its_bound_as_its_whole_tree_does():
+    # a grid 1 apart (near 3, cubes of 9): the first point of each cube stands for it; a query within the distance of
+    # a point its cube's first point is far from is inside, one exactly at the distance of a point is not (the whole
+    # tree's strict bound)
+    xy = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), indexing="ij"), axis=-1).reshape(-1, 2)
+    view = frustum_of(Scan(points=np.c_[xy, np.zeros(len(xy))], viewpoint=np.zeros(3), units="m",
+                           kind=ScanKind.UNSTRUCTURED))
+    assert view.near == 3.0
+    q = np.array([[8.0, 8.0, 4.99], [9.0, 9.0, 5.0], [4.0, 4.0, 5.01]])
+    got = view.guessed(None, q, np.zeros(len(q), bool), 2.0)
+    assert got.tolist() == [True, False, False]
 
 
 def test_a_panorama_hides_what_lies_behind_its_surface(room_pair):

@@ -47,7 +47,8 @@ POLISH_SETTLED_SPACINGS = 1e-3
 # families and its crops from rough poses, the bunny campaigns) one other moved that far: a crop pair trusted 150 deg
 # off, polished 9.3 deg further while less of it matched (0.502 -> 0.481; the graph did not use the pair). The 421
 # small polishes changed the share by 0.015 at most (RGB-D; LiDAR rooms 0.009, the turntable, its crops and the bunny
-# 0.006), whether the pose improved or not: a rise that small says nothing, so 1-3's (0.009) is refused too.
+# 0.006), whether the pose improved or not: a rise that small says nothing, so 1-3's (0.009) is refused too
+# (benchmarks/polish_evidence.py).
 POLISH_STEP_DEG = 1.0
 POLISH_STEP_SPACINGS = 2.0
 POLISH_MORE_MATCHING = 0.02

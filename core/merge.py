@@ -152,17 +152,20 @@ class MergeConfig:
     # (frame) 2 of 125, neither used by the graph, while its 56 untrusted pairs spent 91.8 s (1.6 s each,
     # trusted ones 0.40 s median)
     first_fallback_steps: int | None = 0
-    # ... and, in round 1 from a guess (not with no guess), ends at the first weakly pinned pose it refines
-    # (core.candidates.CandidateConfig.end_on_weak): the graph uses such a pose only where a loop corroborates it
-    # (core.merge_graph.corroborate), and one not used is registered again, from the graph's pose or as first asked
-    # with every stage (core.merge_rounds). Measured, the 10-stop turntable of 40k-point scans (frame starts): 7 of
+    # ... and a registration from a guess (not with no guess) ends at the first weakly pinned pose it refines
+    # (core.candidates.CandidateConfig.end_on_weak): round 1's from the rough poses, and a later round's from the
+    # graph's pose between scans it places (core.merge_rounds: again, fresh). The graph uses such a pose only where a
+    # loop corroborates it (core.merge_graph.corroborate), and one not used is registered again, from the graph's pose
+    # or as last asked with every stage, once. Measured, the 10-stop turntable of 40k-point scans (frame starts): 7 of
     # 20 pairs weakly pinned, each spending the whole work bound (3.4-6.1 s against 0.3-1.5 s for a trusted pair), 5
-    # of the 7 ending at the first stage's pose anyway. The 24-stop turntable's crops 0 (axis starts): of the weakly
-    # pinned poses it ended at, 11 of 12 from a guess were right (the 12th 3.3 deg off), 0 of 8 with no guess
-    # (80-164 deg off): hence not with no guess. Not in later rounds: their pairs are chosen to join what round 1
-    # left apart, and each may be a group's one link (those crops: ending there too, 11 placed against 14); nor in a
-    # sequence, whose rounds do not register its odometry pairs again
-    first_ends_on_weak: bool = True
+    # of the 7 ending at the first stage's pose anyway; its graph-pose retries then spent 1.9-2.4 s each with every
+    # stage, and end at 0.54-0.55 s where a weakly pinned pose is refined (2026-12-06: 32.5 and 33.7 -> 30.0 and 31.7 s
+    # the whole command, the same poses). The 24-stop turntable's crops 0 (axis starts): of the weakly pinned poses it
+    # ended at, 11 of 12 from a guess were right (the 12th 3.3 deg off), 0 of 8 with no guess (80-164 deg off): hence
+    # not with no guess. Not a group's join (core.merge_groups): it joins what the graph left apart, and may be a
+    # group's one link (those crops, when joins ended there too: 11 placed against 14); nor a sequence's odometry,
+    # which its rounds do not register again
+    guess_ends_on_weak: bool = True
     # the pairs' time bound (core.candidates.CandidateConfig.time_limit; None: none, the search bounded by
     # its work alone, so a busy machine gives the same campaign later, not another). Measured, the 8-stop
     # turntable of 48 x 48 scans with no poses at load 9.8: with the registration's 2.5 s, neighbour pairs
@@ -222,8 +225,8 @@ class MergeConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a number > 0, got {v!r}")
-        if not isinstance(self.first_ends_on_weak, bool):
-            raise InputError(f"first_ends_on_weak must be True or False, got {self.first_ends_on_weak!r}")
+        if not isinstance(self.guess_ends_on_weak, bool):
+            raise InputError(f"guess_ends_on_weak must be True or False, got {self.guess_ends_on_weak!r}")
         if self.pair_time_limit is not None and not (np.isfinite(self.pair_time_limit) and self.pair_time_limit > 0):
             raise InputError(f"pair_time_limit must be > 0 seconds (or None: no bound), got {self.pair_time_limit!r}")
         if self.found_rotation_deg > 180 or self.cycle_rotation_deg > 180:
@@ -333,8 +336,8 @@ class _Campaign:
     def go(self, build_model: bool) -> MergeResult:
         if self.mode == "sequence":
             tasks = merge_sequence.odometry_tasks(self)
-        else:  # round 1's pairs from a guess end at a weakly pinned pose (MergeConfig.first_ends_on_weak)
-            weak = self.mc.first_ends_on_weak
+        else:  # round 1's pairs from a guess end at a weakly pinned pose (MergeConfig.guess_ends_on_weak)
+            weak = self.mc.guess_ends_on_weak
             tasks = [replace(t, end_on_weak=weak and t.start is not Start.NO_GUESS) for t in merge_pairs.first_tasks(self)]
         graph = None
         if not tasks:  # no pair overlaps under the poses: the scans apart are reached by the cue at once

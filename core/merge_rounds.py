@@ -1,12 +1,14 @@
 """The merge's rounds step (core.merge): the pairs the next round registers, under the poses found.
 
 1. Again: a pair not used, registered once, whose scans match by at least ``min_overlap`` under the
-   poses found, is registered again from the graph's pose before it is given up; one whose first
-   registration ended at a weakly pinned pose (core.merge.MergeConfig.first_ends_on_weak) and that no
-   loop corroborated, where the graph's poses do not give it that second try, is registered again as
-   first asked, with every stage of the search.
+   poses found, is registered again from the graph's pose before it is given up; one whose last
+   registration ended at a weakly pinned pose (core.merge.MergeConfig.guess_ends_on_weak) and that no
+   loop corroborated, where the graph's poses do not give it that try, is registered again as last
+   asked, with every stage of the search (once a pair).
 2. Fresh: pairs that now overlap, each scan's best partners under the poses found, not registered yet (half of
    them long links in the first round chosen by overlap after the cue's: core.merge_pairs.partners).
+Both from the graph's pose, between scans it places: each ends at the first weakly pinned pose it refines, as
+round 1's from a guess (``guess_ends_on_weak``), and the next graph judges it.
 3. Groups: scans the used pairs do not join to the reference (core.merge_groups).
 
 Only pairs that could overlap under the poses found are measured (bounding spheres that meet, each
@@ -67,13 +69,15 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
     shares = c.measure(share_task, [(i, j, invert(P[i]) @ P[j]) for i, j in near], Step.OVERLAPS) if near else []
     over = dict(zip(near, shares))
     c.shares.update(over)
+    weak_ends = c.mc.guess_ends_on_weak
     tasks = []
     for (i, j), f in over.items():
         if (i, j) in c.pairs and c.tried[i, j] == 1 and f >= c.mc.min_overlap:
-            tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start=Start.GRAPH_POSE))
+            tasks.append(PairTask(i, j, invert(P[i]) @ P[j], found, None, attempt=1, start=Start.GRAPH_POSE,
+                                  end_on_weak=weak_ends))
     again = {(t.i, t.j) for t in tasks}
-    weak = [replace(c.tasks[k], attempt=1, end_on_weak=False) for k, p in sorted(c.pairs.items())
-            if k not in used and k not in again and c.tried[k] == 1 and p.stop is not None
+    weak = [replace(c.tasks[k], attempt=c.tried[k], end_on_weak=False) for k, p in sorted(c.pairs.items())
+            if k not in used and k not in again and k not in c.weak_again and p.stop is not None
             and p.stop.reason is StopReason.WEAKLY_PINNED]
     c.weak_again |= {(t.i, t.j) for t in weak}
     tasks += weak
@@ -84,7 +88,8 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
     c.long_links |= long
     for x in choose(fresh + [Candidate(i, j, 1.0) for i, j in used], c.n, "init", c.mc, long=long):
         if x.key not in c.pairs and x.key in over:
-            tasks.append(PairTask(x.i, x.j, invert(P[x.i]) @ P[x.j], found, None, start=Start.GRAPH_POSE))
+            tasks.append(PairTask(x.i, x.j, invert(P[x.i]) @ P[x.j], found, None, start=Start.GRAPH_POSE,
+                                  end_on_weak=weak_ends))
     c.skipped |= {p for p, f in over.items() if p not in c.pairs and f < c.mc.min_overlap}
     mine = {(t.i, t.j) for t in tasks}  # a pair once a round: a weakly pinned one's second try before a join's
     return tasks + [t for t in join_tasks(c, g, sorted(used)) if (t.i, t.j) not in mine]

@@ -326,10 +326,11 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
 
 def test_weakly_pinned_pairs_end_early_and_are_used_where_a_loop_corroborates_them():
     # the 10-scan campaign of the benchmark in miniature (1.6-1.9k points a scan, rough poses 15 deg about each
-    # sensor): pairs two stops apart pin their motion weakly; their first registration ends at the first such pose
-    # (core.merge.MergeConfig.first_ends_on_weak) and the graph uses those its loops corroborate
+    # sensor): pairs two stops apart pin their motion weakly; a registration from a guess (round 1's rough poses, a
+    # later round's graph pose) ends at the first such pose (core.merge.MergeConfig.guess_ends_on_weak) and the graph
+    # uses those its loops corroborate
     from rangereg.core.guess import Guess
-    from rangereg.core.merge_result import PairStatus
+    from rangereg.core.merge_result import PairStatus, Start
     from rangereg.core.result import StopReason
     from rangereg.core.transforms import invert
     from rangereg.core.turntable import rough_poses
@@ -339,7 +340,8 @@ def test_weakly_pinned_pairs_end_early_and_are_used_where_a_loop_corroborates_th
     initial = rough_poses(truth, "frame", 15.0, 0.1 * camp.size, 0)
     res = merge(camp.scans, initial, build_model=False, stated=Guess.identity(15.0))
     weak = [p for p in res.pairs if p.stop is not None and p.stop.reason is StopReason.WEAKLY_PINNED]
-    assert weak and all(p.round == 1 and not p.trusted for p in weak)
+    assert weak and not any(p.trusted for p in weak)
+    assert all((p.start is Start.ROUGH_POSES) == (p.round == 1) for p in weak)
     assert any(p.status is PairStatus.USED and "closes the loop" in p.reason for p in weak)
     for k, T in enumerate(res.poses):
         rot, move = pose_error(T, invert(truth[0]) @ truth[k], camp.scans[k].centroid)

@@ -223,6 +223,11 @@ def test_the_next_round_registers_again_from_the_graph_and_measures_only_near_pa
     again = [t for t in tasks if (t.i, t.j) == (2, 4)]
     assert len(again) == 1 and again[0].start is Start.GRAPH_POSE and again[0].attempt == 1
     assert np.allclose(again[0].T0, _truth(camp, 2, 4), atol=1e-6)  # from the graph's pose, not its own
+    # between scans the graph places, each ends at a weakly pinned pose, as round 1's from a guess: the next graph
+    # judges it (and one no loop corroborates is tried once more with every stage: below)
+    assert all(t.end_on_weak for t in tasks if t.start is Start.GRAPH_POSE)
+    c.mc = replace(c.mc, guess_ends_on_weak=False)
+    assert not any(t.end_on_weak for t in merge_rounds.next_tasks(c, g, screened))
     # pairs that match too little under the poses found are not registered
     assert all(c.shares[t.i, t.j] >= c.mc.min_overlap for t in tasks)
 
@@ -276,6 +281,30 @@ def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_ever
     assert len(tasks) == 1 and tasks[0].attempt == 1 and not tasks[0].end_on_weak
     assert tasks[0].start is Start.ROUGH_POSES and tasks[0].rotation_deg == 30.0 and np.array_equal(tasks[0].T0, T0)
     # once only: a second weakly pinned end is the pair's answer
+    _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)
+    g, screened = c.graph()
+    assert not [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (2, 5)]
+
+
+def test_a_retry_from_the_graph_that_ends_weakly_pinned_uncorroborated_gets_every_stage_once(camp):
+    from rangereg.core.merge_tasks import PairTask
+
+    c = _campaign(camp)
+    for i in range(7):
+        _pair(c, camp, i, i + 1)
+    _pair(c, camp, 0, 7)
+    weak = Stop(StopReason.WEAKLY_PINNED)
+    slid = _truth(camp, 2, 5) @ from_params(np.r_[30.0, 0, 0, 0, 0, 0])
+    _pair(c, camp, 2, 5, trusted=False, misfit=8.0, stop=BOUND)  # round 1: nothing
+    _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)  # round 2, from the graph: ended weakly pinned
+    T_graph = _truth(camp, 2, 5)
+    c.tasks[2, 5] = PairTask(2, 5, T_graph, 5.0, None, attempt=1, start=Start.GRAPH_POSE, end_on_weak=True)
+    g, screened = c.graph()
+    assert (2, 5) not in screened.usable and c.tried[2, 5] == 2
+    tasks = [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (2, 5)]
+    # as last asked (the graph's pose and region), with every stage, numbered as the pair's third registration
+    assert len(tasks) == 1 and not tasks[0].end_on_weak and tasks[0].attempt == 2
+    assert tasks[0].start is Start.GRAPH_POSE and np.array_equal(tasks[0].T0, T_graph)
     _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)
     g, screened = c.graph()
     assert not [t for t in merge_rounds.next_tasks(c, g, screened) if (t.i, t.j) == (2, 5)]

@@ -183,10 +183,11 @@ class CandidateConfig:
     fallback_steps: int | None = 300
     # End the search at the first refined pose inside the region that passes every test of the pair threshold but
     # the score's rise (core.threshold.PairThreshold.weakly_pinned), returning the best refined pose untrusted
-    # (StopReason.WEAKLY_PINNED), as a trusted one ends it. Off for a pair alone; a campaign's round-1 registrations from
-    # a guess ask for it (core.merge.MergeConfig.guess_ends_on_weak): its loops judge such a pose, which the later stages
-    # cannot (the 10-stop turntable of 40k-point scans: 7 of 20 pairs weakly pinned, each then spent the whole work
-    # bound, 3.4-6.1 s, and 5 of them came back to the first stage's pose)
+    # (StopReason.WEAKLY_PINNED), as a trusted one ends it. Off for a pair alone; a campaign's registrations from a
+    # guess (round 1's rough poses, a later round's graph pose) ask for it (core.merge.MergeConfig.guess_ends_on_weak):
+    # its loops judge such a pose, which the later stages cannot (the 10-stop turntable of 40k-point scans: 7 of 20
+    # pairs weakly pinned, each then spent the whole work bound, 3.4-6.1 s, and 5 of them came back to the first
+    # stage's pose)
     end_on_weak: bool = False
     # Seconds of search at most, from the end of the setup (None: no bound on time; the default). A user's explicit
     # choice: a bound on time, not work, so a run that meets it may end otherwise on a slower or busier machine.

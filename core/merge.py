@@ -163,8 +163,9 @@ class MergeConfig:
     # the whole command, the same poses). The 24-stop turntable's crops 0 (axis starts): of the weakly pinned poses it
     # ended at, 11 of 12 from a guess were right (the 12th 3.3 deg off), 0 of 8 with no guess (80-164 deg off): hence
     # not with no guess. Not a group's join (core.merge_groups): it joins what the graph left apart, and may be a
-    # group's one link (those crops, when joins ended there too: 11 placed against 14); nor a sequence's odometry,
-    # which its rounds do not register again
+    # group's one link (those crops, when joins ended there too: 11 placed against 14); nor in the last regular round
+    # (max_rounds), after which no round could give it every stage. A sequence's later rounds too (its odometry and
+    # loop pairs registered again from the graph's pose): the LiDAR and RGB-D drives of benchmarks/sequences.py as before
     guess_ends_on_weak: bool = True
     # the pairs' time bound (core.candidates.CandidateConfig.time_limit; None: none, the search bounded by
     # its work alone, so a busy machine gives the same campaign later, not another). Measured, the 8-stop
@@ -304,7 +305,7 @@ class _Campaign:
         self.pairs: dict[tuple[int, int], PairResult] = {}
         self.tried: dict[tuple[int, int], int] = {}  # registrations per pair
         self.tasks: dict[tuple[int, int], PairTask] = {}  # each pair's last registration, as asked
-        self.weak_again: set[tuple[int, int]] = set()  # pairs tried again after a weakly pinned first try
+        self.weak_again: set[tuple[int, int]] = set()  # pairs tried again with every stage after a weakly pinned try
         self.long_links = False  # whether a round after the cue's chose long links (core.merge_rounds)
         self.cue = NeighbourCue(self.n, self._features)
         self.infos: dict[tuple[int, int, int], np.ndarray] = {}

@@ -109,5 +109,5 @@ def untried(c: _Campaign, p: tuple[int, int], start: Start) -> bool:
     if start is not Start.NO_GUESS:
         return False
     done = c.pairs[p]
-    rough = 2 if p in c.weak_again else 1  # a weakly pinned first try is tried again as asked (core.merge_rounds)
+    rough = 2 if p in c.weak_again else 1  # a weakly pinned try is tried again as asked (core.merge_rounds)
     return c.tried[p] == rough and done.start is Start.ROUGH_POSES and not done.trusted

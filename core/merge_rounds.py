@@ -8,7 +8,8 @@
 2. Fresh: pairs that now overlap, each scan's best partners under the poses found, not registered yet (half of
    them long links in the first round chosen by overlap after the cue's: core.merge_pairs.partners).
 Both from the graph's pose, between scans it places: each ends at the first weakly pinned pose it refines, as
-round 1's from a guess (``guess_ends_on_weak``), and the next graph judges it.
+round 1's from a guess (``guess_ends_on_weak``), and the next graph judges it; not in the last regular round
+(``max_rounds``), after which no round could give it every stage.
 3. Groups: scans the used pairs do not join to the reference (core.merge_groups).
 
 Only pairs that could overlap under the poses found are measured (bounding spheres that meet, each
@@ -69,7 +70,8 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
     shares = c.measure(share_task, [(i, j, invert(P[i]) @ P[j]) for i, j in near], Step.OVERLAPS) if near else []
     over = dict(zip(near, shares))
     c.shares.update(over)
-    weak_ends = c.mc.guess_ends_on_weak
+    # (ended at a weakly pinned pose, such a registration is given every stage in the round after, if there is one)
+    weak_ends = c.mc.guess_ends_on_weak and c.round + 1 < c.mc.max_rounds
     tasks = []
     for (i, j), f in over.items():
         if (i, j) in c.pairs and c.tried[i, j] == 1 and f >= c.mc.min_overlap:
@@ -91,7 +93,7 @@ def next_tasks(c: _Campaign, g: Graph, screened: Screened) -> list[PairTask]:
             tasks.append(PairTask(x.i, x.j, invert(P[x.i]) @ P[x.j], found, None, start=Start.GRAPH_POSE,
                                   end_on_weak=weak_ends))
     c.skipped |= {p for p, f in over.items() if p not in c.pairs and f < c.mc.min_overlap}
-    mine = {(t.i, t.j) for t in tasks}  # a pair once a round: a weakly pinned one's second try before a join's
+    mine = {(t.i, t.j) for t in tasks}  # a pair once a round: a weakly pinned one's try with every stage before a join's
     return tasks + [t for t in join_tasks(c, g, sorted(used)) if (t.i, t.j) not in mine]
 
 

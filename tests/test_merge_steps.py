@@ -226,6 +226,9 @@ def test_the_next_round_registers_again_from_the_graph_and_measures_only_near_pa
     # between scans the graph places, each ends at a weakly pinned pose, as round 1's from a guess: the next graph
     # judges it (and one no loop corroborates is tried once more with every stage: below)
     assert all(t.end_on_weak for t in tasks if t.start is Start.GRAPH_POSE)
+    c.round = c.mc.max_rounds - 1  # the last regular round's: no round after it could give them every stage
+    assert not any(t.end_on_weak for t in merge_rounds.next_tasks(c, g, screened))
+    c.round = 0
     c.mc = replace(c.mc, guess_ends_on_weak=False)
     assert not any(t.end_on_weak for t in merge_rounds.next_tasks(c, g, screened))
     # pairs that match too little under the poses found are not registered

@@ -115,20 +115,26 @@ def campaigns(families: list[str], smallest: bool):
                 initial=initial, stated=Guess.identity(OFFSET_DEG))
 
 
-def main() -> int:
-    from rangereg.core.config import Config
-    from rangereg.core.merge import clear_geometry_cache, merge
-
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def arguments(doc: str) -> tuple[list[str], bool]:
+    """The families asked for (``--families``, checked) and ``--smallest``, for a script of these campaigns."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("--families", default=",".join(FAMILIES), help=f"comma-separated of {', '.join(FAMILIES)}")
     ap.add_argument("--smallest", action="store_true", help="one street of 3 small frames: a check that it runs")
     a = ap.parse_args()
     families = [f for f in a.families.split(",") if f]
     if not set(families) <= set(FAMILIES):
         ap.error(f"--families takes {', '.join(FAMILIES)}")
+    return families, a.smallest
+
+
+def main() -> int:
+    from rangereg.core.config import Config
+    from rangereg.core.merge import clear_geometry_cache, merge
+
+    families, smallest = arguments(__doc__)
     print(f"load {os.getloadavg()[0]:.1f}", flush=True)
     with Recorder() as rec:
-        for family, label, scans, truth, kwargs in campaigns(families, a.smallest):
+        for family, label, scans, truth, kwargs in campaigns(families, smallest):
             clear_geometry_cache()
             rec.family, rec.label, rec.truth = family, label, truth
             merge(scans, config=Config(method="global"), build_model=False, **kwargs)

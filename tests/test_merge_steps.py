@@ -265,15 +265,20 @@ def test_the_round_after_the_cues_takes_long_links_among_more_partners_once(camp
     assert max(apart(first)) > max(apart(second), default=0)
 
 
-def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_every_stage(camp):
-    from rangereg.core.merge_tasks import PairTask
-
+def _ring_with_a_slid_pair(camp):
+    """A campaign whose scans 0-7 close a ring of trusted pairs, the stop of a weakly pinned registration, and pair
+    2 -> 5 slid 30 units along x: at the trusted pairs' level, off the ring's loops."""
     c = _campaign(camp)
     for i in range(7):
         _pair(c, camp, i, i + 1)
     _pair(c, camp, 0, 7)
-    weak = Stop(StopReason.WEAKLY_PINNED)
-    slid = _truth(camp, 2, 5) @ from_params(np.r_[30.0, 0, 0, 0, 0, 0])  # at the level, off the ring's loops
+    return c, Stop(StopReason.WEAKLY_PINNED), _truth(camp, 2, 5) @ from_params(np.r_[30.0, 0, 0, 0, 0, 0])
+
+
+def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_every_stage(camp):
+    from rangereg.core.merge_tasks import PairTask
+
+    c, weak, slid = _ring_with_a_slid_pair(camp)
     T0 = _truth(camp, 2, 5) @ from_params(np.r_[0, 0, 0, 0.1, 0, 0])
     _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)
     c.tasks[2, 5] = PairTask(2, 5, T0, 30.0, None, start=Start.ROUGH_POSES, fallback_steps=0, end_on_weak=True)
@@ -292,12 +297,7 @@ def test_a_weakly_pinned_pair_no_loop_corroborates_is_registered_again_with_ever
 def test_a_retry_from_the_graph_that_ends_weakly_pinned_uncorroborated_gets_every_stage_once(camp):
     from rangereg.core.merge_tasks import PairTask
 
-    c = _campaign(camp)
-    for i in range(7):
-        _pair(c, camp, i, i + 1)
-    _pair(c, camp, 0, 7)
-    weak = Stop(StopReason.WEAKLY_PINNED)
-    slid = _truth(camp, 2, 5) @ from_params(np.r_[30.0, 0, 0, 0, 0, 0])
+    c, weak, slid = _ring_with_a_slid_pair(camp)
     _pair(c, camp, 2, 5, trusted=False, misfit=8.0, stop=BOUND)  # round 1: nothing
     _pair(c, camp, 2, 5, T=slid, trusted=False, misfit=0.6, stop=weak)  # round 2, from the graph: ended weakly pinned
     T_graph = _truth(camp, 2, 5)

@@ -1,0 +1,98 @@
+"""Where a campaign's registrations spend their time: every registration a merge makes, by its start (the rough poses,
+the identity of a sequence's odometry, the graph's pose, no guess), by the stage of the search that found its pose
+(core.global_search: the guess, KISS-Matcher, the rotation samples, FPFH + RANSAC, the hybrid), trusted or not, right
+or not, used by the final graph or not, and its seconds.
+
+    python benchmarks/campaign_stages.py [--families rgbd,lidar,turntable,crops,bunny]
+    python benchmarks/campaign_stages.py --smallest   # a street of 3 small LiDAR frames: a check that it runs
+
+The campaigns are benchmarks/polish_evidence.py's (the RGB-D and LiDAR drives of benchmarks/sequences.py, the 24-stop
+turntable's three families and its crops from the frame starts, the bunny campaigns). Right (fixed before the first
+run, 2026-12-07, as each campaign's own benchmark judges a scan): for the drives within 1 degree and 5 cm at the
+frame's origin; for the objects within 2 degrees and 2 mm at the source's centroid. Each registration is recorded as
+the merge runs (the campaign itself is unchanged). The question it answers: what an untrusted pair costs against a
+trusted one from the same start, and which stages ever give a pose the graph uses.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from polish_evidence import arguments, campaigns  # noqa: E402
+from rangereg.core import merge_tasks as mt  # noqa: E402
+from rangereg.core.transforms import invert, pose_error  # noqa: E402
+
+DRIVES = ("rgbd", "lidar")  # right within 1 deg / 5 cm at the frame's origin; the objects 2 deg / 2 mm at the centroid
+MM = {"m": 1000.0, "mm": 1.0, "cm": 10.0}
+
+
+def stage_of(found_by: str) -> str:
+    """The stage a pose came from ("kiss-matcher, refined on the whole scans" -> "kiss-matcher")."""
+    return (found_by or "-").split(",")[0]
+
+
+def right(family: str, T, T_true, source) -> bool:
+    if family in DRIVES:
+        rot, move = pose_error(T, T_true)
+        return rot < 1.0 and move < 0.05
+    rot, move = pose_error(T, T_true, source.centroid)
+    return rot < 2.0 and move * MM.get(source.units, 1.0) < 2.0
+
+
+def main() -> int:
+    from rangereg.core.config import Config
+    from rangereg.core.merge import clear_geometry_cache, merge
+
+    families, smallest = arguments(__doc__)
+    print(f"load {os.getloadavg()[0]:.1f}", flush=True)
+    rows, recorded = [], []
+    register = mt.register
+
+    def recording(source, target, guess, config, surface=None):
+        task = sys._getframe(1).f_locals.get("task")  # core.merge_tasks.pair_task's: the registration's start
+        t0 = time.perf_counter()
+        res = register(source, target, guess, config, surface=surface)
+        recorded.append((task.i, task.j, str(task.start), source, res, time.perf_counter() - t0))
+        return res
+
+    mt.register = recording
+    try:
+        for family, label, scans, truth, kwargs in campaigns(families, smallest):
+            clear_geometry_cache()
+            recorded.clear()
+            t0 = time.perf_counter()
+            res = merge(scans, config=Config(method="global"), build_model=False, **kwargs)
+            final = {(p.i, p.j): p for p in res.pairs}
+            last = {(i, j): n for n, (i, j, *_) in enumerate(recorded)}  # the registration the final graph judged
+            for n, (i, j, start, source, r, sec) in enumerate(recorded):
+                used = last[i, j] == n and (i, j) in final and str(final[i, j].status) == "used"
+                rows.append((family, start, stage_of(r.details.found_by if r.details else ""), bool(r.trusted),
+                             right(family, r.transform, invert(truth[i]) @ truth[j], source), used, sec))
+            print(f"  {family}: {label}: {len(recorded)} registrations, {time.perf_counter() - t0:.1f} s", flush=True)
+    finally:
+        mt.register = register
+    print(f"\nload {os.getloadavg()[0]:.1f}\n")
+    print("| family | start | found by | trusted | registrations | right | used | used and right | seconds | "
+          "median s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    groups = defaultdict(list)
+    for row in rows:
+        groups[row[:4]].append(row)
+    for key in sorted(groups):
+        g = groups[key]
+        secs = sorted(r[6] for r in g)
+        print(f"| {key[0]} | {key[1]} | {key[2]} | {'yes' if key[3] else 'no'} | {len(g)} | {sum(r[4] for r in g)} | "
+              f"{sum(r[5] for r in g)} | {sum(r[4] and r[5] for r in g)} | {sum(secs):.1f} | {secs[len(secs) // 2]:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -9,8 +9,9 @@ or not, used by the final graph or not, and its seconds.
 The campaigns are benchmarks/polish_evidence.py's (the RGB-D and LiDAR drives of benchmarks/sequences.py, the 24-stop
 turntable's three families and its crops from the frame starts, the bunny campaigns). Right (fixed before the first
 run, 2026-12-07, as each campaign's own benchmark judges a scan): for the drives within 1 degree and 5 cm at the
-frame's origin; for the objects within 2 degrees and 2 mm at the source's centroid. Each registration is recorded as
-the merge runs (the campaign itself is unchanged). The question it answers: what an untrusted pair costs against a
+frame's origin; for the objects within 2 degrees and 2 mm at the source's centroid (the pair's pose, polished when
+trusted). Each registration is recorded by the task map the merge runs its tasks with (core.merge.serial_map's plain
+loop: the campaign itself is unchanged). The question it answers: what an untrusted pair costs against a
 trusted one from the same start, and which stages ever give a pose the graph uses.
 """
 
@@ -49,36 +50,31 @@ def right(family: str, T, T_true, source) -> bool:
 
 def main() -> int:
     from rangereg.core.config import Config
-    from rangereg.core.merge import clear_geometry_cache, merge
+    from rangereg.core.merge import clear_geometry_cache, merge, serial_map
 
     families, smallest = arguments(__doc__)
     print(f"load {os.getloadavg()[0]:.1f}", flush=True)
     rows, recorded = [], []
-    register = mt.register
 
-    def recording(source, target, guess, config, surface=None):
-        task = sys._getframe(1).f_locals.get("task")  # core.merge_tasks.pair_task's: the registration's start
+    def recording(fn, items, shared, label=None, done=None):
+        """The merge's plain loop (core.merge.serial_map), keeping each registration's task and outcome."""
+        out = serial_map(fn, items, shared, label, done)
+        if fn is mt.pair_task:
+            recorded.extend(zip(items, out))
+        return out
+
+    for family, label, scans, truth, kwargs in campaigns(families, smallest):
+        clear_geometry_cache()
+        recorded.clear()
         t0 = time.perf_counter()
-        res = register(source, target, guess, config, surface=surface)
-        recorded.append((task.i, task.j, str(task.start), source, res, time.perf_counter() - t0))
-        return res
-
-    mt.register = recording
-    try:
-        for family, label, scans, truth, kwargs in campaigns(families, smallest):
-            clear_geometry_cache()
-            recorded.clear()
-            t0 = time.perf_counter()
-            res = merge(scans, config=Config(method="global"), build_model=False, **kwargs)
-            final = {(p.i, p.j): p for p in res.pairs}
-            last = {(i, j): n for n, (i, j, *_) in enumerate(recorded)}  # the registration the final graph judged
-            for n, (i, j, start, source, r, sec) in enumerate(recorded):
-                used = last[i, j] == n and (i, j) in final and str(final[i, j].status) == "used"
-                rows.append((family, start, stage_of(r.details.found_by if r.details else ""), bool(r.trusted),
-                             right(family, r.transform, invert(truth[i]) @ truth[j], source), used, sec))
-            print(f"  {family}: {label}: {len(recorded)} registrations, {time.perf_counter() - t0:.1f} s", flush=True)
-    finally:
-        mt.register = register
+        res = merge(scans, config=Config(method="global"), build_model=False, map_tasks=recording, **kwargs)
+        final = {(p.i, p.j): p for p in res.pairs}
+        last = {(t.i, t.j): n for n, (t, _) in enumerate(recorded)}  # the registration the final graph judged
+        for n, (t, o) in enumerate(recorded):
+            used = last[t.i, t.j] == n and (t.i, t.j) in final and str(final[t.i, t.j].status) == "used"
+            rows.append((family, str(t.start), stage_of(o.found_by), bool(o.trusted),
+                         right(family, o.T, invert(truth[t.i]) @ truth[t.j], scans[t.j]), used, o.seconds))
+        print(f"  {family}: {label}: {len(recorded)} registrations, {time.perf_counter() - t0:.1f} s", flush=True)
     print(f"\nload {os.getloadavg()[0]:.1f}\n")
     print("| family | start | found by | trusted | registrations | right | used | used and right | seconds | "
           "median s |")

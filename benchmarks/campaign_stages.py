@@ -1,7 +1,8 @@
 """Where a campaign's registrations spend their time: every registration a merge makes, by its start (the rough poses,
 the identity of a sequence's odometry, the graph's pose, no guess), by the stage of the search that found its pose
 (core.global_search: the guess, KISS-Matcher, the rotation samples, FPFH + RANSAC, the hybrid), trusted or not, right
-or not, used by the final graph or not, and its seconds.
+or not, used by the final graph or not, a twin or not (its pose refused by the free-space test: core.intrusion), and
+its seconds.
 
     python benchmarks/campaign_stages.py [--families rgbd,lidar,turntable,crops,bunny]
     python benchmarks/campaign_stages.py --smallest   # a street of 3 small LiDAR frames: a check that it runs
@@ -73,12 +74,12 @@ def main() -> int:
         for n, (t, o) in enumerate(recorded):
             used = last[t.i, t.j] == n and (t.i, t.j) in final and str(final[t.i, t.j].status) == "used"
             rows.append((family, str(t.start), stage_of(o.found_by), bool(o.trusted),
-                         right(family, o.T, invert(truth[t.i]) @ truth[t.j], scans[t.j]), used, o.seconds))
+                         right(family, o.T, invert(truth[t.i]) @ truth[t.j], scans[t.j]), used, o.seconds, o.twin))
         print(f"  {family}: {label}: {len(recorded)} registrations, {time.perf_counter() - t0:.1f} s", flush=True)
     print(f"\nload {os.getloadavg()[0]:.1f}\n")
-    print("| family | start | found by | trusted | registrations | right | used | used and right | seconds | "
+    print("| family | start | found by | trusted | registrations | right | used | used and right | twins | seconds | "
           "median s |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     groups = defaultdict(list)
     for row in rows:
         groups[row[:4]].append(row)
@@ -86,7 +87,8 @@ def main() -> int:
         g = groups[key]
         secs = sorted(r[6] for r in g)
         print(f"| {key[0]} | {key[1]} | {key[2]} | {'yes' if key[3] else 'no'} | {len(g)} | {sum(r[4] for r in g)} | "
-              f"{sum(r[5] for r in g)} | {sum(r[4] and r[5] for r in g)} | {sum(secs):.1f} | {secs[len(secs) // 2]:.2f} |")
+              f"{sum(r[5] for r in g)} | {sum(r[4] and r[5] for r in g)} | {sum(r[7] for r in g)} | {sum(secs):.1f} | "
+              f"{secs[len(secs) // 2]:.2f} |")
     return 0
 
 

@@ -242,8 +242,14 @@ def counts(scan: Scan) -> bool:
     SCENE_METRES wide, in known units (its hull)."""
     if sensed(scan):
         return True
+    return scan.kind is ScanKind.UNSTRUCTURED and wide(scan)
+
+
+def wide(scan: Scan) -> bool:
+    """Whether ``scan``'s bounding box has a diagonal (core.scan.Scan.size) of at least SCENE_METRES in known units: a
+    scene (a room, a street) rather than an object; an object that large (a car, a statue) counts as one too."""
     metres = METRES.get(scan.units)
-    return scan.kind is ScanKind.UNSTRUCTURED and metres is not None and scan.size * metres >= SCENE_METRES
+    return metres is not None and scan.size * metres >= SCENE_METRES
 
 
 def max_intrusion_of(source: Scan, target: Scan) -> float:

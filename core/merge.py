@@ -424,7 +424,7 @@ class _Campaign:
     def result(self, task: PairTask, res: PairOutcome, earlier: str | None) -> PairResult:
         return PairResult(task.i, task.j, res.T, res.error, res.share, res.trusted, res.misfit, res.within_region,
                           res.seconds, self.round, task.start, earlier=earlier, stop=res.stop, failure=res.failure,
-                          free=res.free)
+                          free=res.free, twin=res.twin)
 
     def _features(self) -> list[np.ndarray]:
         self.note(Step.FEATURES, f"computing the features of {self.n} scans (which scans are likely neighbours)")

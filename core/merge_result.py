@@ -77,6 +77,9 @@ class PairResult:
     # scan i's frame); None otherwise
     free: object = field(default=None, repr=False)
     rejection: Rejection | None = None
+    # its pose puts points where the other scan's sensor looked through empty space (core.intrusion): a twin, which no
+    # loop of the campaign corroborates
+    twin: bool = False
 
     @property
     def key(self) -> tuple[int, int]:

@@ -106,6 +106,7 @@ class PairOutcome:
     failure: str = ""
     free: Constraint | None = None  # not trusted and its overlap leaves a motion free at T: what it pins (core.threshold)
     found_by: str = ""  # the search's stage whose pose T is (core.result.GlobalDetails.found_by; "" when refused)
+    twin: bool = False  # T puts points where the other's sensor looked through (GlobalDetails.looked_through)
 
 
 def verdict(res) -> tuple[bool, float | None, bool | None]:
@@ -257,7 +258,8 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     d = res.details
     free = d.constraint if d is not None and not trusted and not d.pinned and d.constraint.matched else None
     return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
-                       res.stop, time.perf_counter() - t0, free=free, found_by=d.found_by if d is not None else "")
+                       res.stop, time.perf_counter() - t0, free=free, found_by=d.found_by if d is not None else "",
+                       twin=d is not None and d.looked_through)
 
 
 def polished(shared: Shared, task: PairTask, T: np.ndarray) -> np.ndarray:

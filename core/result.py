@@ -82,6 +82,12 @@ class GlobalDetails:
         """The matched overlap pins all six degrees of freedom (core.threshold.constraint); True when unmeasured."""
         return self.constraint is None or self.constraint.pins(self.threshold.min_constraint)
 
+    @property
+    def looked_through(self) -> bool:
+        """The pose puts the pair threshold's share of points or more where the other scan's sensor looked through
+        empty space (core.intrusion): a twin of the overlap, not a right pose in doubt."""
+        return self.intrusion is not None and self.intrusion >= self.threshold.max_intrusion
+
     def to_json(self) -> dict:
         return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
                 **({} if self.constraint is None else {"constraint": self.constraint.to_json()}),
@@ -154,7 +160,7 @@ class Result:
                     f"{d.misfit:.3g} < {factor:g})")
         elif d.misfit is None:
             text = "too little of the scans overlaps at this pose to judge it"
-        elif d.misfit < factor and d.intrusion is not None and d.intrusion >= d.threshold.max_intrusion:
+        elif d.misfit < factor and d.looked_through:
             text = (f"where the scans overlap they agree at the noise level, but {100 * d.intrusion:.1f} % of one "
                     "scan's points lie where the other's sensor looked through empty space (trusted below "
                     f"{100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a room's corner fits "

@@ -197,7 +197,7 @@ def test_the_finer_fpfh_grid_runs_only_where_the_coarser_leaves_a_scan_few_cells
     assert fpfh_stages(sparse) == ["fpfh-ransac 5 spacings", "fpfh-ransac 2 spacings"]
 
 
-def test_with_no_guess_a_fused_cloud_is_matched_by_features_instead_of_rotation_samples(bunny):
+def test_with_no_guess_a_fused_cloud_or_a_scene_is_matched_by_features_instead_of_rotation_samples(bunny):
     # the rotation samples place each turn by the centroids, which partly overlapping fragments of a room do not share
     # (tsdf-13: they refined to the room corner's twins, and FPFH + RANSAC, then last, found the truth after 6-7 s;
     # without them, in 3.5 s); an object keeps them, and so does a fused cloud with a guess
@@ -223,6 +223,22 @@ def test_with_no_guess_a_fused_cloud_is_matched_by_features_instead_of_rotation_
     assert samples.poses == [] and "centroids" in samples.why_none  # said in the run's candidate sources
     assert order(source, Guess.none()) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
     assert order(fused, Guess.identity(30.0, 0.05)) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
+    # a view of a scene likewise (each view's centroid lies on the walls it faced): one 2 m wide or more in known units,
+    # or a panorama; the bunny is 0.25 m wide, and in unknown units nothing says how wide it is
+    room = replace(source, points=source.points * 10.0)
+    assert room.size > 2.0 > source.size
+    for view in (room, replace(source, kind=ScanKind.PANORAMA)):
+        names = order(view, Guess.none())
+        assert names[1].startswith("fpfh-ransac") and names[-1] == "rotation samples", names
+    onto_room = SimpleNamespace(source=source, target=replace(target, points=target.points * 10.0), T_guess=np.eye(4),
+                                guess=Guess.none(), config=Config(candidates=CandidateConfig(kiss_matcher=False)),
+                                region=SimpleNamespace(stated_rotation_deg=180.0))
+    listed = list(stages(onto_room))  # the target a scene's view: the same
+    assert listed[1].name.startswith("fpfh-ransac") and "centroids" in listed[-1].make().why_none
+    onto_room.config = Config(candidates=CandidateConfig(enabled=False, kiss_matcher=False))
+    assert [x.name for x in stages(onto_room)] == ["guess"]  # candidates off: the guess alone, as before
+    assert order(replace(room, units="unknown"), Guess.none())[1] == "rotation samples"
+    assert order(room, Guess.identity(30.0, 0.5))[:2] == ["guess", "rotation samples"]
 
 
 def _fused_setup(bunny, cc, guess=None, kind=None):

@@ -188,6 +188,34 @@ def _four_views():
     return [replace(s, guess=None) for s in camp.scans[:4]]
 
 
+@pytest.mark.parametrize("twin", [False, True])
+def test_a_scan_whose_pairs_all_end_on_one_twin_is_not_placed_through_them(twin):
+    # scan 3 onto each of the others ends on the same wrong pose, half a turn off, not trusted but at the trusted pairs'
+    # level: its pairs close triangles with the trusted ones and the graph takes them. Said to be twins (the pose puts
+    # points where the other's sensor looked through: core.result.GlobalDetails.looked_through), no loop vouches for them
+    from rangereg.core.merge_tasks import PairOutcome, pair_task
+    from rangereg.core.transforms import from_params
+
+    scans = _four_views()
+    truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731
+    half = from_params(np.r_[0, 0, 0, 0, 0, np.pi])
+
+    def run(fn, items, shared, label=None, done=None):
+        if fn is not pair_task:
+            return [0.5 for _ in items]
+        return [PairOutcome(truth(t.i, t.j), 1e-3, True, 0.5, True, 0.5, SCRIPTED, 0.0) if t.j < 3 else
+                PairOutcome(truth(t.i, t.j) @ half, 1e-3, False, 0.6, True, 0.5, SCRIPTED, 0.0, twin=twin)
+                for t in items]
+
+    res = merge(scans, None, build_model=False, map_tasks=run)
+    assert res.placed == [True, True, True, False]
+    reasons = [p.reason for p in res.pairs if p.j == 3]
+    if twin:  # never in the graph
+        assert all("a twin" in r for r in reasons)
+    else:  # corroborated, in the graph: only the drift test then leaves scan 3 out (its pairs pin it too loosely)
+        assert all("too uncertain" in r and "a twin" not in r for r in reasons)
+
+
 def test_when_the_first_scan_is_in_no_group_the_largest_group_is_placed_in_its_frame():
     scans = _four_views()
     truth = lambda i, j: invert(scans[i].pose) @ scans[j].pose  # noqa: E731

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 from rangereg.core.intrusion import MAX_INTRUSION
@@ -70,3 +71,6 @@ def test_a_pose_whose_scans_cut_through_each_others_rooms_is_doubted_in_those_wo
                trusted=False, details=details)
     assert "24.0 % of one scan's points lie where the other's sensor looked through" in r.trust_text
     assert f"trusted below {100 * MAX_INTRUSION:g} %" in r.trust_text and r.to_json()["intrusion"] == 0.24
+    assert details.looked_through  # what a campaign reads: a twin, never corroborated (core.merge_graph)
+    assert not replace(details, intrusion=0.5 * MAX_INTRUSION).looked_through
+    assert not replace(details, intrusion=None).looked_through

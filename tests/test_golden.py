@@ -12,8 +12,12 @@ triangles may still go either way. (``sha256`` in a record hashes every float to
 wrote it: information, not compared.) Such a tie did go the other way on 2026-12-07's processor (an AMD EPYC with
 AVX-512, where Embree runs its widest kernels; the code of the day before, whose records passed on the earlier
 machine: the corner's E 0.22374 against 0.22370, and the basin hopping's path parted). A processor with AVX-512 is
-compared with the records made on that one, in ``tests/golden/avx512/``, the others with ``tests/golden/``'s (AVX-512
-is the likeliest cause, not a proven one). A refactor must leave every record as it is; a commit that changes behaviour on purpose
+compared with the records made on that one, in ``tests/golden/avx512/``, the others with ``tests/golden/``'s. The
+order Embree visits the faces decides such ties: the same faces handed to it in another order (their indices mapped
+back) end the corner's trace at E 0.223727 on one processor. Asking, where a closest point lies on the picked face's
+edge or corner, every face there in float64 (ties to the least vertex indices) made all ten records the same whatever
+the order, but cost 0.2-0.6 s more on the shared Kinect pair (2026-12-07: ~40 % of a leg's queries lie beyond an
+edge or a corner), so it was not taken. A refactor must leave every record as it is; a commit that changes behaviour on purpose
 regenerates them and says why (on a processor of each kind, or says which kind it could not):
 
     PYTHONPATH=. .venv/bin/python tests/test_golden.py          # rewrites this processor's kind's records

@@ -295,7 +295,7 @@ def intrusion_main(a: argparse.Namespace) -> int:
             except Exception:  # noqa: BLE001 - a start with no overlap at all is no minimum
                 continue
             rot, trans = pose_error(T, T_true, s.centroid)
-            if (rot >= 1.0 or trans >= 0.05) and replace(thr, max_intrusion=np.inf).holds(basis, T):
+            if (rot >= 1.0 or trans >= 0.05) and replace(thr, max_intrusion=np.inf, slide_intrusion=np.inf).holds(basis, T):
                 if not any(pose_error(T, o[1], s.centroid)[0] < 1.0 for o in twins):
                     twins.append((intrusion(basis, T), T, rot, trans))
         truth = intrusion(basis, T_true)

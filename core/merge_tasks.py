@@ -256,7 +256,9 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
     trusted, misfit, within = verdict(res)
     T = polished(shared, task, res.transform) if trusted else res.transform
     d = res.details
-    free = d.constraint if d is not None and not trusted and not d.pinned and d.constraint.matched else None
+    # free along a motion: weakly pinned, or slid along it through the other's seen space (GlobalDetails.slid_through)
+    free = (d.constraint if d is not None and not trusted and (not d.pinned or d.slid_through) and d.constraint.matched
+            else None)
     return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
                        res.stop, time.perf_counter() - t0, free=free, found_by=d.found_by if d is not None else "",
                        twin=d is not None and d.looked_through)

@@ -88,6 +88,16 @@ class GlobalDetails:
         empty space (core.intrusion): a twin of the overlap, not a right pose in doubt."""
         return self.intrusion is not None and self.intrusion >= self.threshold.max_intrusion
 
+    @property
+    def slid_through(self) -> bool:
+        """The pose is pinned weakly (the score's rise along its free motion was asked, and passed) and puts the share
+        of points a weakly pinned pose may (core.threshold.PairThreshold.slide_bound) or more where the other scan's sensor
+        looked through empty space: a slide along that motion carries one scan's walls past where the other saw
+        them end."""
+        c = self.constraint
+        return (c is not None and c.rise is not None and self.pinned and self.intrusion is not None
+                and self.intrusion >= self.threshold.slide_bound)
+
     def to_json(self) -> dict:
         return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
                 **({} if self.constraint is None else {"constraint": self.constraint.to_json()}),
@@ -165,6 +175,12 @@ class Result:
                     "scan's points lie where the other's sensor looked through empty space (trusted below "
                     f"{100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a room's corner fits "
                     "itself turned about its diagonal, or a room itself turned a quarter turn")
+        elif d.misfit < factor and d.slid_through:
+            text = (f"where the scans overlap they agree at the noise level, but the overlap pins the pose weakly (it "
+                    f"may slide by {d.constraint.free_motion}) and {100 * d.intrusion:.1f} % of one scan's points lie "
+                    "where the other's sensor looked through empty space (a weakly pinned pose is trusted below "
+                    f"{100 * d.threshold.slide_bound:g} %): slid along that motion, one scan's walls pass where the "
+                    "other saw them end")
         elif not d.pinned and d.misfit < factor:
             c = d.constraint
             if not c.matched:

@@ -197,15 +197,15 @@ def test_the_finer_fpfh_grid_runs_only_where_the_coarser_leaves_a_scan_few_cells
     assert fpfh_stages(sparse) == ["fpfh-ransac 5 spacings", "fpfh-ransac 2 spacings"]
 
 
-def test_a_fused_cloud_and_with_no_guess_a_scene_are_matched_by_features_instead_of_rotation_samples(bunny):
+def test_a_fused_scene_and_with_no_guess_any_fused_cloud_or_scene_are_matched_by_features_not_rotation_samples(bunny):
     # the rotation samples place each turn by the centroids, which partly overlapping fragments of a room do not share
     # (tsdf-13: they refined to the room corner's twins, and FPFH + RANSAC, then last, found the truth after 6-7 s;
-    # without them, in 3.5 s); with a guess, toward the centroids as far as its translation allows: a fused cloud
+    # without them, in 3.5 s); with a guess, toward the centroids as far as its translation allows: a fused scene
     # skips them then too (no trusted pose came of them); an object keeps them, and so does a scene's view with a guess
     from types import SimpleNamespace
 
     from rangereg.core.candidates import CandidateConfig
-    from rangereg.core.global_search.stages import stages
+    from rangereg.core.global_search.stages import FUSED, stages
     from rangereg.core.scan import ScanKind
 
     source, target = bunny("bun045"), bunny("bun000")
@@ -223,9 +223,16 @@ def test_a_fused_cloud_and_with_no_guess_a_scene_are_matched_by_features_instead
     samples = [s for s in stages(setup_of(fused, Guess.none())) if s.name == "rotation samples"][0].make()
     assert samples.poses == [] and "centroids" in samples.why_none  # said in the run's candidate sources
     assert order(source, Guess.none()) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
-    assert order(fused, Guess.identity(30.0, 0.05)) == ["guess", "fpfh-ransac 5 spacings", "rotation samples"]
-    samples = [s for s in stages(setup_of(fused, Guess.identity(30.0, 0.05))) if s.name == "rotation samples"][0].make()
-    assert samples.poses == [] and "fragments" in samples.why_none
+    # with a guess a fused object keeps them (nothing was measured on one); a fused scene's (2.5 m across) does not
+    assert order(fused, Guess.identity(30.0, 0.05)) == ["guess", "rotation samples", "fpfh-ransac 5 spacings"]
+    fused_room = SimpleNamespace(source=replace(fused, points=fused.points * 10.0),
+                                 target=replace(target, points=target.points * 10.0), T_guess=np.eye(4),
+                                 guess=Guess.identity(30.0, 0.5),
+                                 config=Config(candidates=CandidateConfig(kiss_matcher=False)),
+                                 region=SimpleNamespace(stated_rotation_deg=30.0))
+    listed = list(stages(fused_room))
+    assert [x.name for x in listed] == ["guess", "fpfh-ransac 5 spacings", "rotation samples"]
+    assert listed[-1].make().poses == [] and listed[-1].make().why_none == FUSED
     # a view of a scene likewise (each view's centroid lies on the walls it faced): one 2 m wide or more in known units,
     # or a panorama; the bunny is 0.25 m wide, and in unknown units nothing says how wide it is
     room = replace(source, points=source.points * 10.0)
@@ -270,8 +277,8 @@ def _names(setup):
                     reason="kiss-matcher is not installed")
 def test_a_fused_cloud_tries_kiss_matchers_other_grids_next_and_a_single_view_keeps_its_stages(bunny):
     # on TSDF fragments of rooms KISS-Matcher's pose moves with its grid: where its first is doubted, its other grids
-    # come next, before FPFH + RANSAC (the rotation samples are not run for it); a single view's stages are those it
-    # had, none started ahead
+    # come next (with no guess before FPFH + RANSAC, with one before the rotation samples: a fused object keeps them);
+    # a single view's stages are those it had, none started ahead
     from rangereg.core.candidates import CandidateConfig
     from rangereg.core.global_search.stages import stages
 
@@ -279,7 +286,7 @@ def test_a_fused_cloud_tries_kiss_matchers_other_grids_next_and_a_single_view_ke
     assert _names(_fused_setup(bunny, cc)) == [
         "guess, kiss-matcher", "kiss-matcher, other grids", "fpfh-ransac 5 spacings", "rotation samples"]
     assert _names(_fused_setup(bunny, cc, Guess.identity(10.0, 0.05))) == [
-        "guess", "kiss-matcher", "kiss-matcher, other grids", "fpfh-ransac 5 spacings", "rotation samples"]
+        "guess", "kiss-matcher", "kiss-matcher, other grids", "rotation samples", "fpfh-ransac 5 spacings"]
     assert _names(_fused_setup(bunny, CandidateConfig(kiss_grids=(5.0,)))) == [  # 5: the first pose's grid
         "guess, kiss-matcher", "fpfh-ransac 5 spacings", "rotation samples"]
     for guess in (None, Guess.identity(10.0, 0.05), Guess.identity(30.0, 0.05)):

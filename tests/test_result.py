@@ -74,3 +74,36 @@ def test_a_pose_whose_scans_cut_through_each_others_rooms_is_doubted_in_those_wo
     assert details.looked_through  # what a campaign reads: a twin, never corroborated (core.merge_graph)
     assert not replace(details, intrusion=0.5 * MAX_INTRUSION).looked_through
     assert not replace(details, intrusion=None).looked_through
+
+
+def test_a_weakly_pinned_pose_whose_walls_pass_where_the_other_saw_them_end_is_doubted_in_those_words(scene):
+    # a slide along a room's free motion (sim-fragments-0's guess slid 0.75 m ended 1.16 m off, trusted, at a free-space
+    # share of 0.066, under a fused cloud's 0.072): where the rise is asked, the bound between known sensors holds
+    from types import SimpleNamespace
+
+    from rangereg.core.guess import Guess
+    from rangereg.core.intrusion import MAX_LOOKED_THROUGH
+
+    source, target = scene("corner")
+    region = Guess.identity().region(source, target)
+    weak = SimpleNamespace(rise=1.23, stable_rise=None, ratio=0.008, matched=900, stably_pinned=False,
+                           free_motion="a translation along (-0.81, +0.18, -0.56)", pins=lambda bound: True)
+    details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 0.95, region, True, "", 0.1, 4, {"guess": 1}, "guess",
+                            weak, 0.066)
+    r = Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
+               trusted=False, details=details)
+    assert details.threshold.slide_bound == MAX_LOOKED_THROUGH < 0.066 < MAX_INTRUSION
+    assert details.slid_through and not details.looked_through  # a slide, not a twin: the campaign's rules stand
+    assert "pins the pose weakly (it may slide by a translation along (-0.81" in r.trust_text
+    assert "6.6 % of one scan's points" in r.trust_text and f"trusted below {100 * MAX_LOOKED_THROUGH:g} %" in r.trust_text
+    assert not replace(details, constraint=_with_rise(weak, None)).slid_through  # pinned well: the fused bound
+    assert not replace(details, intrusion=0.5 * MAX_LOOKED_THROUGH).slid_through
+    doubted = _with_rise(weak, 1.05)  # the rise falls short: "pins weakly ... only 1.05 x", as before
+    doubted.pins = lambda bound: False
+    assert "scores only 1.05 x as high" in replace(r, details=replace(details, constraint=doubted)).trust_text
+
+
+def _with_rise(c, rise):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(**{**vars(c), "rise": rise})

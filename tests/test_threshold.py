@@ -85,3 +85,34 @@ def test_the_pair_threshold_trusts_no_twin_of_the_bowl_and_trusts_the_truth(scen
                 right += 1
                 assert thr.holds(basis, T)
     assert twins >= 3 and right >= 1  # both kinds of valley were met
+
+
+def test_a_weakly_pinned_pose_is_held_to_the_known_sensors_free_space_bound(monkeypatch):
+    # where the rise decides (a pose pinned weakly), a share of points where the other looked through that a fused
+    # cloud's hull would allow (below MAX_INTRUSION) still refuses it above MAX_LOOKED_THROUGH; a pose pinned well keeps
+    # the fused bound (walk30's truths read up to 0.047 at ratios 0.10-0.14)
+    from types import SimpleNamespace
+
+    from rangereg.core import threshold as th
+    from rangereg.core.intrusion import MAX_INTRUSION, MAX_LOOKED_THROUGH
+
+    share = 0.5 * (MAX_LOOKED_THROUGH + MAX_INTRUSION)
+    monkeypatch.setattr(th, "clear", lambda basis, T, bound: share < bound)
+    basis = SimpleNamespace(valid=lambda s: np.array([True]))
+    scores = SimpleNamespace(inliers=np.array([1.0]))
+    thr = th.pair_threshold(1.0, 2.0, 0.1)
+    for rise, trusted in ((None, True), (1.3, False)):
+        c = SimpleNamespace(rise=rise, pins=lambda bound: True, matched=900, ratio=0.1 if rise is None else 0.01,
+                            stably_pinned=False)
+        monkeypatch.setattr(th, "constraint", lambda basis, T, c=c: c)
+        assert thr.holds(basis, np.eye(4), scores, misfit=1.0) is trusted
+    weak = SimpleNamespace(rise=1.1, pins=lambda bound: False, matched=900, ratio=0.01, stably_pinned=False)
+    monkeypatch.setattr(th, "constraint", lambda basis, T: weak)
+    monkeypatch.setattr(th.PairThreshold, "misfit", lambda self, basis, T, s=None: 1.0)
+    monkeypatch.setattr(basis, "evaluate", lambda Ts: scores, raising=False)
+    assert thr.weakly_pinned(basis, np.eye(4))  # a rise that falls short stays weakly pinned, for a campaign's loops
+    from dataclasses import replace
+
+    lifted = replace(thr, slide_intrusion=np.inf)  # an evidence script's "before the test": the fused bound alone
+    monkeypatch.setattr(th, "constraint", lambda basis, T: SimpleNamespace(rise=1.3, pins=lambda bound: True))
+    assert lifted.holds(basis, np.eye(4), scores, misfit=1.0) and lifted.slide_bound == MAX_INTRUSION

@@ -107,8 +107,9 @@ def stages(setup: Setup) -> Iterator[Stage]:
     Measured (2026-12-07): the sensor sweep with no guess (the shared LiDAR pair, the Kinect triples, the simulated
     streets and rooms: 13 starts, 16 registrations) took no pose from the rotation samples, and gives the same poses
     without them; the RGB-D drives of benchmarks/sequences.py registered 41 pairs with no guess whose best pose was a
-    rotation sample's, none right (benchmarks/campaign_stages.py). A fused cloud skips the samples with a guess too
-    (they turn about its centroid and move it toward the other's, as far as the guess's translation allows), FPFH +
+    rotation sample's, none right (benchmarks/campaign_stages.py). A fused cloud of a scene skips the samples with a
+    guess too (they turn about its centroid and move it toward the other's, as far as the guess's translation allows;
+    a fused object keeps them: nothing was measured on one), FPFH +
     RANSAC coming after KISS-Matcher's grids: measured (2026-12-07) on the fused pairs of the sensor sweep, of
     benchmarks/held_out_sensors.py, slid_guesses.py and tsdf_modes.py (154 registrations with a guess), the samples
     ran in 17 and gave no trusted pose (the one best pose they gave, sim-fragments-0 at 5 deg, was wrong and doubted).
@@ -119,8 +120,8 @@ def stages(setup: Setup) -> Iterator[Stage]:
     RANSAC within the work bound and take 0.4-2 s longer. A scene's view that is not fused makes its FPFH +
     RANSAC in turn, not ahead, where KISS-Matcher's pose is scored with the guess (no guess, KISS-Matcher on): that
     stage starts nothing ahead. Where either scan is fused, KISS-Matcher on other
-    grids follows its first pose (``kiss_grids``), before FPFH + RANSAC with no guess and before the rotation samples
-    with one. Measured on the 10 TSDF fragment pairs of benchmarks/tsdf_modes.py
+    grids follows its first pose (``kiss_grids``), before FPFH + RANSAC (with a guess, before the rotation samples
+    where the cloud is an object's). Measured on the 10 TSDF fragment pairs of benchmarks/tsdf_modes.py
     (rooms 11-20; right: within 1 deg / 5 cm of the rigid fit nearest the cameras' poses) from the identity, 15, 30
     and 60 deg about the sensor and no guess: 44 -> 50 of 50 right and trusted (rooms 14 and 17 ended on 90-degree
     twins, doubted, from the identity, 60 deg and no guess), medians 1.5-2.3 -> 1.3-2.0 s about the sensor and with
@@ -154,7 +155,7 @@ def stages(setup: Setup) -> Iterator[Stage]:
             yield from fpfh_stages(setup, ahead)
             yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
             return
-        if fused:
+        if fused and (scene(setup.source) or scene(setup.target)):
             yield from fpfh_stages(setup)
             yield Stage("rotation samples", lambda: Hypotheses([], FUSED), 0)
             return
@@ -169,8 +170,8 @@ def stages(setup: Setup) -> Iterator[Stage]:
 # why a fused cloud or a scene's view with no guess gets no rotation samples (stages' notes)
 UNPLACED = ("not run: with no guess the samples are placed by the centroids, which partly overlapping views of a "
             "scene or fragments do not share")
-FUSED = ("not run: the samples are placed toward the centroids, which partly overlapping fragments do not share; "
-         "a fused cloud gets FPFH + RANSAC instead")
+FUSED = ("not run: the samples are placed toward the centroids, which partly overlapping fragments of a scene do not "
+         "share; a fused cloud of a scene gets FPFH + RANSAC instead")
 
 
 def scene(scan: Scan) -> bool:

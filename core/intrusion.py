@@ -259,6 +259,12 @@ def max_intrusion_of(source: Scan, target: Scan) -> float:
     return MAX_LOOKED_THROUGH if sensed(source) and sensed(target) else MAX_INTRUSION
 
 
+def known_sensors_bound() -> float:
+    """MAX_LOOKED_THROUGH as it stands when asked (an evidence script may lift it: benchmarks/free_space_evidence.py);
+    also the bound of a weakly pinned pose (core.threshold.PairThreshold.slide_bound)."""
+    return MAX_LOOKED_THROUGH
+
+
 def sensed(scan: Scan) -> bool:
     """Whether ``scan``'s sensor stood at its viewpoint, so that the rays from there are what it looked along: a
     panorama (its spherical image about it), or a single view with a range grid (its cells are the sensor's rays: a

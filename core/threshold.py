@@ -13,10 +13,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import intrusion as _intrusion
 from .candidates import Basis, Scores
 from .config import Config, ThresholdConfig
-from .intrusion import MAX_INTRUSION, MAX_LOOKED_THROUGH, clear
+from .intrusion import MAX_INTRUSION, MAX_LOOKED_THROUGH, clear, known_sensors_bound
 from .noise import noise_floors
 from .problem import Problem
 from .rows import cross
@@ -434,7 +433,7 @@ class PairThreshold:
     def slide_bound(self) -> float:
         """The free-space bound (core.intrusion) of a pose pinned weakly, its rise asked (notes above
         MIN_STABLE_RISE's): ``slide_intrusion``, at most ``max_intrusion``."""
-        slide = _intrusion.MAX_LOOKED_THROUGH if self.slide_intrusion is None else self.slide_intrusion
+        slide = known_sensors_bound() if self.slide_intrusion is None else self.slide_intrusion
         return min(self.max_intrusion, slide)
 
     def weakly_pinned(self, basis: Basis, T: np.ndarray) -> bool:

@@ -26,6 +26,7 @@ from .errors import InputError
 from .frustum import Frustum, frustum_of
 from .icp import METRICS
 from .noise import NORMAL_NEIGHBOURS, normal_floor
+from .rows import first_in_cells
 from .scan import Scan
 from .surface import Surface, normal_angles, pca_normals
 from .threads import open3d_one_thread
@@ -414,10 +415,7 @@ def for_search(scan: Scan, limit: int = SEARCH_POINTS) -> Scan:
         return replace(scan, points=scan.points[keep], grid=grid, faces=None)
     cell = scan.spacing * np.sqrt(n / limit)
     for _ in range(6):  # a surface's cells grow as the square of their side: a few steps reach the count
-        cells = np.floor((scan.points - scan.points.min(0)) / cell).astype(np.int64)
-        span = cells.max(0) + 1
-        keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # one integer a cell (< 2^63 here)
-        _, first = np.unique(keys, return_index=True)
+        first = first_in_cells(np.floor((scan.points - scan.points.min(0)) / cell).astype(np.int64))
         if len(first) <= 1.2 * limit:
             break
         cell *= np.sqrt(len(first) / limit)
@@ -511,7 +509,7 @@ def _o3d_cloud(scan: Scan, voxel: float):
 
 def voxel_cells(scan: Scan, size: float) -> int:
     """How many cells of a grid of ``size`` (units) the scan's points occupy."""
-    return len(np.unique(np.floor(scan.points / size).astype(np.int64), axis=0))
+    return len(first_in_cells(np.floor(scan.points / size).astype(np.int64)))
 
 
 def ransac_iterations(voxel_spacings: float) -> int:

@@ -36,6 +36,21 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def first_in_cells(cells: np.ndarray) -> np.ndarray:
+    """(K,) the index of the first row of each distinct row of (N, 3) integer grid ``cells``, in their lexicographic
+    order: ``np.unique(cells, axis=0, return_index=True)[1]``. Each cell is one int64 (its offset from the lowest
+    corner in mixed radix, which keeps the order) where the grid's span allows: the 2-D unique sorts rows as
+    structured records, ~20 x slower (0.1 s on a 300k-point fragment)."""
+    c = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    if not len(c):
+        return np.zeros(0, dtype=np.int64)
+    c = c - c.min(0)
+    dims = c.max(0) + 1
+    if float(np.prod(dims.astype(np.float64))) >= 2.0**62:
+        return np.unique(c, axis=0, return_index=True)[1]
+    return np.unique((c[:, 0] * dims[1] + c[:, 1]) * dims[2] + c[:, 2], return_index=True)[1]
+
+
 def _written_out(v: np.ndarray) -> bool:
     """Whether ``v`` is float32 or float64 (..., 3), where the written-out arithmetic is numpy's bit for bit.
     numpy's own routines take the rest: integers squared in their own type overflow (and a small one's root

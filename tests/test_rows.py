@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rangereg.core.rows import cross, norms
+from rangereg.core.rows import cross, first_in_cells, norms
 
 
 @pytest.mark.parametrize("shape", [(300_000, 3), (32, 200, 3), (1, 3), (0, 3)])
@@ -52,3 +52,13 @@ def test_cross_products_of_other_rows_as_numpy():
     assert np.array_equal(cross([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]), np.cross([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
     with pytest.raises(ValueError):  # numpy refuses rows of four; written out, the fourth was dropped
         cross(np.ones((2, 4)), np.ones((2, 4)))
+
+
+@pytest.mark.parametrize("low, high, n", [(-50, 50, 20_000), (0, 3, 500), (-(2**40), 2**40, 2_000), (7, 8, 10),
+                                          (0, 1, 0)])
+def test_first_in_cells_is_numpys_unique_rows(low, high, n):
+    """The first row of each distinct cell, in lexicographic order, as ``np.unique(axis=0)``: negative cells, a few
+    cells held by many rows, a span too wide for one int64 a cell (the 2-D path), one cell, none."""
+    cells = np.random.default_rng(n).integers(low, high, (n, 3))
+    want = np.unique(cells, axis=0, return_index=True)[1] if n else np.zeros(0, dtype=np.int64)
+    assert np.array_equal(first_in_cells(cells), want)

@@ -12,6 +12,7 @@ trimmed back to where data was (no surface farther than 2 spacings from a kept p
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,8 @@ from .errors import InputError
 from .scan import Scan, kd_tree
 from .surface import PARALLEL_QUERY, Surface, local_spacing, pca_normals
 from .transforms import apply
+
+NORMAL_NEIGHBOURS = 12  # the points a normal is fitted to (itself among them)
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,16 +41,45 @@ class FusedModel:
         return f"FusedModel({len(self.vertices)} vertices, {len(self.faces)} triangles, samples per scan {share.tolist()})"
 
 
-def _normals_towards(points: np.ndarray, viewpoint: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.ndarray:
+def _normals_towards(points: np.ndarray, viewpoint: np.ndarray, k: int = NORMAL_NEIGHBOURS,
+                     tree: cKDTree | None = None, rows: np.ndarray | None = None) -> np.ndarray:
     """(N, 3) PCA normals of (N, 3) points, each flipped to face ``viewpoint`` (``tree``: a k-d tree of ``points``
-    built already, as core.scan.kd_tree builds it)."""
+    built already, as core.scan.kd_tree builds it); only those of ``rows`` (M,) when given, (M, 3)."""
     tree = kd_tree(points) if tree is None else tree
+    at = points if rows is None else points[rows]
     # the same answer on every core; below ~20k points starting the threads costs more than they save
-    _, idx = tree.query(points, k=min(k, len(points)), workers=-1 if len(points) > PARALLEL_QUERY else 1)
-    n = pca_normals(points, idx)
-    flip = np.einsum("ij,ij->i", n, viewpoint - points) < 0
+    _, idx = tree.query(at, k=min(k, len(points)), workers=-1 if len(at) > PARALLEL_QUERY else 1)
+    n = pca_normals(points, idx.reshape(len(at), -1))
+    flip = np.einsum("ij,ij->i", n, viewpoint - at) < 0
     n[flip] *= -1
     return n
+
+
+class FacingNormals:
+    """A scan's per-point normals facing its sensor (those of :func:`sample_quality`), each worked out when first
+    asked for and kept. A campaign asks for a few thousand a pair (the polish's matched points, an overlap's
+    sample, a pair's information): all of a 250k-point Kinect frame's took 1.3 s, five times its registration's
+    share of them. Each row is the whole array's bit for bit (a row's neighbours and its fit depend on it alone).
+    Safe to ask from several threads."""
+
+    def __init__(self, scan: Scan) -> None:
+        self.scan = scan
+        self._normals = np.zeros((len(scan.points), 3))
+        self._done = np.zeros(len(scan.points), dtype=bool)
+        self._lock = threading.Lock()
+
+    def __getitem__(self, rows) -> np.ndarray:
+        """The normals (..., 3) of ``rows``: an index array (any shape) or a slice of the scan's points."""
+        if isinstance(rows, slice):
+            rows = np.arange(len(self._done))[rows]
+        rows = np.asarray(rows, dtype=np.int64)
+        with self._lock:
+            need = np.unique(rows[~self._done[rows]])
+            if len(need):
+                self._normals[need] = _normals_towards(self.scan.points, self.scan.viewpoint, tree=self.scan.tree,
+                                                       rows=need)
+                self._done[need] = True
+            return self._normals[rows]
 
 
 def sample_quality(scan: Scan) -> tuple[np.ndarray, np.ndarray]:

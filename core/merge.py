@@ -47,7 +47,7 @@ import numpy as np
 
 from . import merge_graph, merge_pairs, merge_report, merge_rounds, merge_sequence
 from .errors import InputError
-from .fuse import fuse
+from .fuse import FacingNormals, fuse
 from .guess import Guess
 from .merge_cue import NeighbourCue
 from .merge_graph import Screened
@@ -59,6 +59,7 @@ from .merge_tasks import (
     Shared,
     built,
     clear_geometry_cache,
+    facing_normals,
     feature_task,
     pair_task,
     quality,
@@ -377,6 +378,11 @@ class _Campaign:
         """Scan k's normals (N, 3) facing its sensor and sample quality (N,) (core.merge_tasks.quality: once in this
         process, shared with the tasks that ran here)."""
         return quality(self.shared, k)
+
+    def normals(self, k: int) -> FacingNormals:
+        """Scan k's normals facing its sensor, each worked out when first asked for (core.merge_tasks.facing_normals:
+        once in this process, shared with the tasks that ran here)."""
+        return facing_normals(self.shared, k)
 
     def region(self) -> tuple[float, float | None]:
         """A pair's region (degrees, units or None: unstated) from the stated per-scan one (module notes, step 3):

@@ -3,12 +3,15 @@
 A pair the pose graph may use is trusted, and not an outlier among the campaign's trusted pairs (its E
 or its misfit far above their median: the scans of one campaign share a sensor, so right pairs agree
 at much the same level). A pair the pair threshold did not trust is used too where the campaign
-corroborates it: its misfit is at the trusted pairs' level and it closes a triangle, within the graph's
-cycle tolerance, with two other such pairs of which one is trusted (three registrations that agree
-about one motion: the campaign's own evidence, which a pair alone cannot give), unless the two not
-trusted share a scan that both leave free along one motion (:func:`alike`: the triangle closes wherever
-along it both ended). A pair whose pose puts points where the other scan's sensor looked through empty space
-(core.intrusion: a twin, as a room turned half a turn) is neither corroborated nor a leg of another's triangle: the
+corroborates it: its misfit is at the trusted pairs' level (set by one trusted pair or more; three before the
+outliers among them are sought) and it closes a triangle, within the graph's cycle tolerance, with two other such
+pairs of which one is trusted (three registrations that agree about one motion: the campaign's own evidence, which a
+pair alone cannot give), unless the two not trusted share a scan that both leave free along one motion
+(:func:`alike`: the triangle closes wherever along it both ended). Where no triangle does, a longer loop of such
+pairs (up to LOOP_PAIRS, one trusted) may, unless its untrusted pairs can slide together with the loop closed
+(:func:`loop_leaves_free`): a ring of scans that overlap only their neighbours has no triangle. A pair whose pose
+puts points where the other scan's sensor looked through empty space (core.intrusion: a twin, as a room turned half
+a turn) is neither corroborated nor a leg of another's triangle or loop: the
 threshold's free-space test says the pose is wrong, not merely in doubt, and one scan registered onto two frames a
 step apart finds the same twin twice (the RGB-D drive at 0.4 m, seed 1: frame 11 onto frames 2 and 3, 179.9 and
 178.6 deg off, 7.8 and 10.4 % looked through, closed a triangle with the trusted 2-3 and placed 4 frames half a turn
@@ -75,12 +78,13 @@ def screen(c: _Campaign) -> Screened:
                       else f"not trusted (misfit {p.misfit:.3g}; a twin: its points lie where the other scan's sensor "
                            "looked through empty space, so no loop vouches for it)" if p.twin
                       else f"not trusted (misfit {p.misfit:.3g})")
-    if len(trusted) >= 3:
+    if trusted:
         median = float(np.median([c.pairs[k].error for k in trusted]))
         misfits = [c.pairs[k].misfit for k in trusted if c.pairs[k].misfit is not None]
         typical = float(np.median(misfits)) if misfits else None
         bound = c.mc.outlier_misfit * typical if typical else None
         error_bound = c.mc.outlier_error * median
+    if len(trusted) >= 3:
         for k in trusted:
             p = c.pairs[k]
             if p.error > error_bound:
@@ -125,6 +129,10 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
         return (a, b) in trusted or (b, a) in trusted
 
     tol = Tolerance(c.mc.cycle_rotation_deg, c.mc.cycle_translation * c.spacing)
+    near: dict[int, list[int]] = {}  # each scan's partners at the level (the longer loops' graph)
+    for a, b in level:
+        near.setdefault(a, []).append(b)
+        near.setdefault(b, []).append(a)
     out = {}
     for i, j in sorted(level - trusted):
         for k in range(c.n):
@@ -147,7 +155,116 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
                          f"through {c.scans[k].name} within {rot:.2g} deg / {move:.3g}")
             refused.pop((i, j), None)
             break
+        if (i, j) not in out:
+            _longer_loop(c, (i, j), near, trusted, motion, tol, out, refused)
     return out
+
+
+# A loop of up to this many pairs corroborates an untrusted pair where no triangle does (a ring of scans each
+# overlapping only its neighbours has none: a turntable of 4 stops, a drive), each loop at least one pair trusted, the
+# shortest first and at most LOOPS_TRIED of them a pair (those with no trusted pair counted).
+LOOP_PAIRS = 6
+LOOPS_TRIED = 200
+
+
+def _longer_loop(c: _Campaign, key: tuple[int, int], near: dict[int, list[int]], trusted: set, motion,
+                 tol: Tolerance, out: dict, refused: dict) -> None:
+    """Corroborate the untrusted pair ``key`` (i, j) by a loop of 4 to LOOP_PAIRS pairs at the level (``near``: each
+    scan's partners at it; at least one pair ``trusted``; ``motion(a, b)`` -> T_a_b) that closes within ``tol`` and
+    whose untrusted pairs leave no motion free together (:func:`loop_leaves_free`): into ``out`` (the words), or why
+    the closing loop did not count into ``refused``."""
+    i, j = key
+    tried = 0
+    for length in range(3, LOOP_PAIRS):  # pairs besides (i, j); triangles (2) are corroborate's own
+        for path in _paths(near, i, j, length):
+            tried += 1
+            if tried > LOOPS_TRIED:
+                return
+            steps = list(zip(path[:-1], path[1:]))
+            if not any(s in trusted or s[::-1] in trusted for s in steps):
+                continue
+            chain = np.eye(4)
+            for a, b in steps:
+                chain = chain @ motion(a, b)
+            rot, move = residual(c.pairs[i, j].T_i_j, np.eye(4), chain, c.centers[j])
+            if not tol.holds((rot, move)):
+                continue
+            through = ", ".join(c.scans[k].name for k in path[1:-1])
+            if loop_leaves_free(c, [(i, j)] + steps):
+                refused.setdefault(key, f"; it closes the loop through {through}, but the pairs of that loop not "
+                                        "trusted leave one motion free together (the loop says nothing of where)")
+                continue
+            out[key] = (f"not trusted alone (misfit {c.pairs[key].misfit:.3g}); used: it closes the loop through "
+                        f"{through} within {rot:.2g} deg / {move:.3g}")
+            refused.pop(key, None)
+            return
+
+
+def _paths(near: dict[int, list[int]], i: int, j: int, length: int):
+    """The simple paths i -> ... -> j of ``length`` pairs over ``near`` (scan -> its partners) that do not take the
+    pair (i, j) itself, in a fixed order (partners by index); a partial path too far from j to end in time is not
+    walked on (a campaign of hundreds of scans with a dozen partners each)."""
+    hops, frontier = {j: 0}, [j]  # pairs from each scan to j, not through (i, j)
+    while frontier:
+        ahead = []
+        for a in frontier:
+            for b in near.get(a, ()):
+                if b not in hops and not {a, b} == {i, j}:
+                    hops[b] = hops[a] + 1
+                    ahead.append(b)
+        frontier = ahead
+
+    def walk(path: list[int]):
+        if len(path) == length:
+            if j in near.get(path[-1], ()):
+                yield path + [j]
+            return
+        for k in sorted(near.get(path[-1], ())):
+            if k != j and k not in path and len(path) + hops.get(k, length + 1) <= length:
+                yield from walk(path + [k])
+
+    yield from walk([i])
+
+
+def loop_leaves_free(c: _Campaign, steps: list[tuple[int, int]]) -> bool:
+    """Whether the untrusted pairs of the loop ``steps`` can slide
+    together along their free motions (core.threshold.Constraint.weak) while the loop stays closed: each such slide,
+    carried round the loop, moves the first scan's points; the untrusted pairs' moves (each pair's as an orthonormal
+    basis, as :func:`alike` makes them) leave a combination that nearly cancels when the smallest singular value of
+    their bases side by side is under sqrt(1 - ALONG_THE_FREE_MOTION): for two pairs of one motion each, :func:`alike`'s
+    cosine bound itself (the singular values of two unit vectors side by side are sqrt(1 +- cos)). ``steps``: the pair
+    judged (i, j) first, then the loop's path i -> ... -> j as (a, b) steps (T_a_b each, either way round in
+    ``c.pairs``), so the loop runs j -> i -> ... -> j."""
+    first = steps[0][1]  # the loop runs first -> ... -> first: T_first_first = inv(T_i_j) @ chain
+    scan = c.scans[first]
+    pts = scan.points[::max(1, len(scan.points) // 2000)]
+
+    def closure(slid: int | None = None, v: np.ndarray | None = None) -> np.ndarray:
+        out = np.eye(4)
+        for n, (a, b) in enumerate(steps):
+            key = (a, b) if (a, b) in c.pairs else (b, a)
+            T = c.pairs[key].T_i_j
+            if n == slid:
+                T = c.pairs[key].free.slid(T, np.array([c.spacing]), v)[0]
+            T = T if key == (a, b) else invert(T)
+            out = out @ (invert(T) if n == 0 else T)
+        return out
+
+    base = apply(closure(), pts)
+    bases = []
+    for n, (a, b) in enumerate(steps):
+        key = (a, b) if (a, b) in c.pairs else (b, a)
+        p = c.pairs[key]
+        if p.trusted or p.free is None:
+            continue
+        moves = np.stack([(apply(closure(n, v), pts) - base).ravel() for v in p.free.weak()], axis=1)
+        basis, r = np.linalg.qr(moves)
+        basis = basis[:, np.abs(np.diag(r)) > 1e-12 * max(float(np.abs(r).max()), 1e-300)]
+        if basis.shape[1]:
+            bases.append(basis)
+    if len(bases) < 2:
+        return False
+    return bool(np.linalg.svd(np.hstack(bases), compute_uv=False).min() < np.sqrt(1.0 - ALONG_THE_FREE_MOTION))
 
 
 def alike(c: _Campaign, p: tuple[int, int], q: tuple[int, int]) -> bool:
@@ -227,7 +344,7 @@ def plane_infos(c: _Campaign, keys: list[tuple[int, int]]) -> list[np.ndarray]:
     for i, j in keys:
         info_key = (i, j, c.tried[i, j])
         if info_key not in c.plane_infos:
-            c.plane_infos[info_key] = plane_information(c.scans[j].points, c.scans[i], c.sample_quality(i)[0],
+            c.plane_infos[info_key] = plane_information(c.scans[j].points, c.scans[i], c.normals(i),
                                                         c.mc.polish_gate * c.spacing, c.pairs[i, j].T_i_j)
         out.append(c.plane_infos[info_key])
     return out

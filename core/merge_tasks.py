@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import InputError
 from .frustum import frustum_of, visible_from
-from .fuse import sample_quality
+from .fuse import FacingNormals, sample_quality
 from .guess import Guess
 from .merge_result import Start
 from .quiet import quiet_open3d
@@ -161,9 +161,14 @@ def quality(shared: Shared, k: int) -> tuple[np.ndarray, np.ndarray]:
     return cache[("quality", k)]
 
 
-def _normals(shared: Shared, k: int) -> np.ndarray:
-    """(N, 3) normals of scan k (facing its sensor), once per process."""
-    return quality(shared, k)[0]
+def facing_normals(shared: Shared, k: int) -> FacingNormals:
+    """Scan k's normals facing its sensor, each worked out once per process when first asked for (the polish, an
+    overlap facing a sensor and a pair's information ask a few thousand of them; core.fuse.FacingNormals)."""
+    built(shared, k)
+    cache = _BUILT[shared.token]
+    if ("normals", k) not in cache:
+        cache[("normals", k)] = FacingNormals(built(shared, k)[0])
+    return cache[("normals", k)]
 
 
 def pair_seed(seed: int, i: int, j: int, attempt: int = 0) -> int:
@@ -192,7 +197,7 @@ def overlap_task(shared: Shared, item: tuple) -> float:
         moved = apply(T, pts)
         inside = frustum_of(tgt, pc.frustum).contains(moved)
         if facing:
-            normals = _normals(shared, a)[::step] @ T[:3, :3].T
+            normals = facing_normals(shared, a)[::step] @ T[:3, :3].T
             inside &= np.einsum("ij,ij->i", normals, tgt.viewpoint - moved) > 0
         elif pc.visibility and inside.any():
             radius = float(np.linalg.norm(pts - pts.mean(0), axis=1).max())
@@ -271,18 +276,19 @@ def polished(shared: Shared, task: PairTask, T: np.ndarray) -> np.ndarray:
     source = built(shared, task.j)[0]
     spacing = max(source.spacing, target.spacing)
     points = source.points[::max(1, len(source.points) // shared.polish_points)]
-    P = polish(points, target, surface, _normals(shared, task.i), T, spacing, shared.polish_steps, shared.polish_gate)
+    P = polish(points, target, surface, facing_normals(shared, task.i), T, spacing, shared.polish_steps,
+               shared.polish_gate)
     rot, move = pose_error(P, T, source.centroid)
     if rot < POLISH_STEP_DEG and move < POLISH_STEP_SPACINGS * spacing:
         return P
     return P if share_at(shared, task.i, task.j, P) > share_at(shared, task.i, task.j, T) + POLISH_MORE_MATCHING else T
 
 
-def polish(points: np.ndarray, target: Scan, surface: Surface, normals: np.ndarray, T: np.ndarray,
+def polish(points: np.ndarray, target: Scan, surface: Surface, normals: np.ndarray | FacingNormals, T: np.ndarray,
            spacing: float, steps: int = 30, gate: float = 1.5) -> np.ndarray:
     """Point-to-plane Gauss-Newton from T (T_target_source): points (N, 3) source frame, normals (Nt, 3)
-    at the target's points; ``steps`` at most, correspondences within ``gate`` point spacings. Returns
-    the polished T; T itself if too few correspondences."""
+    at the target's points (or its FacingNormals, asked for the matched ones only); ``steps`` at most,
+    correspondences within ``gate`` point spacings. Returns the polished T; T itself if too few correspondences."""
     gate2 = (gate * spacing) ** 2
     for _ in range(steps):
         p = apply(T, points)

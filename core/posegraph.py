@@ -20,11 +20,15 @@ A residual is (rotation in degrees, move of the source scan's centroid in units)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .scan import Scan
 from .transforms import apply, invert, rotation_angle
+
+if TYPE_CHECKING:
+    from .fuse import FacingNormals
 
 # Open3D's line process prunes a loop closure whose weight falls below this (Open3D's documented default)
 EDGE_PRUNE = 0.25
@@ -384,14 +388,14 @@ def information(points: np.ndarray) -> np.ndarray:
     return np.einsum("kri,krj->ij", G, G)
 
 
-def plane_information(source_points: np.ndarray, target: Scan, normals: np.ndarray, max_distance: float,
+def plane_information(source_points: np.ndarray, target: Scan, normals: np.ndarray | FacingNormals, max_distance: float,
                       T_target_source: np.ndarray) -> np.ndarray:
     """(6, 6) point-to-plane information of a pair (rotation first, then translation, in the target's frame,
     as :func:`information`): the sum of g g^T / s^2 over the source points (K, 3) matched within
     ``max_distance`` to the target's points, g = [q x n, n] at the matched target point q with its normal n
-    (``normals``, (Nt, 3)), s^2 the mean squared point-to-plane residual there. Unlike point-to-point, it
-    sees a pair pinned only across its surfaces: a crop of a smooth region is loose along its slide, and
-    its inverse (the covariance) says how loose. Fewer than 6 matches: zeros (the pair pins nothing)."""
+    (``normals``, (Nt, 3), or the target's FacingNormals), s^2 the mean squared point-to-plane residual there.
+    Unlike point-to-point, it sees a pair pinned only across its surfaces: a crop of a smooth region is loose along
+    its slide, and its inverse (the covariance) says how loose. Fewer than 6 matches: zeros (the pair pins nothing)."""
     moved = apply(T_target_source, source_points)
     d, idx = target.tree.query(moved, distance_upper_bound=max_distance)
     ok = np.isfinite(d)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
-from rangereg.core.fuse import fuse
+from rangereg.core.fuse import FacingNormals, fuse, sample_quality
 from rangereg.core.simulate import true_transform
 
 
@@ -56,3 +56,15 @@ def test_the_samples_kept_are_those_every_point_asked_against_every_scan_keeps()
     assert 0 < sum(k.sum() for k in model.kept) < sum(len(s.points) for s in scans)  # some overlap was decided
     given = fuse(scans, poses, surfaces, qualities=[sample_quality(s) for s in scans])  # made already: the same
     assert np.array_equal(given.vertices, model.vertices) and np.array_equal(given.faces, model.faces)
+
+
+def test_normals_worked_out_where_asked_are_those_of_the_whole_scan_bit_for_bit(scene):
+    """A campaign asks a scan's normals a few thousand at a time (the polish, a pair's information): each row as
+    sample_quality gives it for the whole scan, however asked (indices with repeats, any shape, slices)."""
+    scan = scene("corner")[0]
+    whole = sample_quality(scan)[0]
+    lazy = FacingNormals(scan)
+    rows = np.random.default_rng(0).integers(0, len(scan.points), (40, 25))
+    assert np.array_equal(lazy[rows], whole[rows])
+    assert np.array_equal(lazy[::7], whole[::7])
+    assert np.array_equal(lazy[np.arange(len(scan.points))], whole)

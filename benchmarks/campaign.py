@@ -8,7 +8,7 @@
     python benchmarks/campaign.py                      # 24 scans, seed 0: 1 vs 2 workers, 3 runs each
     python benchmarks/campaign.py --scans 36 --workers 4 --pairs overlap
     python benchmarks/campaign.py --write DIR          # only write the campaign (PLY + .conf) into DIR
-    python benchmarks/campaign.py --smallest           # 6 scans, ICP pairs, one run each: it runs
+    python benchmarks/campaign.py --smallest           # 4 scans, one run each: it runs
     python benchmarks/campaign.py --scale 100 500      # campaigns of 100 and 500 stops, rough poses and none
     python benchmarks/campaign.py --uncalibrated       # 15 stops, every pose the identity, and no poses
 
@@ -310,7 +310,7 @@ def main() -> int:
     p.add_argument("--write", metavar="DIR", help="write the campaign into DIR and stop")
     p.add_argument("--repeat", type=int, default=3, help="runs per setting, interleaved; medians compared")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.add_argument("--smallest", action="store_true", help="6 scans, one run per setting, one threading")
+    p.add_argument("--smallest", action="store_true", help="4 scans, one run per setting, one threading")
     p.add_argument("--families", action="store_true", help="every family of starts, ours and Open3D's multiway")
     p.add_argument("--only", choices=("whole", "crops"), help="--families: only the whole scans, or only the crops")
     p.add_argument("--crop-pairs", action="store_true", help="the crop families' diagnosis: overlaps at the truth, "
@@ -333,7 +333,7 @@ def main() -> int:
     if a.large:
         return large(a)
     if a.smallest:
-        a.scans, a.repeat = 6, 1
+        a.scans, a.repeat = 4, 1
     cfg = TurntableConfig(scans=a.scans)
     if a.write:
         camp = write_campaign(a.write, a.seed, cfg)

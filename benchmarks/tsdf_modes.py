@@ -1,7 +1,7 @@
 """TSDF fragment pairs in the sensor sweep's modes: from the identity, about the sensor, and with no guess.
 
     python benchmarks/tsdf_modes.py [--rooms 11-20] [--formats pcd]
-    python benchmarks/tsdf_modes.py --smallest   # one small pair (80 x 60 frames, 6 a fragment), one start: it runs
+    python benchmarks/tsdf_modes.py --smallest   # one small pair (80 x 60 frames, 6 a fragment, 4 cm voxels), one start
 
 benchmarks/written_files.py registers its TSDF fragments (core.scenes_sensor.tsdf_fragment_pair: rooms furnished by
 their seed, 20 depth frames a fragment with odometry drift, 300-330k points) with no guess only. Here each pair is
@@ -56,7 +56,7 @@ def main() -> int:
     ap.add_argument("--formats", default="pcd", help="comma-separated of pcd, ply")
     ap.add_argument("--smallest", action="store_true", help="one small pair, one start (a check that it runs)")
     a = ap.parse_args()
-    small = {"frames": 6, "shared": 2, "cam": ss.DepthCamera(cols=80, rows=60)} if a.smallest else {}
+    small = {"frames": 6, "shared": 2, "cam": ss.DepthCamera(cols=80, rows=60), "voxel": 0.04} if a.smallest else {}
     starts = STARTS[1:2] if a.smallest else STARTS
     if a.smallest:
         a.rooms, a.formats = "11", "pcd"

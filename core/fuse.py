@@ -19,11 +19,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import InputError
+from .noise import NORMAL_NEIGHBOURS
 from .scan import Scan, kd_tree
 from .surface import PARALLEL_QUERY, Surface, local_spacing, pca_normals
 from .transforms import apply
-
-NORMAL_NEIGHBOURS = 12  # the points a normal is fitted to (itself among them)
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,11 +67,14 @@ class FacingNormals:
         self._done = np.zeros(len(scan.points), dtype=bool)
         self._lock = threading.Lock()
 
-    def __getitem__(self, rows) -> np.ndarray:
-        """The normals (..., 3) of ``rows``: an index array (any shape) or a slice of the scan's points."""
+    def __getitem__(self, rows: np.ndarray | slice) -> np.ndarray:
+        """The normals (..., 3) of ``rows``: an integer index array (any shape) or a slice of the scan's points."""
         if isinstance(rows, slice):
             rows = np.arange(len(self._done))[rows]
-        rows = np.asarray(rows, dtype=np.int64)
+        rows = np.asarray(rows)
+        if rows.dtype == bool:
+            raise TypeError("FacingNormals takes row indices or a slice, not a mask")
+        rows = rows.astype(np.int64, copy=False)
         with self._lock:
             need = np.unique(rows[~self._done[rows]])
             if len(need):

@@ -359,7 +359,7 @@ class _Campaign:
                 tasks = merge_rounds.join_only(self, *graph)
         g, screened = graph or self.graph()
         # the final graph's scans it cannot vouch for are not placed (the rounds planned on every joined scan)
-        g = merge_graph.drift(self, g, screened.usable)
+        g, screened = merge_graph.vouched(self, g, screened)
         pairs = merge_report.pair_statuses(self, g, screened)
         scans = merge_report.scan_reports(self, g, pairs)
         loops = merge_report.rings(self, g, screened)

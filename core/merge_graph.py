@@ -25,6 +25,7 @@ open chain (a ring that cannot close through scans no pair places) their errors 
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -44,7 +45,7 @@ from .posegraph import (
     solve,
     spread,
 )
-from .threshold import ALONG_THE_FREE_MOTION
+from .threshold import ALONG_THE_FREE_MOTION, FACTOR
 from .transforms import apply, invert
 
 # core.merge's campaign state and knobs, by name only: core.merge imports this module
@@ -55,11 +56,12 @@ _Campaign = Any
 @dataclass(frozen=True)
 class Screened:
     """The pairs (keys) the graph may use, for each other registered pair (kind, why in words), and for
-    each usable pair the threshold did not trust the triangle that corroborates it (in words)."""
+    each usable pair the threshold did not trust the triangle or longer loop that corroborates it (in words)."""
 
     usable: list
     why: dict
     corroborated: dict = field(default_factory=dict)
+    rings: frozenset = frozenset()  # of the corroborated, those by a loop longer than a triangle
 
     def rejected(self, key: tuple[int, int]) -> bool:
         return key in self.why
@@ -94,18 +96,21 @@ def screen(c: _Campaign) -> Screened:
                                              f"{p.misfit / typical:.3g} x their median)")
     usable = [k for k in trusted if k not in why]
     refused: dict[tuple[int, int], str] = {}
-    corroborated = corroborate(c, usable, bound, error_bound, refused) if bound and error_bound else {}
+    rings: set[tuple[int, int]] = set()
+    corroborated = corroborate(c, usable, bound, error_bound, refused, rings) if bound and error_bound else {}
     for k in corroborated:
         del why[k]
     for k, note in refused.items():
         why[k] = (why[k][0], why[k][1] + note)
-    return Screened(usable + sorted(corroborated), why, corroborated)
+    return Screened(usable + sorted(corroborated), why, corroborated, frozenset(rings))
 
 
 def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error_bound: float,
-                refused: dict[tuple[int, int], str] | None = None) -> dict[tuple[int, int], str]:
-    """The untrusted pairs the campaign corroborates (module notes), each with the triangle's words; ``refused``
-    receives, for a pair not corroborated whose triangle closed, why that triangle did not count (:func:`alike`).
+                refused: dict[tuple[int, int], str] | None = None,
+                rings: set[tuple[int, int]] | None = None) -> dict[tuple[int, int], str]:
+    """The untrusted pairs the campaign corroborates (module notes), each with its triangle's or loop's words;
+    ``refused`` receives, for a pair not corroborated whose triangle or loop closed, why it did not count (:func:`alike`,
+    :func:`loop_leaves_free`); ``rings`` receives those a loop longer than a triangle corroborates.
 
     ``usable``: the trusted pairs kept so far; ``bound``, ``error_bound``: the misfit and the E (squared
     units) of the trusted pairs' level (the outlier bounds). Measured on the 24-stop simulated
@@ -115,8 +120,12 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
     (a crop flipped 171 deg onto two neighbouring scans; misfit 3.6 and 7.3, the bound 1.7). From no
     poses: 180 untrusted, 14 at the level, all right, 9 corroborated."""
     refused = {} if refused is None else refused
+    # set by fewer than three trusted pairs, the level is one or two pairs' own, not a median: only a pair that fitted
+    # as a trusted one does and failed on its pinning alone (its free motion known) is taken at it
+    few = len(usable) < 3
     level = set(usable) | {k for k, p in c.pairs.items() if not p.trusted and p.registered and p.misfit is not None
-                            and p.misfit <= bound and p.error <= error_bound and not p.twin}
+                            and p.misfit <= bound and p.error <= error_bound and not p.twin
+                            and (not few or (p.free is not None and p.misfit < FACTOR))}
     trusted = set(usable)
 
     def motion(a: int, b: int) -> np.ndarray | None:
@@ -129,10 +138,11 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
         return (a, b) in trusted or (b, a) in trusted
 
     tol = Tolerance(c.mc.cycle_rotation_deg, c.mc.cycle_translation * c.spacing)
-    near: dict[int, list[int]] = {}  # each scan's partners at the level (the longer loops' graph)
-    for a, b in level:
-        near.setdefault(a, []).append(b)
-        near.setdefault(b, []).append(a)
+    on_trusted = _partners(trusted)
+    # a pair a loop of trusted pairs does not close is wrong: no longer loop vouches for it, nor is it a leg of one
+    wrong = {k for k in level - trusted if _contradicted(c, k, on_trusted, motion, tol)}
+    near = _partners(level - wrong)
+    free_sets: list[frozenset] = []  # sets of untrusted pairs found to slide together (and so every loop with them)
     out = {}
     for i, j in sorted(level - trusted):
         for k in range(c.n):
@@ -155,34 +165,70 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
                          f"through {c.scans[k].name} within {rot:.2g} deg / {move:.3g}")
             refused.pop((i, j), None)
             break
-        if (i, j) not in out:
-            _longer_loop(c, (i, j), near, trusted, motion, tol, out, refused)
+        if (i, j) not in out and (i, j) not in wrong:
+            _longer_loop(c, (i, j), near, trusted, motion, tol, out, refused, free_sets)
+            if (i, j) in out and rings is not None:
+                rings.add((i, j))
     return out
 
 
 # A loop of up to this many pairs corroborates an untrusted pair where no triangle does (a ring of scans each
 # overlapping only its neighbours has none: a turntable of 4 stops, a drive), each loop at least one pair trusted, the
-# shortest first and at most LOOPS_TRIED of them a pair (those with no trusted pair counted).
+# shortest first; per pair at most LOOPS_TRIED loops with a trusted pair, LOOPS_WALKED paths in all, and
+# LEAVES_FREE_TRIED tests of :func:`loop_leaves_free` (a campaign of hundreds of scans whose weak pairs all slide
+# along one wall closes thousands of loops).
 LOOP_PAIRS = 6
 LOOPS_TRIED = 200
+LOOPS_WALKED = 5000
+LEAVES_FREE_TRIED = 20
+
+
+def _partners(pairs: set) -> dict[int, list[int]]:
+    """Each scan's partners in ``pairs`` ((a, b) keys), by index."""
+    near: dict[int, list[int]] = {}
+    for a, b in pairs:
+        near.setdefault(a, []).append(b)
+        near.setdefault(b, []).append(a)
+    return {k: sorted(v) for k, v in near.items()}
+
+
+def _contradicted(c: _Campaign, key: tuple[int, int], on_trusted: dict[int, list[int]], motion,
+                  tol: Tolerance) -> bool:
+    """Whether a loop of up to LOOP_PAIRS pairs, all trusted but ``key`` (i, j), leaves ``key`` open by more than
+    ``tol`` (``on_trusted``: each scan's trusted partners; ``motion(a, b)`` -> T_a_b)."""
+    i, j = key
+    walked = 0
+    for length in range(2, LOOP_PAIRS):
+        for path in _paths(on_trusted, i, j, length):
+            walked += 1
+            if walked > LOOPS_WALKED:
+                return False
+            chain = np.eye(4)
+            for a, b in zip(path[:-1], path[1:]):
+                chain = chain @ motion(a, b)
+            if not tol.holds(residual(c.pairs[key].T_i_j, np.eye(4), chain, c.centers[j])):
+                return True
+    return False
 
 
 def _longer_loop(c: _Campaign, key: tuple[int, int], near: dict[int, list[int]], trusted: set, motion,
-                 tol: Tolerance, out: dict, refused: dict) -> None:
+                 tol: Tolerance, out: dict, refused: dict, free_sets: list) -> None:
     """Corroborate the untrusted pair ``key`` (i, j) by a loop of 4 to LOOP_PAIRS pairs at the level (``near``: each
     scan's partners at it; at least one pair ``trusted``; ``motion(a, b)`` -> T_a_b) that closes within ``tol`` and
-    whose untrusted pairs leave no motion free together (:func:`loop_leaves_free`): into ``out`` (the words), or why
-    the closing loop did not count into ``refused``."""
+    whose untrusted pairs leave no motion free together (:func:`loop_leaves_free`; ``free_sets``: the sets of
+    untrusted pairs found to, kept across pairs): into ``out`` (the words), or why the closing loop did not count
+    into ``refused``."""
     i, j = key
-    tried = 0
+    tried = walked = tests = 0
     for length in range(3, LOOP_PAIRS):  # pairs besides (i, j); triangles (2) are corroborate's own
         for path in _paths(near, i, j, length):
-            tried += 1
-            if tried > LOOPS_TRIED:
-                return
+            walked += 1
             steps = list(zip(path[:-1], path[1:]))
+            if walked > LOOPS_WALKED or tried >= LOOPS_TRIED or tests >= LEAVES_FREE_TRIED:
+                return
             if not any(s in trusted or s[::-1] in trusted for s in steps):
                 continue
+            tried += 1
             chain = np.eye(4)
             for a, b in steps:
                 chain = chain @ motion(a, b)
@@ -190,7 +236,12 @@ def _longer_loop(c: _Campaign, key: tuple[int, int], near: dict[int, list[int]],
             if not tol.holds((rot, move)):
                 continue
             through = ", ".join(c.scans[k].name for k in path[1:-1])
-            if loop_leaves_free(c, [(i, j)] + steps):
+            weak = frozenset({key} | {s if s in c.pairs else s[::-1] for s in steps} - trusted)
+            if not any(f <= weak for f in free_sets):
+                tests += 1
+                if loop_leaves_free(c, [key] + steps):
+                    free_sets.append(weak)
+            if any(f <= weak for f in free_sets):
                 refused.setdefault(key, f"; it closes the loop through {through}, but the pairs of that loop not "
                                         "trusted leave one motion free together (the loop says nothing of where)")
                 continue
@@ -200,26 +251,25 @@ def _longer_loop(c: _Campaign, key: tuple[int, int], near: dict[int, list[int]],
             return
 
 
-def _paths(near: dict[int, list[int]], i: int, j: int, length: int):
-    """The simple paths i -> ... -> j of ``length`` pairs over ``near`` (scan -> its partners) that do not take the
-    pair (i, j) itself, in a fixed order (partners by index); a partial path too far from j to end in time is not
-    walked on (a campaign of hundreds of scans with a dozen partners each)."""
+def _paths(near: dict[int, list[int]], i: int, j: int, length: int) -> Iterator[list[int]]:
+    """The simple paths i -> ... -> j of ``length`` pairs over ``near`` (scan -> its partners, by index) that do not
+    take the pair (i, j) itself, in a fixed order; a partial path too far from j to end in time is not walked on."""
     hops, frontier = {j: 0}, [j]  # pairs from each scan to j, not through (i, j)
     while frontier:
         ahead = []
         for a in frontier:
             for b in near.get(a, ()):
-                if b not in hops and not {a, b} == {i, j}:
+                if b not in hops and {a, b} != {i, j}:
                     hops[b] = hops[a] + 1
                     ahead.append(b)
         frontier = ahead
 
-    def walk(path: list[int]):
+    def walk(path: list[int]) -> Iterator[list[int]]:
         if len(path) == length:
             if j in near.get(path[-1], ()):
                 yield path + [j]
             return
-        for k in sorted(near.get(path[-1], ())):
+        for k in near.get(path[-1], ()):
             if k != j and k not in path and len(path) + hops.get(k, length + 1) <= length:
                 yield from walk(path + [k])
 
@@ -232,7 +282,8 @@ def loop_leaves_free(c: _Campaign, steps: list[tuple[int, int]]) -> bool:
     carried round the loop, moves the first scan's points; the untrusted pairs' moves (each pair's as an orthonormal
     basis, as :func:`alike` makes them) leave a combination that nearly cancels when the smallest singular value of
     their bases side by side is under sqrt(1 - ALONG_THE_FREE_MOTION): for two pairs of one motion each, :func:`alike`'s
-    cosine bound itself (the singular values of two unit vectors side by side are sqrt(1 +- cos)). ``steps``: the pair
+    cosine bound (the singular values of two unit vectors side by side are sqrt(1 +- cos)), though measured on how the
+    loop's closure moves its first scan, not on the scan two pairs share (for a free turn the two may differ). ``steps``: the pair
     judged (i, j) first, then the loop's path i -> ... -> j as (a, b) steps (T_a_b each, either way round in
     ``c.pairs``), so the loop runs j -> i -> ... -> j."""
     first = steps[0][1]  # the loop runs first -> ... -> first: T_first_first = inv(T_i_j) @ chain
@@ -325,7 +376,33 @@ def edges(c: _Campaign, keys: list[tuple[int, int]]) -> list[Edge]:
 def build(c: _Campaign) -> tuple[Graph, Screened]:
     """The pose graph of the usable pairs, in the reference's frame (module notes); sets ``c.reference``."""
     screened = screen(c)
-    keys = screened.usable
+    return _graph(c, screened.usable), screened
+
+
+def vouched(c: _Campaign, g: Graph, screened: Screened) -> tuple[Graph, Screened]:
+    """The final graph with the scans it cannot vouch for not placed (:func:`drift`). Where that leaves scans out
+    and the pairs only a longer loop corroborates are among its pairs, the graph without them too, and whichever
+    places more: a ring of weakly pinned pairs (the 5-stop simulated turntable, one pair 1 deg off) can leave every
+    scan too uncertain, even those trusted pairs place (1 of 5 placed with the ring, 3 without it)."""
+    d = drift(c, g, screened.usable)
+    if not screened.rings or all(p is not None for p in d.poses):
+        return d, screened
+    loose, reference = dict(c.loose), c.reference
+    keys = [k for k in screened.usable if k not in screened.rings]
+    d2 = drift(c, _graph(c, keys), keys)
+    if sum(p is not None for p in d2.poses) <= sum(p is not None for p in d.poses):
+        c.loose, c.reference = loose, reference
+        return d, screened
+    why = dict(screened.why)
+    for k in screened.rings:
+        why[k] = (Rejection.NOT_TRUSTED, f"not trusted (misfit {c.pairs[k].misfit:.3g}); a loop closed through it, but "
+                                         "with that loop's pairs the graph could vouch for fewer scans")
+    return d2, Screened(keys, why, {k: v for k, v in screened.corroborated.items() if k not in screened.rings})
+
+
+def _graph(c: _Campaign, keys: list[tuple[int, int]]) -> Graph:
+    """The pose graph of the pairs ``keys``, in the reference's frame (the first scan's when its group is the
+    largest); sets ``c.reference``."""
     es = edges(c, keys)
     tol = Tolerance(c.mc.cycle_rotation_deg, c.mc.cycle_translation * c.spacing)
     g = solve(c.n, es, c.centers, tol, 3 * c.spacing, c.config.seed)
@@ -335,7 +412,7 @@ def build(c: _Campaign) -> tuple[Graph, Screened]:
     c.reference = 0 if size[label[0]] == best else min(k for k in range(c.n) if size[label[k]] == best)
     if c.reference != 0:
         g = solve(c.n, es, c.centers, tol, 3 * c.spacing, c.config.seed, c.reference)
-    return g, screened
+    return g
 
 
 def plane_infos(c: _Campaign, keys: list[tuple[int, int]]) -> list[np.ndarray]:

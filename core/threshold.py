@@ -200,7 +200,8 @@ def weak_below_of(target: Scan) -> float:
 # is this close to it (|cosine| in the pair threshold's units, Constraint.alignment): the slides the rise tests
 # judged already. Measured (2026-12-06): the sim-fragments-0 truth and the slides 0.2-0.8 m along the room that
 # score below it, 0.998-0.999; the 15-frame fragments' half turn against the truth, 0. A campaign reuses the bound,
-# not measured for it, for two pairs' free motions of the scan they share (core.merge_graph.alike).
+# not measured for it, for two pairs' free motions of the scan they share (core.merge_graph.alike) and for a loop's
+# untrusted pairs' (core.merge_graph.loop_leaves_free).
 ALONG_THE_FREE_MOTION = 0.95
 
 

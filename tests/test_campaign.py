@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -99,14 +100,14 @@ def test_a_turntable_from_identity_poses_places_every_scan():
 def test_a_four_stop_turntable_is_placed_by_its_ring():
     """Four stops 90 degrees apart: each scan overlaps its two neighbours only, one neighbour pair is trusted and three
     are right but weakly pinned, with no triangle to corroborate them; the ring that closes does (core.merge_graph).
-    Before it, two scans were placed in 28 s, after retries with every stage had ended their pairs 120-130 deg off."""
+    Before it, two scans were placed in 28 s, after retries with every stage had ended their pairs 120-135 deg off."""
     camp = make_campaign(0, TurntableConfig(scans=4))
     res = merge(camp.scans, camp.perturbed, build_model=False)
     assert all(res.placed)
     for s, T in zip(camp.scans, res.poses):
         rot, move = pose_error(T, np.linalg.inv(camp.scans[0].pose) @ s.pose, s.points.mean(0))
         assert rot < 1.0 and move < 1.0, (s.name, rot, move)
-    assert sum("closes the loop through" in p.reason for p in res.pairs) == 3
+    assert sum(re.search(r"closes the loop through scan\d+, scan\d+ within", p.reason) is not None for p in res.pairs) == 3
 
 
 def test_the_campaign_is_a_closed_asymmetric_object_with_its_truth_in_a_conf(folder):

@@ -142,7 +142,7 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
     # a pair a loop of trusted pairs does not close is wrong: no longer loop vouches for it, nor is it a leg of one
     wrong = {k for k in level - trusted if _contradicted(c, k, on_trusted, motion, tol)}
     near = _partners(level - wrong)
-    free_sets: list[frozenset] = []  # sets of untrusted pairs found to slide together (and so every loop with them)
+    seen = _Slides()
     out = {}
     for i, j in sorted(level - trusted):
         for k in range(c.n):
@@ -166,7 +166,7 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
             refused.pop((i, j), None)
             break
         if (i, j) not in out and (i, j) not in wrong:
-            _longer_loop(c, (i, j), near, trusted, motion, tol, out, refused, free_sets)
+            _longer_loop(c, (i, j), near, trusted, motion, tol, out, refused, seen)
             if (i, j) in out and rings is not None:
                 rings.add((i, j))
     return out
@@ -174,13 +174,27 @@ def corroborate(c: _Campaign, usable: list[tuple[int, int]], bound: float, error
 
 # A loop of up to this many pairs corroborates an untrusted pair where no triangle does (a ring of scans each
 # overlapping only its neighbours has none: a turntable of 4 stops, a drive), each loop at least one pair trusted, the
-# shortest first; per pair at most LOOPS_TRIED loops with a trusted pair, LOOPS_WALKED paths in all, and
-# LEAVES_FREE_TRIED tests of :func:`loop_leaves_free` (a campaign of hundreds of scans whose weak pairs all slide
-# along one wall closes thousands of loops).
+# shortest first; per pair at most LOOPS_TRIED loops with a trusted pair, LOOPS_WALKED paths in all and
+# LEAVES_FREE_TRIED tests of :func:`loop_leaves_free`, and LEAVES_FREE_ALL of those a screen (each ~2-4 ms: a
+# synthetic ring of 100 scans, 4 partners each, 15 % trusted, every weak pair sliding one way, closed thousands of
+# loops: 51 s a screen with no bound, 28 s with 20 tests a pair).
 LOOP_PAIRS = 6
 LOOPS_TRIED = 200
 LOOPS_WALKED = 5000
-LEAVES_FREE_TRIED = 20
+LEAVES_FREE_TRIED = 4
+LEAVES_FREE_ALL = 300
+
+
+@dataclass
+class _Slides:
+    """A screen's tests of :func:`loop_leaves_free`: how many were made, and the sets of untrusted pairs found to
+    slide together (a loop holding any of them does too: more pairs only lower the smallest singular value)."""
+
+    tests: int = 0
+    free: list = field(default_factory=list)
+
+    def known_free(self, pairs: frozenset) -> bool:
+        return any(f <= pairs for f in self.free)
 
 
 def _partners(pairs: set) -> dict[int, list[int]]:
@@ -212,19 +226,18 @@ def _contradicted(c: _Campaign, key: tuple[int, int], on_trusted: dict[int, list
 
 
 def _longer_loop(c: _Campaign, key: tuple[int, int], near: dict[int, list[int]], trusted: set, motion,
-                 tol: Tolerance, out: dict, refused: dict, free_sets: list) -> None:
+                 tol: Tolerance, out: dict, refused: dict, seen: _Slides) -> None:
     """Corroborate the untrusted pair ``key`` (i, j) by a loop of 4 to LOOP_PAIRS pairs at the level (``near``: each
     scan's partners at it; at least one pair ``trusted``; ``motion(a, b)`` -> T_a_b) that closes within ``tol`` and
-    whose untrusted pairs leave no motion free together (:func:`loop_leaves_free`; ``free_sets``: the sets of
-    untrusted pairs found to, kept across pairs): into ``out`` (the words), or why the closing loop did not count
-    into ``refused``."""
+    whose untrusted pairs leave no motion free together (:func:`loop_leaves_free`; ``seen``: this screen's tests of
+    it, kept across pairs): into ``out`` (the words), or why the closing loop did not count into ``refused``."""
     i, j = key
     tried = walked = tests = 0
     for length in range(3, LOOP_PAIRS):  # pairs besides (i, j); triangles (2) are corroborate's own
         for path in _paths(near, i, j, length):
             walked += 1
             steps = list(zip(path[:-1], path[1:]))
-            if walked > LOOPS_WALKED or tried >= LOOPS_TRIED or tests >= LEAVES_FREE_TRIED:
+            if walked > LOOPS_WALKED or tried >= LOOPS_TRIED or tests >= LEAVES_FREE_TRIED or seen.tests >= LEAVES_FREE_ALL:
                 return
             if not any(s in trusted or s[::-1] in trusted for s in steps):
                 continue
@@ -237,11 +250,12 @@ def _longer_loop(c: _Campaign, key: tuple[int, int], near: dict[int, list[int]],
                 continue
             through = ", ".join(c.scans[k].name for k in path[1:-1])
             weak = frozenset({key} | {s if s in c.pairs else s[::-1] for s in steps} - trusted)
-            if not any(f <= weak for f in free_sets):
+            if not seen.known_free(weak):
                 tests += 1
+                seen.tests += 1
                 if loop_leaves_free(c, [key] + steps):
-                    free_sets.append(weak)
-            if any(f <= weak for f in free_sets):
+                    seen.free.append(weak)
+            if seen.known_free(weak):
                 refused.setdefault(key, f"; it closes the loop through {through}, but the pairs of that loop not "
                                         "trusted leave one motion free together (the loop says nothing of where)")
                 continue

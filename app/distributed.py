@@ -6,8 +6,8 @@ or on Dask distributed. The only module that imports dask.
   (``threads_per_worker=1``: our tasks hold the GIL in numpy and Python between Open3D calls).
 - ``workers=None`` (default): the plain loop, until the work left pays for a local cluster of one
   worker per core (:func:`cluster_pays`: the tasks' measured time x the tasks left against the
-  cluster's start); then the rest of that map and every later one on the cluster. ``choice`` says
-  which was chosen and why.
+  cluster's start and the speed-up the cores the loop keeps busy already leave to it); then the rest
+  of that map and every later one on the cluster. ``choice`` says which was chosen and why.
 - ``scheduler="tcp://HOST:PORT"``: an existing cluster (``dask scheduler`` + ``dask worker``); its
   workers must import ``rangereg`` (run them in an environment where it is installed).
 
@@ -94,11 +94,19 @@ def reach_scheduler(address: str, timeout: float = PROBE_SECONDS) -> None:
                          "'dask scheduler' (and workers with 'dask worker ADDRESS') or leave --scheduler out")
 
 
-# When a local cluster pays (workers=None). Measured here (2 cores, README "Campaigns"): a local cluster of
-# 2 workers starts in 3.3-4.8 s on a quiet machine (processes and the engine's imports; 5-27 s at load
-# 9-16) and runs a 24-scan campaign's pairwise stage 1.65-1.72 x faster than the plain loop. Work w
-# seconds long on the loop takes start + w / 1.65 on the cluster: it pays from w = 2.5 x start, 12 s.
-PAYBACK_SECONDS = 12.0
+# When a local cluster pays (workers=None). A cluster of N workers on C cores runs what the plain loop runs at most
+# CLUSTER_EFFICIENCY x C / B times as fast, B the cores the loop keeps busy already (its own threads, Open3D's
+# ray casts, KISS-Matcher's child, whatever else runs here: measured over its tasks, :class:`BusyCores`); work w
+# seconds long on the loop then takes START_SECONDS + w / speed-up on the cluster, which pays from
+# w = START_SECONDS x speed-up / (speed-up - 1). Measured here (2 cores): a local cluster of 2 workers starts in
+# 3.3-4.8 s on a quiet machine (processes and the engine's imports; 3.6-4.0 s on 2026-12-07's; 5-27 s at load 9-16);
+# on the 24-scan campaign of 1.6-1.9k-point scans, whose loop keeps about one core busy, 2 workers ran the pairwise
+# stage 1.65-1.72 x faster than the loop: efficiency 1.65 / 2, and it pays from 12 s of work, as before. The 10-scan
+# campaign of 40k-point scans keeps 1.4-1.5 cores busy on the loop (Open3D's threads, the noise floors' thread,
+# KISS-Matcher's child): its 2 workers, one thread each, took 1.6 x as long a pair, and the cluster started with
+# 14 s of work left (the earlier rule: 12 s) ended the campaign 4.4 s later than the loop (41.0 s against 36.6).
+START_SECONDS = 4.8
+CLUSTER_EFFICIENCY = 1.65 / 2
 # Under load a second worker finds no free core (2 workers were 0.42-1.06 x the loop at load 9-16): no
 # cluster while the 1-minute load average is above the cores less this.
 LOAD_MARGIN = 0.5
@@ -109,19 +117,69 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
-def cluster_pays(seconds_left: float, cores: int | None = None, load: float | None = None) -> tuple[bool, str]:
-    """Whether ``seconds_left`` of work on the plain loop pays for starting a local cluster, and why."""
+def payback_seconds(cores: int, busy: float = 1.0) -> float:
+    """The plain loop's work (seconds) from which a local cluster of one worker per core pays for its start, the loop
+    keeping ``busy`` cores busy (inf: a cluster cannot run faster)."""
+    speedup = CLUSTER_EFFICIENCY * cores / max(1.0, busy)
+    return START_SECONDS * speedup / (speedup - 1.0) if speedup > 1.0 else float("inf")
+
+
+def cluster_pays(seconds_left: float, cores: int | None = None, load: float | None = None,
+                 busy: float | None = None) -> tuple[bool, str]:
+    """Whether ``seconds_left`` of work on the plain loop, which keeps ``busy`` cores busy (None: one), pays for
+    starting a local cluster, and why."""
     cores = default_workers() if cores is None else cores
     load = os.getloadavg()[0] if load is None else load
     if cores < 2:
         return False, "one core: a cluster cannot run faster"
     if load > cores - LOAD_MARGIN:
         return False, f"the machine is busy (load {load:.1f} on {cores} cores): a second worker finds no free core"
-    if seconds_left < PAYBACK_SECONDS:
+    payback = payback_seconds(cores, 1.0 if busy is None else busy)
+    kept = "" if busy is None else f"; the loop keeps {busy:.1f} of {cores} cores busy"
+    if payback == float("inf"):
+        return False, f"the loop keeps {busy:.1f} of {cores} cores busy already: a cluster cannot run faster"
+    if seconds_left < payback:
         return False, f"about {seconds_left:.0f} s of work left, less than a local cluster's start pays back " \
-                      f"({PAYBACK_SECONDS:g} s)"
+                      f"({payback:.0f} s{kept})"
     return True, f"about {seconds_left:.0f} s of work left, more than a local cluster's start pays back " \
-                 f"({PAYBACK_SECONDS:g} s)"
+                 f"({payback:.0f} s{kept})"
+
+
+class BusyCores:
+    """The cores busy on this machine while the plain loop runs its tasks (all processes: the loop's threads, its child
+    processes, anyone else's work), from the system's CPU times between each task's start and end; the first 3 tasks
+    left out, as :meth:`Progress.rate` leaves them."""
+
+    def __init__(self) -> None:
+        self.busy = self.wall = 0.0
+        self.tasks = 0
+        self._start: tuple[float, float] | None = None
+
+    @staticmethod
+    def _now() -> tuple[float, float]:
+        import psutil  # a dependency of dask.distributed
+
+        t = psutil.cpu_times()
+        return time.perf_counter(), sum(t) - t.idle - getattr(t, "iowait", 0.0) - getattr(t, "guest", 0.0) \
+            - getattr(t, "guest_nice", 0.0)
+
+    def start(self) -> None:
+        self._start = self._now()
+
+    def stop(self) -> None:
+        if self._start is None:
+            return
+        (w0, b0), (w1, b1) = self._start, self._now()
+        self._start = None
+        self.tasks += 1
+        if self.tasks > 3:
+            self.wall += w1 - w0
+            self.busy += b1 - b0
+
+    @property
+    def cores(self) -> float | None:
+        """The mean cores busy over the steady tasks (None before one)."""
+        return self.busy / self.wall if self.wall > 0 else None
 
 
 class Progress:
@@ -192,6 +250,7 @@ class TaskRunner:
         self.client = None
         self.cluster = None
         self.bars: dict[str, Progress] = {}
+        self.meter = BusyCores()  # the plain loop's use of this machine's cores (workers=None)
         self._most_left = -1.0
         if self.auto:
             self.choice = "plain loop in this process: too few tasks at a time for a local cluster to pay"
@@ -277,7 +336,9 @@ class TaskRunner:
             out = []
             with open3d_threads(self.threads):
                 for k, item in enumerate(items):
+                    self.meter.start()
                     out.append(one(item))
+                    self.meter.stop()
                     bar.step()
                     if done is not None:
                         done(k + 1)
@@ -301,7 +362,7 @@ class TaskRunner:
         before 3 tasks are done: the first of a process builds what the later reuse."""
         if left < 2 or done < 3:
             return False
-        pays, why = cluster_pays(seconds_left)
+        pays, why = cluster_pays(seconds_left, busy=self.meter.cores)
         if pays or seconds_left >= self._most_left:  # the plain loop's reason: its closest call
             self._most_left = seconds_left
             self.choice = (f"a local cluster of {self.workers} workers: {why}" if pays

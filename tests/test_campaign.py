@@ -315,8 +315,14 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
     import rangereg.app.distributed as dist
 
     pays = dist.cluster_pays
-    assert not pays(0.5 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]
-    assert pays(2 * dist.PAYBACK_SECONDS, cores=2, load=0.1)[0]
+    payback = dist.payback_seconds(2)
+    assert not pays(0.5 * payback, cores=2, load=0.1)[0]
+    assert pays(2 * payback, cores=2, load=0.1)[0]
+    # a loop that keeps more cores busy leaves a cluster less to gain: it pays later, or never
+    assert dist.payback_seconds(2, busy=1.45) > 3 * payback
+    assert not pays(2 * payback, cores=2, load=0.1, busy=1.45)[0]
+    full, why = pays(1000.0, cores=2, load=0.1, busy=1.9)
+    assert not full and "busy already" in why
     assert not pays(100.0, cores=1, load=0.0)[0]
     busy, why = pays(100.0, cores=2, load=3.0)
     assert not busy and "busy" in why
@@ -326,7 +332,7 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
         assert runner.serial and runner.client is None
         assert runner.choice.startswith("plain loop in this process")
     # work that pays (the bound lowered, a quiet machine): the rest of the map goes to a local cluster
-    monkeypatch.setattr(dist, "PAYBACK_SECONDS", 0.5)
+    monkeypatch.setattr(dist, "START_SECONDS", 0.2)
     monkeypatch.setattr(dist.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     monkeypatch.setattr(dist, "default_workers", lambda: 2)
     lines = []

@@ -333,6 +333,8 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
         assert runner.choice.startswith("plain loop in this process")
     # work that pays (the bound lowered, a quiet machine): the rest of the map goes to a local cluster
     monkeypatch.setattr(dist, "START_SECONDS", 0.2)
+    monkeypatch.setattr(dist.BusyCores, "cores", property(lambda self: 0.9))  # the sleeps keep no core busy
+
     monkeypatch.setattr(dist.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     monkeypatch.setattr(dist, "default_workers", lambda: 2)
     lines = []
@@ -342,6 +344,24 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
         assert runner.choice.startswith("a local cluster of 2 workers: about")
     assert any(line.startswith("starting a local cluster") for line in lines)
     assert any(line.startswith("_slow_abss 8/8") and line.endswith("done") for line in lines)
+
+
+def test_the_busy_cores_are_the_system_cpu_time_over_the_steady_tasks_wall_time(monkeypatch):
+    import rangereg.app.distributed as dist
+
+    ticks = iter([(0.0, 0.0), (1.0, 9.9)] * 3 + [(10.0, 100.0), (12.0, 102.5), (20.0, 200.0), (22.0, 203.5)])
+    monkeypatch.setattr(dist.BusyCores, "_now", staticmethod(lambda: next(ticks)))
+    meter = dist.BusyCores()
+    for _ in range(3):  # the first three tasks (a process's builds) are left out
+        meter.start()
+        meter.stop()
+    assert meter.cores is None
+    for _ in range(2):
+        meter.start()
+        meter.stop()
+    assert meter.cores == pytest.approx((2.5 + 3.5) / 4.0)
+    meter.stop()  # a stop without a start counts nothing
+    assert meter.cores == pytest.approx(1.5)
 
 
 def test_weakly_pinned_pairs_end_early_and_are_used_where_a_loop_corroborates_them():

@@ -14,7 +14,9 @@ surface never bridges a depth jump or a hole. Faces are wound so that their norm
 
 from __future__ import annotations
 
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -28,6 +30,12 @@ from .scan import Scan, ScanKind, kd_tree
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
 PARALLEL_QUERY = 20_000  # k-d tree queries of more points than this run on every core
+# Neighbourhood fits (:func:`spreads`) of more than this many points run in one part per core: numpy lets go of the
+# GIL in the mean, the products and the eigen-solver, and each row's fit depends on that row alone, so the parts give
+# the whole array's bits. Measured here (2 cores, 250k neighbourhoods of 12): 0.78 s in one part, 0.55 s in two.
+PARALLEL_SPREADS = 50_000
+_SPREADS_POOL: ThreadPoolExecutor | None = None
+_SPREADS_LOCK = threading.Lock()
 
 
 def local_spacing(points: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
@@ -48,10 +56,28 @@ def pca_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
 
 def spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Of neighbourhoods (Q, k, 3): (Q, 3) the direction of least spread (unit, sign arbitrary) and (Q, 3) the
-    spreads (the covariance's eigenvalues, smallest first)."""
+    spreads (the covariance's eigenvalues, smallest first). More than :data:`PARALLEL_SPREADS` of them: one part per
+    core, the same bits."""
+    parts = os.cpu_count() or 1
+    if len(nb) <= PARALLEL_SPREADS or parts < 2:
+        return _spreads(nb)
+    cuts = np.linspace(0, len(nb), parts + 1).astype(int)
+    done = list(_spreads_pool().map(_spreads, [nb[a:b] for a, b in zip(cuts[:-1], cuts[1:])]))
+    return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
+
+
+def _spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     nb = nb - nb.mean(1, keepdims=True)
     vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
     return vecs[:, :, 0], vals
+
+
+def _spreads_pool() -> ThreadPoolExecutor:
+    global _SPREADS_POOL
+    with _SPREADS_LOCK:
+        if _SPREADS_POOL is None:
+            _SPREADS_POOL = ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="spreads")
+        return _SPREADS_POOL
 
 
 def normal_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -64,8 +64,9 @@ PROBE_SECONDS = 3.0  # a scheduler that accepts no connection in this time is re
 
 
 def reach_scheduler(address: str, timeout: float = PROBE_SECONDS) -> None:
-    """Raise InputError unless ``address`` (tcp://HOST:PORT) is well formed and something accepts a TCP
-    connection there within ``timeout`` seconds (Dask's own client would retry for its whole timeout)."""
+    """Raise InputError unless ``address`` (tcp://HOST:PORT) is well formed, something accepts a TCP connection
+    there within ``timeout`` seconds (Dask's own client would retry for its whole timeout) and answers Dask's
+    handshake within as long (:func:`_handshake`)."""
     from urllib.parse import urlsplit
 
     shape = f"--scheduler must look like tcp://HOST:PORT, got {address!r}"
@@ -92,6 +93,32 @@ def reach_scheduler(address: str, timeout: float = PROBE_SECONDS) -> None:
     if why is not None:
         raise InputError(f"cannot reach the Dask scheduler at {address} ({why}); start it with "
                          "'dask scheduler' (and workers with 'dask worker ADDRESS') or leave --scheduler out")
+    _handshake(address, timeout)
+
+
+def _handshake(address: str, timeout: float) -> None:
+    """Raise InputError unless what listens at ``address`` answers Dask's handshake within ``timeout`` seconds.
+    Dask's own connect bounds the TCP connect but waits on the handshake for ever (distributed 2026.8:
+    ``comm.core.connect`` reads it with no timeout): a service that accepts and never answers held a merge past
+    600 s, and one that answers another protocol (an HTTP 400) was read as a frame 3 EiB long, a MemoryError."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def shake() -> None:
+        comm = await connect(address, timeout=timeout)
+        await comm.close()
+
+    try:
+        asyncio.run(asyncio.wait_for(shake(), timeout))
+    except TimeoutError:
+        why = f"it accepts connections but gives no Dask handshake within {timeout:g} s"
+    except Exception as exc:  # noqa: BLE001 - whatever another protocol's bytes make of Dask's reader
+        why = f"it does not answer as a Dask scheduler: {type(exc).__name__}"
+    else:
+        return
+    raise InputError(f"no Dask scheduler at {address} ({why}); start one with 'dask scheduler' or leave --scheduler "
+                     "out")
 
 
 # When a local cluster pays (workers=None). A cluster of N workers on C cores runs what the plain loop runs at most
@@ -250,6 +277,7 @@ class TaskRunner:
         self.client = None
         self.cluster = None
         self.bars: dict[str, Progress] = {}
+        self.used_cluster = False  # a map ran (some of) its tasks on the cluster
         self.meter = BusyCores()  # the plain loop's use of this machine's cores (workers=None)
         self._most_left = -1.0
         if self.auto:
@@ -263,6 +291,14 @@ class TaskRunner:
     def serial(self) -> bool:
         """Tasks run (so far) in this process: ``workers=1``, or ``workers=None`` before a cluster paid."""
         return self.client is None and self.scheduler is None and (self.auto or self.workers == 1)
+
+    @property
+    def ran_on(self) -> str:
+        """Where the tasks ran, and why: :attr:`choice`, unless a local cluster was asked for and every map held one
+        task, which ran in this process."""
+        if self.used_cluster or self.serial:
+            return self.choice
+        return f"plain loop in this process: one task at a time, which {self.choice} would only delay"
 
     @property
     def stream_threads(self) -> int | None:
@@ -282,10 +318,20 @@ class TaskRunner:
         from distributed import Client, LocalCluster
 
         if self.scheduler is not None:
+            _handshake(self.scheduler, self.connect_timeout)  # Dask's own connect may wait on it for ever
             try:
                 self.client = Client(self.scheduler, timeout=f"{self.connect_timeout}s")
             except (OSError, TimeoutError) as exc:
                 raise InputError(f"cannot reach the Dask scheduler at {self.scheduler} ({exc})") from None
+            if not self.client.scheduler_info(n_workers=-1).get("workers"):
+                try:
+                    self.client.wait_for_workers(1, timeout=self.connect_timeout)
+                except TimeoutError:
+                    self.client.close()
+                    self.client = None
+                    raise InputError(f"the Dask scheduler at {self.scheduler} has no workers after "
+                                     f"{self.connect_timeout:g} s; start some with 'dask worker {self.scheduler}'"
+                                     ) from None
         else:
             # the thread limits go into the environment before the worker's Python starts, so that its
             # BLAS and OpenMP read them
@@ -332,7 +378,8 @@ class TaskRunner:
         items = list(items)
         bar = self._bar(fn, items, label, quiet=done is not None)
         one = (lambda item: fn(item)) if shared is None else (lambda item: fn(shared, item))
-        if self.client is None and (self.serial or len(items) < 2):  # one task: a cluster would only add its start
+        # one task: a local cluster would only add its start (a scheduler named is used for it too)
+        if self.client is None and (self.serial or (len(items) < 2 and self.scheduler is None)):
             out = []
             with open3d_threads(self.threads):
                 for k, item in enumerate(items):
@@ -376,6 +423,7 @@ class TaskRunner:
         from distributed import as_completed
 
         self.start()
+        self.used_cluster = True
         # Many short tasks (e.g. 276 overlap measurements of a 24-scan campaign) go in batches of
         # consecutive items, about 16 batches per worker: the scheduler's cost per task stays small.
         n_workers = max(1, len(self.client.scheduler_info(n_workers=-1).get("workers", {})))

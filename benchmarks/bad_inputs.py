@@ -338,6 +338,9 @@ CASES += [
     C("merge truth sparse", "merge src.ply tgt.ply --truth sparse.conf", "sparse file"),
     C("merge init names a scan twice", "merge src.ply tgt.ply --init twice.conf", "second pose for src"),
     C("merge init translation 1e300", "merge src.ply tgt.ply --init far.conf", "beyond"),
+    C("merge truth translation nan", "merge src.ply tgt.ply --truth nan.conf", "not finite"),
+    C("merge init quaternion 1e300", "merge src.ply tgt.ply --init hugeq.conf --json", "", status=0, stdout_ok=True,
+      writes=("model.ply",), bound=60.0),
     # the page's data folder
     C("serve data dir a fifo", "serve --data-dir fifo.ply", "pipe (FIFO), not a folder"),
     C("serve data dir a file", "serve --data-dir src.ply", "is a file, not a folder"),
@@ -404,6 +407,8 @@ CASES += [
     C("max-points 3 accepted", f"{R} --method icp --max-points 3", "", status=0, stdout_ok=True, bound=30.0),
     # causes named
     C("init scaled 1.001", [*R.split(), "--init", "1.001 0 0 0 0 1.001 0 0 0 0 1.001 0 0 0 0 1"], "scaled by 1.001"),
+    # an entry whose square overflows: the one line, no numpy warning before it
+    C("init entry 1e300", [*R.split(), "--init", "1e300 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "stretches by 1e+300"),
     C("init mirrored", [*R.split(), "--init", "-1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "reflection"),
     C("init stretched", [*R.split(), "--init", "1 0.5 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "stretches"),
     C("leica pts with its count", "info leica.pts", "", status=0, stdout_ok=True),
@@ -428,6 +433,7 @@ CASES += [
     C("bench scheduler without sweep", "bench --quick --scheduler tcp://127.0.0.1:1", "only with --sweep"),
     C("bench workers without sweep", "bench --quick --workers 2", "only with --sweep"),
     C("merge scheduler unreachable", "merge src.ply tgt.ply --scheduler tcp://127.0.0.1:1", "cannot reach"),
+    C("merge workers and scheduler", "merge src.ply tgt.ply --workers 2 --scheduler tcp://127.0.0.1:1", "give one"),
     C("merge scheduler without a port", "merge src.ply tgt.ply --scheduler tcp://127.0.0.1", "tcp://HOST:PORT"),
     # signals: one line, 128 + the signal, temporaries removed (the old trace kept), workers stopped quietly
     C("register trace SIGTERM", "register src.ply tgt.ply --method sa --threshold 0 --trace keep.jsonl",
@@ -624,6 +630,9 @@ def write_round_two(f: Path) -> None:
     (f / "far13.txt").write_text(" ".join(map(str, far13.ravel())))
     (f / "twice.conf").write_text("bmesh src.ply 0 0 0 0 0 0 1\nbmesh src.ply 0 0 0 0 0 0 1\nbmesh tgt.ply 0 0 0 0 0 0 1\n")
     (f / "far.conf").write_text("bmesh src.ply 1e300 0 0 0 0 0 1\nbmesh tgt.ply 0 0 0 0 0 0 1\n")
+    (f / "nan.conf").write_text("bmesh src.ply nan 0 0 0 0 0 1\nbmesh tgt.ply 0 0 0 0 0 0 1\n")
+    # a quaternion whose square overflows: a direction like any other (the identity here), not a traceback
+    (f / "hugeq.conf").write_text("bmesh src.ply 0 0 0 0 0 0 1e300\nbmesh tgt.ply 0 0 0 0 0 0 1\n")
     # tiny scans
     for n in (4, 20, 23):
         v = rng.uniform(-1, 1, (n, 2))

@@ -35,11 +35,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .assemble import RawScan
 from .errors import InputError
 from .scan import E57Record, Scan, ScanKind
+from .transforms import quaternion_matrix
 
 SUFFIX = ".e57"
 CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
@@ -223,11 +223,12 @@ def _pose(scan, what: str) -> np.ndarray | None:
     if pose.isDefined("translation"):
         tr = _child(pose, "translation")
         t = np.array([_number(tr, k, 0.0) for k in "xyz"])
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(t))) or np.linalg.norm(q) < 1e-9:
+    R = quaternion_matrix(np.r_[q[1:], q[0]])
+    if R is None or not np.all(np.isfinite(t)):
         raise InputError(f"{what}: its pose is not a rigid transform (quaternion {q.tolist()}, "
                          f"translation {t.tolist()})")
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(np.r_[q[1:], q[0]] / np.linalg.norm(q)).as_matrix()
+    T[:3, :3] = R
     T[:3, 3] = t
     return T
 

@@ -36,6 +36,7 @@ from .sidefiles import (  # noqa: F401  (callers read side files through core.io
     write_sidecar,
     write_transform,
 )
+from .transforms import quaternion_matrix
 
 POINT_FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".csv", ".pts")
 MESH_FORMATS = (".obj", ".stl", ".off")
@@ -317,8 +318,6 @@ def _load_pcd(path: Path) -> RawScan:
 def _pcd_viewpoint(values: list[str] | None, path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
     """A PCD's ``VIEWPOINT tx ty tz qw qx qy qz``: the sensor's position (3,) in the cloud's frame and its
     orientation (3, 3) (the points are stored as they are, not turned by it); (None, None) without one."""
-    from scipy.spatial.transform import Rotation
-
     if values is None:
         return None, None
     try:
@@ -326,10 +325,10 @@ def _pcd_viewpoint(values: list[str] | None, path: Path) -> tuple[np.ndarray | N
     except ValueError:
         raise InputError(f"{path}: VIEWPOINT should be 7 numbers 'tx ty tz qw qx qy qz', found "
                          f"{' '.join(values)[:60]!r}") from None
-    q = np.array([qx, qy, qz, qw])
-    if not (np.all(np.isfinite(q)) and np.linalg.norm(q) > 1e-9):
+    R = quaternion_matrix(np.array([qx, qy, qz, qw]))
+    if R is None:
         raise InputError(f"{path}: VIEWPOINT's quaternion (qw qx qy qz) {[qw, qx, qy, qz]} is not a rotation")
-    return np.array([tx, ty, tz]), Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+    return np.array([tx, ty, tz]), R
 
 
 def _load_compressed_pcd(path: Path, raw: bytes, pos: int, n: int, row: int) -> np.ndarray:

@@ -8,11 +8,11 @@ import re
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 from .files import CONF_LIMIT, SIDECAR_LIMIT, TRANSFORM_LIMIT, read_bytes
 from .scan import Origin, Scan, ScanKind, check_coordinates
+from .transforms import quaternion_matrix
 
 
 def sidecar_path(path: Path) -> Path:
@@ -118,11 +118,13 @@ def load_conf(path: str | Path) -> dict[str, np.ndarray]:
             tx, ty, tz, qx, qy, qz, qw = map(float, tok[2:])
         except ValueError:
             raise InputError(f"{path}: line {lineno} holds a value that is not a number") from None
-        q = np.array([-qx, -qy, -qz, qw])
-        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
+        if not np.all(np.isfinite([tx, ty, tz])):
+            raise InputError(f"{path}: line {lineno}'s translation {[tx, ty, tz]} is not finite")
+        R = quaternion_matrix(np.array([-qx, -qy, -qz, qw]))
+        if R is None:
             raise InputError(f"{path}: line {lineno} has a zero or invalid quaternion")
         T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+        T[:3, :3] = R
         T[:3, 3] = (tx, ty, tz)
         _near(T[:3, 3], f"{path}: line {lineno}'s translation")
         name = Path(tok[1]).stem

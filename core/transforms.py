@@ -90,12 +90,30 @@ def check_rigid(T: np.ndarray, what: str = "transform", tol: float = 1e-4) -> np
     if not np.allclose(T[3], [0, 0, 0, 1], atol=tol):
         raise ValueError(f"{what} has a last row {T[3].tolist()}, expected [0, 0, 0, 1]")
     R = T[:3, :3]
-    det = np.linalg.det(R)
-    if abs(det) < 1e-9:
-        raise ValueError(f"{what} is singular (its rotation part has determinant {det:.3g})")
-    if not np.allclose(R.T @ R, np.eye(3), atol=tol) or det < 0:
-        raise ValueError(f"{what} is not rigid: its 3 x 3 part {_not_a_rotation(R, det, tol)}")
+    with np.errstate(over="ignore", invalid="ignore"):  # entries of 1e300 square to inf: said below, not warned
+        det = np.linalg.det(R)
+        if abs(det) < 1e-9:
+            raise ValueError(f"{what} is singular (its rotation part has determinant {det:.3g})")
+        if not np.allclose(R.T @ R, np.eye(3), atol=tol) or det < 0:
+            raise ValueError(f"{what} is not rigid: its 3 x 3 part {_not_a_rotation(R, det, tol)}")
     return T
+
+
+def quaternion_matrix(q: np.ndarray) -> np.ndarray | None:
+    """The (3, 3) rotation of quaternion ``q`` (4,) in scipy's order (x, y, z, w), of any length (it is
+    normalised); None when it has no direction: a non-finite entry, or a length below 1e-9. Scaled by its
+    largest entry first, so that 1e300 (whose square overflows) is a direction like any other."""
+    q = np.asarray(q, dtype=np.float64)
+    if not np.all(np.isfinite(q)):
+        return None
+    scale = float(np.max(np.abs(q)))
+    if not scale > 0:
+        return None
+    unit = q / scale
+    length = float(np.linalg.norm(unit))
+    if scale * length < 1e-9:
+        return None
+    return Rotation.from_quat(unit / length).as_matrix()
 
 
 def _not_a_rotation(R: np.ndarray, det: float, tol: float) -> str:

@@ -298,6 +298,45 @@ def test_bad_runner_settings_are_one_clear_error():
             runner.start()
 
 
+@pytest.mark.parametrize("answer, words", [(None, "gives no Dask handshake within"),
+                                            (b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n",
+                                             "does not answer as a Dask scheduler")])
+def test_a_service_that_is_no_dask_scheduler_is_one_clear_error_in_seconds(answer, words):
+    # Dask's own connect waits on the handshake for ever (a silent service held a merge past 600 s) and read an
+    # HTTP answer as a frame of 3 EiB (a MemoryError, said as "out of memory")
+    import socket
+    import threading
+
+    from rangereg.app.distributed import TaskRunner
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            held.append(conn)
+            if answer is not None:
+                conn.sendall(answer)
+                conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(InputError, match=words):
+            TaskRunner(scheduler=f"tcp://127.0.0.1:{server.getsockname()[1]}")
+        assert time.monotonic() - t0 < 30
+    finally:
+        server.close()
+        for conn in held:
+            conn.close()
+
+
 def test_map_tasks_keeps_the_order_serially_and_on_a_cluster():
     from rangereg.app.distributed import map_tasks
 

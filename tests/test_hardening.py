@@ -38,6 +38,7 @@ IN_PROCESS = (
     "slice span 1e300", "pcd viewpoint 1e300", "init scaled 1.001", "pcd compressed corrupt", "latin-1 name missing",
     "leica pts with its count", "ply with a utf-8 bom", "conf beside fifo", "conf beside sparse",
     "bench workers without sweep", "merge scheduler unreachable", "rotation uncertainty 1e-300",
+    "merge truth translation nan", "merge workers and scheduler", "init entry 1e300",
 )
 # As real processes: what only a process shows (a pipe read once, a FIFO given up, signals, stdout closed).
 SUBPROCESS = ("init pipe accepted", "init fifo without a writer", "register trace SIGTERM", "ctrl-c right after start",

@@ -48,6 +48,20 @@ def test_read_transform_forms(tmp_path):
 def test_malformed_conf(tmp_path):
     _refused(load_conf, tmp_path / "x.conf", "bmesh a.ply 0 0 0 0 0\n", "line 1")
     _refused(load_conf, tmp_path / "y.conf", "camera 0 0 0 0 0 0 1\n", "no 'bmesh'")
+    _refused(load_conf, tmp_path / "n.conf", "bmesh a.ply nan 0 0 0 0 0 1\n", "line 1's translation .* not finite")
+    _refused(load_conf, tmp_path / "z.conf", "bmesh a.ply 0 0 0 0 0 0 0\n", "line 1 has a zero or invalid quaternion")
+
+
+def test_a_quaternion_too_large_to_square_is_a_direction_like_any_other(tmp_path, recwarn):
+    from rangereg.core.transforms import quaternion_matrix
+
+    (tmp_path / "q.conf").write_text("bmesh a.ply 0 0 0 0 0 0 1e300\nbmesh b.ply 0 0 0 1e200 1e200 0 0\n")
+    poses = load_conf(tmp_path / "q.conf")
+    assert np.allclose(poses["a"], np.eye(4))
+    assert np.allclose(poses["b"][:3, :3], quaternion_matrix(np.array([-1.0, -1.0, 0.0, 0.0])))
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]  # no overflow on the way
+    for q in ([0, 0, 0, 0], [0, 0, 0, 1e-12], [np.inf, 0, 0, 1], [np.nan, 0, 0, 1]):
+        assert quaternion_matrix(np.array(q, dtype=float)) is None
 
 
 @pytest.fixture

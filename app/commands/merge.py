@@ -79,6 +79,8 @@ def run(a) -> int:
     from rangereg.core.merge import MergeConfig, merge
 
     workers, scheduler, pairs = a.workers, a.scheduler, a.pairs
+    if scheduler is not None and workers is not None:
+        raise InputError("--workers and --scheduler: give one (a scheduler's own workers run the pairs)")
     threads = getattr(a, "threads", None)  # threads per task stream (app.distributed); None: its default
     if sum(count_scans(p) for p in a.scans) < 2:  # an E57 without '#K' is all its scans
         raise InputError("merge needs at least two scans")
@@ -183,10 +185,11 @@ def build_report(res, scans, truth, stated, runner, scheduler, out, as_e57: bool
                    "closing_residual": _residual(r.residual), "after": _residual(r.after)} for r in res.rings],
         "stated": {"no_guess": stated.is_none, "rotation_deg": stated.rotation_deg, "translation": stated.translation,
                    "pair_rotation_deg": pair.rotation_deg, "pair_translation": pair.translation},
-        "runner": runner.choice,
-        "workers": 1 if runner.serial else (runner.workers if scheduler is None else None),
+        "runner": runner.ran_on,
+        "workers": 1 if not runner.used_cluster else (runner.workers if scheduler is None else None),
         "scheduler": scheduler,
-        "threads_per_worker": runner.stream_threads,  # None: the libraries' defaults (or the scheduler's workers')
+        # None: the libraries' defaults (or the scheduler's workers')
+        "threads_per_worker": runner.stream_threads if runner.used_cluster or runner.serial else runner.threads,
         "pair_seconds": res.pair_seconds,
         "seconds": res.seconds,
         "model": None if as_e57 else {

@@ -370,6 +370,10 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
         assert runner.map(abs, [-1, -2, -3]) == [1, 2, 3]
         assert runner.serial and runner.client is None
         assert runner.choice.startswith("plain loop in this process")
+    # a local cluster asked for, but every map one task: it ran here, and the report says so
+    with dist.TaskRunner(workers=2) as runner:
+        assert runner.map(abs, [-4]) == [4] and runner.map(abs, [-5]) == [5]
+        assert not runner.used_cluster and runner.ran_on.startswith("plain loop in this process: one task at a time")
     # work that pays (the bound lowered, a quiet machine): the rest of the map goes to a local cluster
     monkeypatch.setattr(dist, "START_SECONDS", 0.2)
     monkeypatch.setattr(dist.BusyCores, "cores", property(lambda self: 0.9))  # the sleeps keep no core busy

@@ -109,8 +109,11 @@ def _handshake(address: str, timeout: float) -> None:
         comm = await connect(address, timeout=timeout)
         await comm.close()
 
+    from concurrent.futures import ThreadPoolExecutor
+
     try:
-        asyncio.run(asyncio.wait_for(shake(), timeout))
+        with ThreadPoolExecutor(1, thread_name_prefix="dask-handshake") as pool:  # the caller may run a loop already
+            pool.submit(lambda: asyncio.run(asyncio.wait_for(shake(), timeout))).result()
     except TimeoutError:
         why = f"it accepts connections but gives no Dask handshake within {timeout:g} s"
     except Exception as exc:  # noqa: BLE001 - whatever another protocol's bytes make of Dask's reader
@@ -139,43 +142,57 @@ CLUSTER_EFFICIENCY = 1.65 / 2
 LOAD_MARGIN = 0.5
 
 
+def usable_cpus() -> list[int] | None:
+    """The CPUs this process may run on (its affinity mask, where the system keeps one), or None."""
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+
+
 def default_workers() -> int:
-    """As many workers as cores (at least 1)."""
-    return max(1, os.cpu_count() or 1)
+    """As many workers as cores this process may use (its affinity mask where there is one; at least 1)."""
+    cpus = usable_cpus()
+    return max(1, len(cpus) if cpus else os.cpu_count() or 1)
 
 
-def payback_seconds(cores: int, busy: float = 1.0) -> float:
+def payback_seconds(cores: int, busy: float = 1.0, tasks: int | None = None) -> float:
     """The plain loop's work (seconds) from which a local cluster of one worker per core pays for its start, the loop
-    keeping ``busy`` cores busy (inf: a cluster cannot run faster)."""
-    speedup = CLUSTER_EFFICIENCY * cores / max(1.0, busy)
+    keeping ``busy`` cores busy, ``tasks`` tasks left (None: as many as cores; no more workers than tasks can run at
+    once); inf: a cluster cannot run faster. The start (START_SECONDS) was measured for 2 workers on 2 cores."""
+    speedup = CLUSTER_EFFICIENCY * min(cores, cores if tasks is None else tasks) / max(1.0, busy)
     return START_SECONDS * speedup / (speedup - 1.0) if speedup > 1.0 else float("inf")
 
 
 def cluster_pays(seconds_left: float, cores: int | None = None, load: float | None = None,
-                 busy: float | None = None) -> tuple[bool, str]:
-    """Whether ``seconds_left`` of work on the plain loop, which keeps ``busy`` cores busy (None: one), pays for
-    starting a local cluster, and why."""
+                 busy: float | None = None, tasks: int | None = None) -> tuple[bool, str]:
+    """Whether ``seconds_left`` of work on the plain loop (``tasks`` tasks), which keeps ``busy`` cores busy (None:
+    one), pays for starting a local cluster, and why."""
     cores = default_workers() if cores is None else cores
-    load = os.getloadavg()[0] if load is None else load
+    if load is None:
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0  # (Windows has none: the busy cores say it)
     if cores < 2:
         return False, "one core: a cluster cannot run faster"
     if load > cores - LOAD_MARGIN:
         return False, f"the machine is busy (load {load:.1f} on {cores} cores): a second worker finds no free core"
-    payback = payback_seconds(cores, 1.0 if busy is None else busy)
-    kept = "" if busy is None else f"; the loop keeps {busy:.1f} of {cores} cores busy"
+    payback = payback_seconds(cores, 1.0 if busy is None else busy, tasks)
+    kept = "" if busy is None else f"; the loop keeps {busy:.2f} of {cores} cores busy"
     if payback == float("inf"):
-        return False, f"the loop keeps {busy:.1f} of {cores} cores busy already: a cluster cannot run faster"
+        few = tasks is not None and tasks < cores
+        why = (f"{tasks} task(s) left" if few else
+               f"the loop keeps {1.0 if busy is None else busy:.2f} of {cores} cores busy already")
+        return False, f"{why}: a cluster cannot run faster"
     if seconds_left < payback:
-        return False, f"about {seconds_left:.0f} s of work left, less than a local cluster's start pays back " \
-                      f"({payback:.0f} s{kept})"
-    return True, f"about {seconds_left:.0f} s of work left, more than a local cluster's start pays back " \
-                 f"({payback:.0f} s{kept})"
+        return False, f"about {seconds_left:.1f} s of work left, less than a local cluster's start pays back " \
+                      f"({payback:.1f} s{kept})"
+    return True, f"about {seconds_left:.1f} s of work left, more than a local cluster's start pays back " \
+                 f"({payback:.1f} s{kept})"
 
 
 class BusyCores:
-    """The cores busy on this machine while the plain loop runs its tasks (all processes: the loop's threads, its child
-    processes, anyone else's work), from the system's CPU times between each task's start and end; the first 3 tasks
-    left out, as :meth:`Progress.rate` leaves them."""
+    """The cores busy while the plain loop runs its tasks of one kind (all processes: the loop's threads, its child
+    processes, anyone else's work, on the CPUs this process may use), from the system's CPU times between each task's
+    start and end; the first 3 tasks of the kind left out, as :meth:`Progress.rate` leaves them."""
 
     def __init__(self) -> None:
         self.busy = self.wall = 0.0
@@ -186,9 +203,13 @@ class BusyCores:
     def _now() -> tuple[float, float]:
         import psutil  # a dependency of dask.distributed
 
-        t = psutil.cpu_times()
-        return time.perf_counter(), sum(t) - t.idle - getattr(t, "iowait", 0.0) - getattr(t, "guest", 0.0) \
-            - getattr(t, "guest_nice", 0.0)
+        def busy(t) -> float:  # guest time is counted in user time already (Linux)
+            return sum(t) - t.idle - getattr(t, "iowait", 0.0) - getattr(t, "guest", 0.0) - getattr(t, "guest_nice", 0.0)
+
+        cpus, each = usable_cpus(), psutil.cpu_times(percpu=True)
+        if cpus and max(cpus) < len(each):  # only the CPUs this process may use (a container's cpuset)
+            return time.perf_counter(), sum(busy(each[k]) for k in cpus)
+        return time.perf_counter(), busy(psutil.cpu_times())
 
     def start(self) -> None:
         self._start = self._now()
@@ -254,6 +275,11 @@ def _clock(seconds: float) -> str:
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
+def _key(fn: Callable) -> str:
+    """The name a kind of task is counted under (its bar and its meter): ``pair_task`` -> ``pairs``."""
+    return getattr(fn, "__name__", "task").removesuffix("_task") + "s"
+
+
 class TaskRunner:
     """A context manager that runs task maps serially or on one Dask cluster, started by the first map
     with two or more tasks and kept until the context ends.
@@ -278,7 +304,7 @@ class TaskRunner:
         self.cluster = None
         self.bars: dict[str, Progress] = {}
         self.used_cluster = False  # a map ran (some of) its tasks on the cluster
-        self.meter = BusyCores()  # the plain loop's use of this machine's cores (workers=None)
+        self.meters: dict[str, BusyCores] = {}  # per kind of task, as the bars: the plain loop's use of the cores
         self._most_left = -1.0
         if self.auto:
             self.choice = "plain loop in this process: too few tasks at a time for a local cluster to pay"
@@ -298,6 +324,8 @@ class TaskRunner:
         task, which ran in this process."""
         if self.used_cluster or self.serial:
             return self.choice
+        if self.scheduler is not None:
+            return f"{self.choice} (no task ran)"
         return f"plain loop in this process: one task at a time, which {self.choice} would only delay"
 
     @property
@@ -318,7 +346,6 @@ class TaskRunner:
         from distributed import Client, LocalCluster
 
         if self.scheduler is not None:
-            _handshake(self.scheduler, self.connect_timeout)  # Dask's own connect may wait on it for ever
             try:
                 self.client = Client(self.scheduler, timeout=f"{self.connect_timeout}s")
             except (OSError, TimeoutError) as exc:
@@ -376,26 +403,29 @@ class TaskRunner:
         ``done(count)``: called as tasks finish with this map's count so far (the caller then renders
         the progress: this runner writes no count lines of its own for the map)."""
         items = list(items)
+        if not items:
+            return []
         bar = self._bar(fn, items, label, quiet=done is not None)
+        meter = self.meters.setdefault(_key(fn), BusyCores())
         one = (lambda item: fn(item)) if shared is None else (lambda item: fn(shared, item))
         # one task: a local cluster would only add its start (a scheduler named is used for it too)
         if self.client is None and (self.serial or (len(items) < 2 and self.scheduler is None)):
             out = []
             with open3d_threads(self.threads):
                 for k, item in enumerate(items):
-                    self.meter.start()
+                    meter.start()
                     out.append(one(item))
-                    self.meter.stop()
+                    meter.stop()
                     bar.step()
                     if done is not None:
                         done(k + 1)
-                    if self.auto and self._pays(bar.rate() * (len(items) - k - 1), len(items) - k - 1, k + 1):
+                    if self.auto and self._pays(bar.rate() * (len(items) - k - 1), len(items) - k - 1, meter):
                         return out + self._on_cluster(fn, items[k + 1:], shared, bar, done, k + 1)
             return out
         return self._on_cluster(fn, items, shared, bar, done)
 
     def _bar(self, fn: Callable, items: list, label: str | None, quiet: bool = False) -> Progress:
-        key = getattr(fn, "__name__", "task").removesuffix("_task") + "s"
+        key = _key(fn)
         label = label or key
         if key in self.bars:
             self.bars[key].extend(len(items), label)
@@ -404,12 +434,12 @@ class TaskRunner:
         self.bars[key].write = None if quiet else self.say
         return self.bars[key]
 
-    def _pays(self, seconds_left: float, left: int, done: int = 3) -> bool:
-        """workers=None: start the local cluster now (and say why) when the work left pays for it. Not
-        before 3 tasks are done: the first of a process builds what the later reuse."""
-        if left < 2 or done < 3:
+    def _pays(self, seconds_left: float, left: int, meter: BusyCores) -> bool:
+        """workers=None: start the local cluster now (and say why) when the work left pays for it. Not before the
+        loop's busy cores are measured on tasks past the first 3 (the first of a process build what the later reuse)."""
+        if left < 2 or meter.cores is None:
             return False
-        pays, why = cluster_pays(seconds_left, busy=self.meter.cores)
+        pays, why = cluster_pays(seconds_left, busy=meter.cores, tasks=left)
         if pays or seconds_left >= self._most_left:  # the plain loop's reason: its closest call
             self._most_left = seconds_left
             self.choice = (f"a local cluster of {self.workers} workers: {why}" if pays

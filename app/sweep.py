@@ -351,8 +351,6 @@ def _choice(text: str | None, allowed: tuple[str, ...], flag: str) -> tuple[str,
 
 
 def sweep(a) -> int:
-    if getattr(a, "scheduler", None) is not None and getattr(a, "workers", None) is not None:
-        raise InputError("--workers and --scheduler: give one (a scheduler's own workers run the starts)")
     runs = a.runs or (2 if a.quick else 10)
     from rangereg.app import sweep_sensors as sensors
 

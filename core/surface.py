@@ -15,6 +15,7 @@ surface never bridges a depth jump or a hole. Faces are wound so that their norm
 from __future__ import annotations
 
 import os
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -30,9 +31,10 @@ from .scan import Scan, ScanKind, kd_tree
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
 PARALLEL_QUERY = 20_000  # k-d tree queries of more points than this run on every core
-# Neighbourhood fits (:func:`spreads`) of more than this many points run in one part per core: numpy lets go of the
-# GIL in the mean, the products and the eigen-solver, and each row's fit depends on that row alone, so the parts give
-# the whole array's bits. Measured here (2 cores, 250k neighbourhoods of 12): 0.78 s in one part, 0.55 s in two.
+# Neighbourhood fits (:func:`spreads`) of more than this many points run in one part per core (at most Open3D's thread
+# count, which a task stream's --threads sets): numpy lets go of the GIL in the mean, the products and the
+# eigen-solver, and each row's fit depends on that row alone, so the parts give the whole array's bits. Measured here
+# (2 cores, 250k neighbourhoods of 12): 0.78 s in one part, 0.55 s in two.
 PARALLEL_SPREADS = 50_000
 _SPREADS_POOL: ThreadPoolExecutor | None = None
 _SPREADS_LOCK = threading.Lock()
@@ -58,8 +60,13 @@ def spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Of neighbourhoods (Q, k, 3): (Q, 3) the direction of least spread (unit, sign arbitrary) and (Q, 3) the
     spreads (the covariance's eigenvalues, smallest first). More than :data:`PARALLEL_SPREADS` of them: one part per
     core, the same bits."""
-    parts = os.cpu_count() or 1
-    if len(nb) <= PARALLEL_SPREADS or parts < 2:
+    if len(nb) <= PARALLEL_SPREADS:
+        return _spreads(nb)
+    # Open3D's thread count is the task stream's (app.distributed: --threads, a worker's share); where Open3D is not
+    # loaded (info, scenes: they do without its import) no stream has set one
+    o3d = sys.modules.get("open3d")
+    parts = min(_cores(), o3d.utility.get_max_threads()) if o3d is not None else _cores()
+    if parts < 2:
         return _spreads(nb)
     cuts = np.linspace(0, len(nb), parts + 1).astype(int)
     done = list(_spreads_pool().map(_spreads, [nb[a:b] for a, b in zip(cuts[:-1], cuts[1:])]))
@@ -72,12 +79,28 @@ def _spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vecs[:, :, 0], vals
 
 
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def _spreads_pool() -> ThreadPoolExecutor:
     global _SPREADS_POOL
     with _SPREADS_LOCK:
         if _SPREADS_POOL is None:
-            _SPREADS_POOL = ThreadPoolExecutor(os.cpu_count() or 1, thread_name_prefix="spreads")
+            _SPREADS_POOL = ThreadPoolExecutor(_cores(), thread_name_prefix="spreads")
         return _SPREADS_POOL
+
+
+def _forget_pool_in_child() -> None:
+    global _SPREADS_POOL, _SPREADS_LOCK
+    _SPREADS_POOL, _SPREADS_LOCK = None, threading.Lock()  # a forked child has the pool's object, not its threads
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_in_child)
 
 
 def normal_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:

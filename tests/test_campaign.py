@@ -357,6 +357,9 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
     payback = dist.payback_seconds(2)
     assert not pays(0.5 * payback, cores=2, load=0.1)[0]
     assert pays(2 * payback, cores=2, load=0.1)[0]
+    # no more workers than tasks run at once: 3 tasks left on 8 cores pay as 3 workers would
+    assert dist.payback_seconds(8, tasks=3) == dist.payback_seconds(3) > dist.payback_seconds(8)
+    assert not pays(1000.0, cores=8, load=0.1, tasks=1)[0]
     # a loop that keeps more cores busy leaves a cluster less to gain: it pays later, or never
     assert dist.payback_seconds(2, busy=1.45) > 3 * payback
     assert not pays(2 * payback, cores=2, load=0.1, busy=1.45)[0]
@@ -370,6 +373,12 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
         assert runner.map(abs, [-1, -2, -3]) == [1, 2, 3]
         assert runner.serial and runner.client is None
         assert runner.choice.startswith("plain loop in this process")
+    # no decision before the loop's busy cores are measured (past its first 3 tasks): the third task alone never starts
+    # a cluster, whatever the work left
+    runner = dist.TaskRunner()
+    meter = dist.BusyCores()
+    assert meter.cores is None and not runner._pays(1e6, 100, meter)
+    assert runner.map(abs, []) == []  # an empty map: nothing to run, nothing started
     # a local cluster asked for, but every map one task: it ran here, and the report says so
     with dist.TaskRunner(workers=2) as runner:
         assert runner.map(abs, [-4]) == [4] and runner.map(abs, [-5]) == [5]

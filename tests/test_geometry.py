@@ -37,6 +37,17 @@ def _edges_within_bound(points, faces):
     return np.all(L <= bound + 1e-12)
 
 
+def test_neighbourhood_fits_in_parts_per_core_give_the_whole_arrays_bits():
+    from rangereg.core.surface import PARALLEL_SPREADS, _spreads, spreads
+
+    rng = np.random.default_rng(3)
+    nb = rng.normal(size=(PARALLEL_SPREADS + 1001, 12, 3)) * [1.0, 0.5, 0.01]
+    whole, parts = _spreads(nb), spreads(nb)
+    assert np.array_equal(whole[0], parts[0]) and np.array_equal(whole[1], parts[1])
+    view = nb[::-1]  # a view with negative strides: the parts are views too
+    assert np.array_equal(_spreads(view)[0], spreads(view)[0])
+
+
 def test_grid_surface_edges_respect_the_culling_bound(bunny):
     s = bunny("bun045")
     faces = triangulate(s)

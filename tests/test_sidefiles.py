@@ -54,11 +54,13 @@ def test_malformed_conf(tmp_path):
 
 def test_a_quaternion_too_large_to_square_is_a_direction_like_any_other(tmp_path, recwarn):
     from rangereg.core.transforms import quaternion_matrix
+    from scipy.spatial.transform import Rotation
 
-    (tmp_path / "q.conf").write_text("bmesh a.ply 0 0 0 0 0 0 1e300\nbmesh b.ply 0 0 0 1e200 1e200 0 0\n")
+    # b: qz = qw = 1e300, a quarter turn about z, read with the conjugate (the bunny's convention): -90 degrees
+    (tmp_path / "q.conf").write_text("bmesh a.ply 0 0 0 0 0 0 1e300\nbmesh b.ply 0 0 0 0 0 1e300 1e300\n")
     poses = load_conf(tmp_path / "q.conf")
     assert np.allclose(poses["a"], np.eye(4))
-    assert np.allclose(poses["b"][:3, :3], quaternion_matrix(np.array([-1.0, -1.0, 0.0, 0.0])))
+    assert np.allclose(poses["b"][:3, :3], Rotation.from_euler("z", -90, degrees=True).as_matrix())
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]  # no overflow on the way
     for q in ([0, 0, 0, 0], [0, 0, 0, 1e-12], [np.inf, 0, 0, 1], [np.nan, 0, 0, 1]):
         assert quaternion_matrix(np.array(q, dtype=float)) is None

@@ -4,7 +4,9 @@ method told only what a user would know, crops as families of their own, every f
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from rangereg.app.sweep import FAMILIES, MODES, PEERS, SweepTask, View, start_pose, sweep_table, sweep_tasks, told
+from rangereg.core.errors import InputError
 from rangereg.core.transforms import invert, pose_error, rotation_angle
 
 
@@ -71,3 +73,21 @@ def test_a_row_of_the_table_counts_right_trusted_flagged_and_doubted():
     assert cells[7] == "1/2"  # right, doubted
     assert cells[8] == "2.50 / 3.70 / 4.00"
     assert cells[9:] == ["100%", "0%", "0%"]
+
+
+def test_bench_sweep_takes_a_scheduler_without_workers_and_refuses_both(monkeypatch):
+    # bench gave the sweep --workers 1 by default, which a --scheduler then contradicted: every sweep on a cluster
+    # was refused
+    from argparse import Namespace
+
+    import rangereg.app.commands.bench as bench
+    import rangereg.app.sweep as sweep_module
+
+    seen = []
+    monkeypatch.setattr(bench, "reach_scheduler", lambda address: None)
+    monkeypatch.setattr(sweep_module, "sweep", lambda a: seen.append((a.workers, a.scheduler)) or 0)
+    a = Namespace(sweep=True, workers=None, scheduler="tcp://127.0.0.1:8786", json=None)
+    assert bench.run(a) == 0 and seen == [(None, "tcp://127.0.0.1:8786")]
+    assert bench.run(Namespace(sweep=True, workers=None, scheduler=None, json=None)) == 0 and seen[-1] == (1, None)
+    with pytest.raises(InputError, match="give one"):
+        bench.run(Namespace(sweep=True, workers=2, scheduler="tcp://127.0.0.1:8786", json=None))

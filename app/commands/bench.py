@@ -16,9 +16,12 @@ def run(a: Namespace) -> int:
             two = len(given) > 1
             raise InputError(f"{' and '.join(given)} {'apply' if two else 'applies'} only with --sweep "
                              f"({'they spread' if two else 'it spreads'} the sweep's starts)")
+    if a.scheduler is not None and a.workers is not None:
+        raise InputError("--workers and --scheduler: give one (a scheduler's own workers run the starts)")
     if a.scheduler is not None:
         reach_scheduler(a.scheduler)
-    a.workers = 1 if a.workers is None else a.workers
+    elif a.workers is None:
+        a.workers = 1  # the sweep's default: its starts in this process
     if a.json is not None:
         check_output(a.json, "--json", (".json",))
     if a.sweep:

@@ -79,14 +79,10 @@ def load_pair(source: str | Path, target: str | Path, source_viewpoint: np.ndarr
         scan = load_scan(path, viewpoint=viewpoint, kind=kind)
         # its point spacing (and the k-d tree it is measured on) here, on this file's thread: every pair asks for
         # both scans' spacings next (core.scan.scale_mismatch); a scan whose sidecar states its kind and units
-        # has not measured it yet (a 270k-point RGB-D fragment: 0.15 s); and a panorama's spherical image, which its
-        # surface and every overlap cut use (the shared LiDAR pair: 0.624 s median files to pose against 0.642, five
-        # runs each, the same pose)
+        # has not measured it yet (a 270k-point RGB-D fragment: 0.15 s). (A panorama's spherical image made here as
+        # well was no faster: the shared LiDAR pair 0.687 s median of 11 against 0.653 without, 0.624 against 0.642 of
+        # 5 on an earlier hour: the two threads then hold the GIL in turn.)
         _ = scan.spacing
-        if scan.kind is ScanKind.PANORAMA:
-            from .panorama import image_of
-
-            image_of(scan)
         return scan
 
     sizes = []

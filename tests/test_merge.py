@@ -67,7 +67,7 @@ def test_merge_bad_conf_gets_one_line(tmp_path):
     nan = tmp_path / "nan.conf"
     nan.write_text("bmesh scan1.ply 0 0 0 0 0 0 1\nbmesh scan2.ply nan 0 0 0 0 0 1\n")
     for conf, words in ((bad, "not a number"), (other, "no pose for"), (tmp_path / "none.conf", "no such file"),
-                        (nan, "NaN or infinite")):
+                        (nan, "translation [nan, 0.0, 0.0] is not finite")):
         r = rangereg("merge", a, b, "--init", str(conf))
         assert r.returncode == 2
         assert words in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr

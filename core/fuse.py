@@ -129,7 +129,7 @@ def fuse(scans: list[Scan], poses: list[np.ndarray], surfaces: list[Surface] | N
             covered = d2 < tol * tol
             if not covered.any():
                 continue
-            _, nearest = scans[j].tree.query(c[covered])
+            _, nearest = scans[j].tree.query(c[covered], workers=-1 if covered.sum() > PARALLEL_QUERY else 1)
             qj = quality[j][nearest]
             # The better-sampled scan wins; ties go to the earlier scan.
             here = todo[covered]

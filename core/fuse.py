@@ -149,7 +149,7 @@ def fuse(scans: list[Scan], poses: list[np.ndarray], surfaces: list[Surface] | N
                                                                             n_threads=1)
     verts = np.asarray(mesh.vertices)
     faces = np.asarray(mesh.triangles)
-    d, _ = cKDTree(points).query(verts)
+    d, _ = cKDTree(points).query(verts, workers=-1 if len(verts) > PARALLEL_QUERY else 1)
     near = d <= 2.0 * spacing
     faces = faces[np.all(near[faces], axis=1)]
     used = np.unique(faces)

@@ -352,16 +352,17 @@ def _slow_abs(x: int) -> int:
 
 def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch):
     import rangereg.app.distributed as dist
+    import rangereg.app.payback as pb
 
-    pays = dist.cluster_pays
-    payback = dist.payback_seconds(2)
+    pays = pb.cluster_pays
+    payback = pb.payback_seconds(2)
     assert not pays(0.5 * payback, cores=2, load=0.1)[0]
     assert pays(2 * payback, cores=2, load=0.1)[0]
     # no more workers than tasks run at once: 3 tasks left on 8 cores pay as 3 workers would
-    assert dist.payback_seconds(8, tasks=3) == dist.payback_seconds(3) > dist.payback_seconds(8)
+    assert pb.payback_seconds(8, tasks=3) == pb.payback_seconds(3) > pb.payback_seconds(8)
     assert not pays(1000.0, cores=8, load=0.1, tasks=1)[0]
     # a loop that keeps more cores busy leaves a cluster less to gain: it pays later, or never
-    assert dist.payback_seconds(2, busy=1.45) > 3 * payback
+    assert pb.payback_seconds(2, busy=1.45) > 3 * payback
     assert not pays(2 * payback, cores=2, load=0.1, busy=1.45)[0]
     full, why = pays(1000.0, cores=2, load=0.1, busy=1.9)
     assert not full and "busy already" in why
@@ -376,7 +377,7 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
     # no decision before the loop's busy cores are measured (past its first 3 tasks): the third task alone never starts
     # a cluster, whatever the work left
     runner = dist.TaskRunner()
-    meter = dist.BusyCores()
+    meter = pb.BusyCores()
     assert meter.cores is None and not runner._pays(1e6, 100, meter)
     assert runner.map(abs, []) == []  # an empty map: nothing to run, nothing started
     # a local cluster asked for, but every map one task: it ran here, and the report says so
@@ -384,11 +385,12 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
         assert runner.map(abs, [-4]) == [4] and runner.map(abs, [-5]) == [5]
         assert not runner.used_cluster and runner.ran_on.startswith("plain loop in this process: one task at a time")
     # work that pays (the bound lowered, a quiet machine): the rest of the map goes to a local cluster
-    monkeypatch.setattr(dist, "START_SECONDS", 0.2)
-    monkeypatch.setattr(dist.BusyCores, "cores", property(lambda self: 0.9))  # the sleeps keep no core busy
+    monkeypatch.setattr(pb, "START_SECONDS", 0.2)
+    monkeypatch.setattr(pb.BusyCores, "cores", property(lambda self: 0.9))  # the sleeps keep no core busy
 
-    monkeypatch.setattr(dist.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(pb.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     monkeypatch.setattr(dist, "default_workers", lambda: 2)
+    monkeypatch.setattr(pb, "default_workers", lambda: 2)
     lines = []
     with dist.TaskRunner(progress=lines.append) as runner:
         assert runner.map(_slow_abs, [-k for k in range(8)]) == list(range(8))
@@ -399,11 +401,11 @@ def test_the_default_runner_starts_a_cluster_only_when_the_work_pays(monkeypatch
 
 
 def test_the_busy_cores_are_the_system_cpu_time_over_the_steady_tasks_wall_time(monkeypatch):
-    import rangereg.app.distributed as dist
+    import rangereg.app.payback as pb
 
     ticks = iter([(0.0, 0.0), (1.0, 9.9)] * 3 + [(10.0, 100.0), (12.0, 102.5), (20.0, 200.0), (22.0, 203.5)])
-    monkeypatch.setattr(dist.BusyCores, "_now", staticmethod(lambda: next(ticks)))
-    meter = dist.BusyCores()
+    monkeypatch.setattr(pb.BusyCores, "_now", staticmethod(lambda: next(ticks)))
+    meter = pb.BusyCores()
     for _ in range(3):  # the first three tasks (a process's builds) are left out
         meter.start()
         meter.stop()

@@ -10,6 +10,7 @@ refresher pushes a run's progress.
 from __future__ import annotations
 
 import logging
+import threading
 
 import numpy as np
 import viser
@@ -48,6 +49,7 @@ class Tab:
         client.flush()
         self.camera = scene3d.CameraKeeper(client)
         self.state = TabState()
+        self._acting = threading.RLock()  # one GUI action at a time (guarded); re-entrant: an action may call another
         self.nodes: scene3d.SceneNodes | None = None
         self.run_drawing = False  # a run moves the scan: the light clouds are drawn
         self._trail: Trail | None = None
@@ -83,9 +85,13 @@ class Tab:
         self.client.add_notification(title, body, color="red" if error else "green", auto_close_seconds=8.0)
 
     def guarded(self, fn, *args) -> None:
-        """Run a GUI action; bad input becomes a notification and leaves the tab as it was."""
+        """Run a GUI action; bad input becomes a notification and leaves the tab as it was. One action of the tab at a
+        time: viser calls each click's callback on a pool of its own, so a Reset still cancelling and re-preparing
+        under load ran beside the Run clicked after it, and cancelled that new run. (Pause, Resume and Cancel are no
+        actions: they never wait behind one.)"""
         try:
-            fn(*args)
+            with self._acting:
+                fn(*args)
         except InputError as exc:
             self.notify("Not done", str(exc))
         except Exception as exc:  # never a dead page: say what happened, keep the tab

@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 import time
 
+from rangereg.core.threads import usable_cores, usable_cpus
+
 # When a local cluster pays (workers=None). A cluster of N workers on C cores runs what the plain loop runs at most
 # CLUSTER_EFFICIENCY x C / B times as fast, B the cores the loop keeps busy already (its own threads, Open3D's
 # ray casts, KISS-Matcher's child, whatever else runs here: measured over its tasks, :class:`BusyCores`); work w
@@ -28,18 +30,9 @@ CLUSTER_EFFICIENCY = 1.65 / 2
 LOAD_MARGIN = 0.5
 
 
-def usable_cpus() -> list[int] | None:
-    """The CPUs this process may run on (its affinity mask, where the system keeps one), or None."""
-    try:
-        return sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return None
-
-
 def default_workers() -> int:
-    """As many workers as cores this process may use (its affinity mask where there is one; at least 1)."""
-    cpus = usable_cpus()
-    return max(1, len(cpus) if cpus else os.cpu_count() or 1)
+    """As many workers as cores this process may use (core.threads.usable_cores; at least 1)."""
+    return usable_cores()
 
 
 def payback_seconds(cores: int, busy: float = 1.0, tasks: int | None = None) -> float:

@@ -27,6 +27,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .errors import InputError
 from .rows import cross, norms
 from .scan import Scan, ScanKind, kd_tree
+from .threads import usable_cores
 
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4
@@ -65,7 +66,7 @@ def spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # Open3D's thread count is the task stream's (app.distributed: --threads, a worker's share); where Open3D is not
     # loaded (info, scenes: they do without its import) no stream has set one
     o3d = sys.modules.get("open3d")
-    parts = min(_cores(), o3d.utility.get_max_threads()) if o3d is not None else _cores()
+    parts = min(usable_cores(), o3d.utility.get_max_threads()) if o3d is not None else usable_cores()
     if parts < 2:
         return _spreads(nb)
     cuts = np.linspace(0, len(nb), parts + 1).astype(int)
@@ -79,18 +80,11 @@ def _spreads(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vecs[:, :, 0], vals
 
 
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0)) or 1
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
 def _spreads_pool() -> ThreadPoolExecutor:
     global _SPREADS_POOL
     with _SPREADS_LOCK:
         if _SPREADS_POOL is None:
-            _SPREADS_POOL = ThreadPoolExecutor(_cores(), thread_name_prefix="spreads")
+            _SPREADS_POOL = ThreadPoolExecutor(usable_cores(), thread_name_prefix="spreads")
         return _SPREADS_POOL
 
 

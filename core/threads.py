@@ -20,6 +20,21 @@ from contextlib import contextmanager
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
+def usable_cpus() -> list[int] | None:
+    """The CPUs this process may run on (its affinity mask, where the system keeps one: a container's cpuset), or
+    None."""
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+
+
+def usable_cores() -> int:
+    """How many cores this process may use: its affinity mask where there is one, else the machine's (at least 1)."""
+    cpus = usable_cpus()
+    return max(1, len(cpus) if cpus else os.cpu_count() or 1)
+
+
 def one_blas_thread() -> bool:
     """Limit every BLAS library loaded (numpy's and scipy's) to one thread, unless an environment variable of
     ``BLAS_THREAD_VARIABLES`` is set. Returns whether it did."""

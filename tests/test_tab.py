@@ -448,3 +448,40 @@ def test_viewpoint_fields_show_4_digits_and_a_field_left_as_shown_keeps_the_exac
         assert np.array_equal(ScansPanel._viewpoint(panel, field, "viewpoint"), scan.viewpoint)
     panel.h.vp_source.value = "0.1 0.2 1.5"  # typed: taken as typed
     assert np.array_equal(ScansPanel._viewpoint(panel, panel.h.vp_source, "source viewpoint"), [0.1, 0.2, 1.5])
+
+
+def test_the_tabs_actions_run_one_at_a_time_in_the_order_of_the_clicks():
+    # viser awaits a coroutine callback on its event loop in the order the messages came (a plain one goes to a pool
+    # of 32 threads, where a Reset and the Run clicked after it started in either order); the action only queues
+    import asyncio
+    import inspect
+    from concurrent.futures import ThreadPoolExecutor
+
+    from rangereg.app.tab.page import Tab
+
+    seen, notes = [], []
+    tab = SimpleNamespace(_actions=ThreadPoolExecutor(1), _acting=threading.RLock(),
+                          notify=lambda title, body, error=True: notes.append(body))
+    tab.guarded = Tab.guarded.__get__(tab)
+    action = Tab.action.__get__(tab)
+
+    def reset():
+        time.sleep(0.3)  # a Reset that takes a while (cancelling a run, re-cutting the overlap)
+        seen.append("reset")
+
+    def refused():
+        raise InputError("a run holds the scans")
+
+    callbacks = [action(reset), action(seen.append, "run"), action(refused),
+                 action(lambda e: seen.append(e), event=True)]
+    assert all(inspect.iscoroutinefunction(cb) for cb in callbacks)
+
+    async def clicks():
+        t0 = time.monotonic()
+        for cb in callbacks:
+            await cb("the event")
+        return time.monotonic() - t0
+
+    assert asyncio.run(clicks()) < 0.1  # the event loop never waits for an action
+    tab._actions.shutdown(wait=True)
+    assert seen == ["reset", "run", "the event"] and notes == ["a run holds the scans"]

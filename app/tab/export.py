@@ -36,7 +36,7 @@ class ExportPanel:
                                               "browser with no server: scans, moving scan, path, 3-D landscape"))
         for button, fn in ((self.h.transform, self.transform), (self.h.trace, self.trace), (self.h.scans, self.scans),
                            (self.h.slice, self.slice), (self.h.model, self.model), (self.h.recording, self.recording)):
-            button.on_click(lambda e, fn=fn: tab.guarded(fn))
+            button.on_click(tab.action(fn))
 
     def _download(self, name: str, data: bytes) -> None:
         self.tab.client.send_file_download(name, data, save_immediately=True)

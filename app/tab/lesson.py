@@ -230,10 +230,10 @@ class LessonPanel:
         self.line = ""  # the step's sentence
         self.start_xy: tuple[float, float] = (float("nan"), float("nan"))  # the start on the slice (contour)
         self.view = None  # the lesson's slice (a SliceView), once computed
-        self.h.open.on_click(lambda e: tab.guarded(self.open))
-        self.h.next.on_click(lambda e: tab.guarded(self.next))
-        self.h.again.on_click(lambda e: tab.guarded(self.again))
-        self.h.terrain.on_click(lambda e: tab.guarded(self.look_at_terrain))
+        self.h.open.on_click(tab.action(self.open))
+        self.h.next.on_click(tab.action(self.next))
+        self.h.again.on_click(tab.action(self.again))
+        self.h.terrain.on_click(tab.action(self.look_at_terrain))
 
     @property
     def title(self) -> str:

@@ -39,10 +39,10 @@ class ModelPanel:
         self.h = ModelHandles(gui.add_button(FUSE_PAIR, hint="fuse the two scans at the current pose into one mesh"),
                               gui.add_checkbox("Show model", False, disabled=True), self._campaign(gui, tab.wb))
         self.residuals = ResidualsPanel(tab)
-        self.h.merge.on_click(lambda e: tab.guarded(self.start))
-        self.h.show.on_update(lambda e: tab.guarded(tab.apply_visibility))
+        self.h.merge.on_click(tab.action(self.start))
+        self.h.show.on_update(tab.action(tab.apply_visibility))
         if self.h.campaign is not None:
-            self.h.campaign.merge.on_click(lambda e: tab.guarded(self.start_campaign))
+            self.h.campaign.merge.on_click(tab.action(self.start_campaign))
 
     @staticmethod
     def _campaign(gui: viser.GuiApi, wb) -> CampaignHandles | None:

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable, Coroutine
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import viser
@@ -50,6 +52,7 @@ class Tab:
         self.camera = scene3d.CameraKeeper(client)
         self.state = TabState()
         self._acting = threading.RLock()  # one GUI action at a time (guarded); re-entrant: an action may call another
+        self._actions = ThreadPoolExecutor(1, thread_name_prefix="rangereg-action")  # the tab's actions, in click order
         self.nodes: scene3d.SceneNodes | None = None
         self.run_drawing = False  # a run moves the scan: the light clouds are drawn
         self._trail: Trail | None = None
@@ -57,7 +60,7 @@ class Tab:
         self.e_init = self.gui.add_markdown("")
         self.legend = self.gui.add_html(legend_html())
         self.fit = self.gui.add_button("Fit view", hint="frame the scans (and the terrain, when shown)")
-        self.fit.on_click(lambda e: self.guarded(self.fit_view))
+        self.fit.on_click(self.action(self.fit_view))
         chart = build_chart(self.gui)  # above the tabs: E shows whatever tab is open
         self.chart_units = ""
         tabs = self.gui.add_tab_group()
@@ -84,11 +87,21 @@ class Tab:
     def notify(self, title: str, body: str, error: bool = True) -> None:
         self.client.add_notification(title, body, color="red" if error else "green", auto_close_seconds=8.0)
 
+    def action(self, fn: Callable[..., None], *args, event: bool = False) -> Callable[[object], Coroutine]:
+        """A viser callback that runs ``fn(*args)`` (guarded) on the tab's one action thread, in the order the clicks
+        came; ``event``: the viser event is ``fn``'s last argument. viser hands each plain callback to a pool of 32
+        threads, where a Reset and the Run clicked just after it started in either order under load (the Reset then
+        cancelled the new run); a coroutine callback it awaits on its event loop in the order of the messages, and
+        this one only queues. (Pause, Resume and Cancel are no actions: they never wait behind one.)"""
+
+        async def queue(e) -> None:
+            self._actions.submit(self.guarded, fn, *args, *((e,) if event else ()))
+
+        return queue
+
     def guarded(self, fn, *args) -> None:
         """Run a GUI action; bad input becomes a notification and leaves the tab as it was. One action of the tab at a
-        time: viser calls each click's callback on a pool of its own, so a Reset still cancelling and re-preparing
-        under load ran beside the Run clicked after it, and cancelled that new run. (Pause, Resume and Cancel are no
-        actions: they never wait behind one.)"""
+        time (the lock: an action may also come from elsewhere than the action thread)."""
         try:
             with self._acting:
                 fn(*args)
@@ -131,7 +144,7 @@ class Tab:
                 self.nodes.remove()
             self.nodes = scene3d.draw_pair(self.client, st, settings.frustum, self.scans.h.show.overlap.value)
         self.camera.keep()
-        self.nodes.gizmo.on_update(lambda e: self.guarded(self.pose.dragged))
+        self.nodes.gizmo.on_update(self.action(self.pose.dragged))
         self.chart_in(target.units)
         self.lesson.forget()
         self.scans.show_viewpoints(source, target)
@@ -271,3 +284,4 @@ class Tab:
         """The browser tab went away: its run and its slice stop."""
         self.state.closed = True
         self.state.cancel_work()
+        self._actions.shutdown(wait=False, cancel_futures=True)

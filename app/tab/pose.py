@@ -71,10 +71,10 @@ class PosePanel:
         self.units = ""
         self.shown: list[tuple[str, float]] = [("0", 0.0)] * len(PARAM_NAMES)  # (text shown, exact value) per field
         self.result_shown = None  # the run result the read-only line shows
-        h.apply.on_click(lambda e: tab.guarded(self.apply_typed))
-        h.from_result.on_click(lambda e: tab.guarded(self.start_from_result))
-        h.reset_file.on_click(lambda e: tab.guarded(lambda: tab.set_initial(self.state.T_file)))
-        h.reset_truth.on_click(lambda e: tab.guarded(self.reset_truth))
+        h.apply.on_click(tab.action(self.apply_typed))
+        h.from_result.on_click(tab.action(self.start_from_result))
+        h.reset_file.on_click(tab.action(lambda: tab.set_initial(self.state.T_file)))
+        h.reset_truth.on_click(tab.action(self.reset_truth))
 
     def typed(self) -> np.ndarray:
         """T_target_source from the six fields (a field as shown stands for its exact value)."""

@@ -165,17 +165,17 @@ class RunPanel:
         """``chart``: the E chart, built above the panel's tabs (build_chart) so that it shows whatever tab is open."""
         self.tab, self.state = tab, tab.state
         self.h = h = build(tab.gui, chart)
-        guarded = tab.guarded
+        action = tab.action
         for label, method in RUN_BUTTONS.items():
-            h.run[label].on_click(lambda e, m=method: guarded(self.start, m))
-        h.step.on_click(lambda e: guarded(self.step))
-        h.next_phase.on_click(lambda e: guarded(self.next_phase))
+            h.run[label].on_click(action(self.start, method))
+        h.step.on_click(action(self.step))
+        h.next_phase.on_click(action(self.next_phase))
         h.pause.on_click(lambda e: self.control(Run.pause))
         h.resume.on_click(lambda e: self.control(Run.resume))
         h.cancel.on_click(lambda e: self.control(Run.cancel))
-        h.reset.on_click(lambda e: guarded(self.reset))
-        h.settings.frustum.on_update(lambda e: guarded(tab.reprepare))
-        h.settings.numbers["max_points"].on_update(lambda e: self._sample_size_typed())
+        h.reset.on_click(action(self.reset))
+        h.settings.frustum.on_update(action(tab.reprepare))
+        h.settings.numbers["max_points"].on_update(action(self._sample_size_typed))
         for field_ in (h.settings.numbers["rotation_uncertainty"], h.settings.numbers["translation_uncertainty"],
                        h.settings.no_guess):  # the status names the stated region: said as it is typed
             field_.on_update(lambda e: tab.update_status())
@@ -186,7 +186,7 @@ class RunPanel:
             read_number(self.h.settings, "max_points")
         except InputError:
             return
-        self.tab.guarded(self.tab.reprepare)
+        self.tab.reprepare()
 
     def settings(self) -> Settings:
         """The settings as typed (InputError naming a bad field); each Run button adds its method."""

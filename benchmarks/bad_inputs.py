@@ -198,6 +198,7 @@ CASES: list[Case] = [
     C("sidecar pose not rigid", "register side_shear.ply tgt.ply", "pose"),
     C("sidecar guess words", "register side_guess.ply tgt.ply", "guess"),
     C("sidecar units number", "info side_units.ply", "units"),
+    C("sidecar units unknown word", "info side_furlongs.ply", "should name a length unit"),
     C("sidecar a folder", "info side_dir.ply", "side_dir.json"),
     C("sidecar not an object", "info side_list.ply", "sidecar"),
     # --- geometry
@@ -545,7 +546,7 @@ def write_fixtures(folder: Path) -> None:
     sidecars = {"side_broken": "{not json", "side_vp_abc": {"viewpoint": "abc"}, "side_vp_2": {"viewpoint": [0, 0]},
                 "side_vp_nan": '{"viewpoint": [NaN, 0, 0]}', "side_pose": {"pose": [[1, 2], [3, 4]]},
                 "side_shear": {"pose": shear.tolist()}, "side_guess": {"guess": "near"}, "side_units": {"units": 5},
-                "side_list": [1, 2, 3]}
+                "side_furlongs": {"units": "furlongs"}, "side_list": [1, 2, 3]}
     for name, content in sidecars.items():
         shutil.copy(CORNER / "scan2.ply", f / f"{name}.ply")
         (f / f"{name}.json").write_text(content if isinstance(content, str) else json.dumps(content))

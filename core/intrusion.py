@@ -85,7 +85,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .rows import norms
-from .scan import Scan, ScanKind
+from .scan import METRES, Scan, ScanKind
 from .surface import view_basis
 
 if TYPE_CHECKING:
@@ -105,7 +105,6 @@ HULL_CHUNK = 256
 # Fused room fragments span 5-9 m; fused fragments of the bunny 0.2 m read 0.16-0.20 at their truths (a helper's
 # review, 2026-12-06: the other fragment's far side lies inside the hull of an object seen from outside).
 SCENE_METRES = 2.0
-METRES = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "km": 1e3, "in": 0.0254, "ft": 0.3048}
 
 
 def hull_planes(scan: Scan) -> np.ndarray | None:

@@ -23,7 +23,7 @@ from .las import SUFFIXES as LAS_SUFFIXES
 from .las import read_las_raw
 from .ply import PlyError, read_ply, write_ply, write_range_grid_ply
 from .rows import norms
-from .scan import Scan, ScanKind
+from .scan import Scan, ScanKind, units_name
 from .sidefiles import (  # noqa: F401  (callers read side files through core.io too)
     check_sidecar,
     load_conf,
@@ -55,6 +55,7 @@ def load_scan(path: str | Path, viewpoint: np.ndarray | None = None, name: str |
     """
     path, selector = split_selection(path)
     check_scan_file(path)
+    units = None if units is None else units_name(units, "units")
     given = Given(viewpoint=viewpoint, units=units, kind=scan_kind(kind), name=name)
     return assemble(read_raw(path, selector), given)
 

@@ -258,6 +258,30 @@ def flatness(points: np.ndarray) -> float:
     return float(s[2] / s[0])
 
 
+# The length units a scan may be in, each in metres (the intrusion test's scene width needs them), and the names
+# a sidecar or a caller may spell them by. Any other name is refused: a scan's units are said wherever a length is
+# printed, so an unknown word ("furlongs") would be printed as fact.
+METRES = {"um": 1e-6, "mm": 1e-3, "cm": 1e-2, "m": 1.0, "km": 1e3, "in": 0.0254, "ft": 0.3048}
+_SPELLINGS = {"um": ("\u03bcm", "micron", "microns", "micrometre", "micrometres", "micrometer", "micrometers"),
+              "mm": ("millimetre", "millimetres", "millimeter", "millimeters"),
+              "cm": ("centimetre", "centimetres", "centimeter", "centimeters"),
+              "m": ("metre", "metres", "meter", "meters"),
+              "km": ("kilometre", "kilometres", "kilometer", "kilometers"),
+              "in": ("inch", "inches"), "ft": ("foot", "feet")}
+UNIT_NAMES = {**{u: u for u in METRES}, **{w: u for u, ws in _SPELLINGS.items() for w in ws}}
+
+
+def units_name(value: object, what: str) -> str:
+    """The short name ("mm", "m", ...) of a length unit however it is spelled ("Millimeters", " m "); InputError
+    naming ``what`` for anything else."""
+    name = UNIT_NAMES.get(value.strip().casefold()) if isinstance(value, str) else None  # µ folds to Greek mu
+    if name is None:
+        known = ", ".join(f'"{u}"' for u in METRES)
+        shown = repr(value) if isinstance(value, str) else type(value).__name__
+        raise InputError(f"{what} should name a length unit ({known} or their names in words), found {shown[:40]}")
+    return name
+
+
 # Two scans whose sizes and point spacings both differ by this factor or more, and by the same factor
 # (within SAME_FACTOR), look like one kind of data in two units (metres and centimetres: 100; metres and
 # millimetres: 1000). A small part scanned finely inside a large scene differs in size far more than in

@@ -11,7 +11,7 @@ import numpy as np
 
 from .errors import InputError
 from .files import CONF_LIMIT, SIDECAR_LIMIT, TRANSFORM_LIMIT, read_bytes
-from .scan import Origin, Scan, ScanKind, check_coordinates
+from .scan import Origin, Scan, ScanKind, check_coordinates, units_name
 from .transforms import quaternion_matrix
 
 
@@ -42,7 +42,7 @@ def read_sidecar(path: Path) -> dict:
 
 def check_sidecar(data: dict, what: str) -> dict:
     """Check a sidecar's known keys; returns them as arrays: viewpoint (3,), pose and guess (4, 4) rigid,
-    kind a core.scan.ScanKind ("single-view", "panorama" or "unstructured")."""
+    kind a core.scan.ScanKind ("single-view", "panorama" or "unstructured"), units a short name (core.scan.units_name)."""
     from .transforms import check_rigid
 
     out = dict(data)
@@ -61,9 +61,8 @@ def check_sidecar(data: dict, what: str) -> dict:
         except ValueError as exc:
             raise InputError(str(exc)) from None
         _near(out[key][:3, 3], f"{what}: {key!r}'s translation")
-    units = data.get("units")
-    if units is not None and (not isinstance(units, str) or not units.strip()):
-        raise InputError(f"{what}: 'units' should be a name such as \"mm\" or \"m\", found {_short(units)}")
+    if data.get("units") is not None:
+        out["units"] = units_name(data["units"], f"{what}: 'units'")
     if data.get("kind") is not None:
         kinds = ", ".join(f'"{k.value}"' for k in ScanKind)
         try:

@@ -99,7 +99,9 @@ def unreadable(monkeypatch):
     ({"pose": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}, "'pose' is not rigid"),
     ({"guess": "identity"}, "'guess' should be a 4 x 4 rigid transform"),
     ({"pose": [[1, 0, 0], [0, 1]]}, "'pose' should be a 4 x 4 rigid transform"),
-    ({"units": 5}, "'units' should be a name"),
+    ({"units": 5}, "'units' should name a length unit .*found int"),
+    ({"units": "furlongs"}, "'units' should name a length unit \\(\"um\", \"mm\", .*found 'furlongs'"),
+    ({"units": ""}, "'units' should name a length unit"),
     ([1, 2, 3], "should hold a JSON object, found list"),
 ])
 def test_sidecar_contents_are_checked(tmp_path, sidecar, match):
@@ -115,6 +117,16 @@ def test_nan_viewpoint_in_sidecar_text_is_refused(tmp_path):
     (tmp_path / "s.json").write_text('{"viewpoint": [NaN, 0, 5]}')  # Python's json reads NaN
     with pytest.raises(InputError, match="not finite"):
         load_scan(tmp_path / "s.ply")
+
+
+@pytest.mark.parametrize("spelled, name", [("Millimeters", "mm"), (" metres ", "m"), ("inches", "in"), ("µm", "um")])
+def test_units_spelled_out_are_read_as_their_short_name(tmp_path, spelled, name):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    (tmp_path / "s.json").write_text(json.dumps({"units": spelled}))
+    assert load_scan(tmp_path / "s.ply").units == name
+    assert load_scan(tmp_path / "s.ply", units=spelled.upper()).units == name  # the caller's word, too
+    with pytest.raises(InputError, match="^units should name a length unit"):
+        load_scan(tmp_path / "s.ply", units="parsecs")
 
 
 def test_a_good_sidecar_still_sets_viewpoint_pose_and_units(tmp_path):

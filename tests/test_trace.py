@@ -178,7 +178,10 @@ def panel():
         except InputError as exc:
             said.append(("Not done", str(exc)))
 
-    tab = SimpleNamespace(gui=server.gui, state=st, nodes=None, said=said, guarded=guarded,
+    def action(fn, *args, event=False):  # Tab.action's callback, run at once (no click order to keep here)
+        return lambda e: guarded(fn, *args, *((e,) if event else ()))
+
+    tab = SimpleNamespace(gui=server.gui, state=st, nodes=None, said=said, guarded=guarded, action=action,
                           notify=lambda title, body, error=True: said.append((title, body)))
     yield ReplayPanel(tab)
     server.stop()

@@ -460,7 +460,7 @@ def test_the_tabs_actions_run_one_at_a_time_in_the_order_of_the_clicks():
     from rangereg.app.tab.page import Tab
 
     seen, notes = [], []
-    tab = SimpleNamespace(_actions=ThreadPoolExecutor(1), _acting=threading.RLock(),
+    tab = SimpleNamespace(_actions=ThreadPoolExecutor(1), _acting=threading.RLock(), state=TabState(),
                           notify=lambda title, body, error=True: notes.append(body))
     tab.guarded = Tab.guarded.__get__(tab)
     action = Tab.action.__get__(tab)
@@ -483,5 +483,7 @@ def test_the_tabs_actions_run_one_at_a_time_in_the_order_of_the_clicks():
         return time.monotonic() - t0
 
     assert asyncio.run(clicks()) < 0.1  # the event loop never waits for an action
+    tab.state.closed = True  # the browser tab went away (Tab.close): a late click is dropped, not an error
     tab._actions.shutdown(wait=True)
+    asyncio.run(callbacks[1]("a late click"))
     assert seen == ["reset", "run", "the event"] and notes == ["a run holds the scans"]

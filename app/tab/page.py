@@ -95,7 +95,8 @@ class Tab:
         this one only queues. (Pause, Resume and Cancel are no actions: they never wait behind one.)"""
 
         async def queue(e) -> None:
-            self._actions.submit(self.guarded, fn, *args, *((e,) if event else ()))
+            if not self.state.closed:  # a click that reaches a closed tab's queue has nothing left to act on
+                self._actions.submit(self.guarded, fn, *args, *((e,) if event else ()))
 
         return queue
 

@@ -182,12 +182,16 @@ class Workbench:
         self._guard_uploads(client)
         tab = Tab(self, client)
         self.tabs[client.client_id] = tab
-        try:
-            tab.load_pair(*self.first_pair, scene="-" if self.options.source else self.options.scene)
-            if self.trace is not None:
-                tab.replay.load_trace(*self.trace)
-        except InputError as exc:
-            tab.notify("Could not open the scans", str(exc))
+
+        def first() -> None:
+            try:
+                tab.load_pair(*self.first_pair, scene="-" if self.options.source else self.options.scene)
+                if self.trace is not None:
+                    tab.replay.load_trace(*self.trace)
+            except InputError as exc:
+                tab.notify("Could not open the scans", str(exc))
+
+        tab.submit(first)  # the tab's first action: a click meanwhile waits for the pair, not beside its load
 
     def _disconnect(self, client) -> None:
         tab = self.tabs.pop(client.client_id, None)

@@ -178,8 +178,8 @@ def panel():
         except InputError as exc:
             said.append(("Not done", str(exc)))
 
-    def action(fn, *args, event=False):  # Tab.action's callback, run at once (no click order to keep here)
-        return lambda e: guarded(fn, *args, *((e,) if event else ()))
+    def action(fn, *args, event=None):  # Tab.action's callback, run at once (no click order to keep here)
+        return lambda e: guarded(fn, *args, *(event(e) if event else ()))
 
     tab = SimpleNamespace(gui=server.gui, state=st, nodes=None, said=said, guarded=guarded, action=action,
                           notify=lambda title, body, error=True: said.append((title, body)))

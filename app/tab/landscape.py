@@ -105,7 +105,7 @@ class LandscapePanel:
         self.h = build(tab.gui)
         self.h.compute.on_click(tab.action(self.start))
         self.h.cancel.on_click(lambda e: self.cancel())
-        self.h.terrain.on_update(tab.action(self.update_terrain))
+        self.h.terrain.on_update(lambda e: tab.guarded(self.update_terrain))
         self.drawn_at = 0.0
         self.terrain: Terrain | None = None
         self.path: PathOnSlice | None = None  # the last run projected on the slice, shared by contour and terrain

@@ -40,7 +40,7 @@ class ModelPanel:
                               gui.add_checkbox("Show model", False, disabled=True), self._campaign(gui, tab.wb))
         self.residuals = ResidualsPanel(tab)
         self.h.merge.on_click(tab.action(self.start))
-        self.h.show.on_update(tab.action(tab.apply_visibility))
+        self.h.show.on_update(lambda e: tab.guarded(tab.apply_visibility))
         if self.h.campaign is not None:
             self.h.campaign.merge.on_click(tab.action(self.start_campaign))
 

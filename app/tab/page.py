@@ -13,6 +13,7 @@ import logging
 import threading
 from collections.abc import Callable, Coroutine
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 import viser
@@ -42,6 +43,12 @@ from rangereg.core.transforms import check_rigid, invert
 log = logging.getLogger("rangereg.workbench")
 
 
+def _log_failure(done) -> None:
+    """A queued action's future: what escaped ``guarded`` (a notification to a client gone) goes to the log."""
+    if not done.cancelled() and done.exception() is not None:
+        log.error("workbench action failed", exc_info=done.exception())
+
+
 class Tab:
     def __init__(self, workbench, client: viser.ClientHandle):
         self.wb, self.client, self.gui = workbench, client, client.gui
@@ -53,6 +60,8 @@ class Tab:
         self.state = TabState()
         self._acting = threading.RLock()  # one GUI action at a time (guarded); re-entrant: an action may call another
         self._actions = ThreadPoolExecutor(1, thread_name_prefix="rangereg-action")  # the tab's actions, in click order
+        self._waiting: set = set()  # the actions queued with once=True and not yet started (submit)
+        self._waiting_lock = threading.Lock()
         self.nodes: scene3d.SceneNodes | None = None
         self.run_drawing = False  # a run moves the scan: the light clouds are drawn
         self._trail: Trail | None = None
@@ -87,22 +96,49 @@ class Tab:
     def notify(self, title: str, body: str, error: bool = True) -> None:
         self.client.add_notification(title, body, color="red" if error else "green", auto_close_seconds=8.0)
 
-    def action(self, fn: Callable[..., None], *args, event: bool = False) -> Callable[[object], Coroutine]:
-        """A viser callback that runs ``fn(*args)`` (guarded) on the tab's one action thread, in the order the clicks
-        came; ``event``: the viser event is ``fn``'s last argument. viser hands each plain callback to a pool of 32
+    def action(self, fn: Callable[..., None], *args, event: Callable[[Any], tuple] | None = None
+               ) -> Callable[[Any], Coroutine]:
+        """A viser callback for a button, an upload, a scene click or the gizmo: it queues ``fn(*args)`` (guarded) for
+        the tab's one action thread, in the order the clicks came. viser hands each plain callback to a pool of 32
         threads, where a Reset and the Run clicked just after it started in either order under load (the Reset then
         cancelled the new run); a coroutine callback it awaits on its event loop in the order of the messages, and
-        this one only queues. (Pause, Resume and Cancel are no actions: they never wait behind one.)"""
+        this one only queues. ``event(e)``: what of viser's event ``fn`` takes after ``args``, read at the click (an
+        upload's file, a click's ray). An action with nothing of its event that is still waiting is not queued again
+        (a drag of the gizmo sends dozens; an action reads the tab's state when it runs). Fields keep viser's plain
+        callbacks: a value set in code calls them at once, as the code setting it expects. Pause, Resume and Cancel
+        are no actions: they never wait behind one."""
 
         async def queue(e) -> None:
-            if not self.state.closed:  # a click that reaches a closed tab's queue has nothing left to act on
-                self._actions.submit(self.guarded, fn, *args, *((e,) if event else ()))
+            if event is None:
+                self.submit(fn, *args, once=True)
+            else:
+                self.submit(fn, *args, *event(e))
 
         return queue
 
+    def submit(self, fn: Callable[..., None], *args, once: bool = False) -> None:
+        """Queue ``fn(*args)`` (guarded) for the tab's action thread; ``once``: not while the same is waiting there."""
+        key = (fn, args)
+        with self._waiting_lock:
+            if self.state.closed or (once and key in self._waiting):
+                return  # a closed tab has nothing left to act on
+            if once:
+                self._waiting.add(key)
+
+        def act() -> None:
+            if once:
+                with self._waiting_lock:
+                    self._waiting.discard(key)
+            self.guarded(fn, *args)
+
+        try:
+            self._actions.submit(act).add_done_callback(_log_failure)
+        except RuntimeError:  # the tab closed since the check (Tab.close shut its action thread)
+            pass
+
     def guarded(self, fn, *args) -> None:
         """Run a GUI action; bad input becomes a notification and leaves the tab as it was. One action of the tab at a
-        time (the lock: an action may also come from elsewhere than the action thread)."""
+        time (the lock: the first pair's load and a field's callback come from other threads)."""
         try:
             with self._acting:
                 fn(*args)
@@ -111,6 +147,8 @@ class Tab:
         except Exception as exc:  # never a dead page: say what happened, keep the tab
             log.exception("workbench action failed")
             self.notify("Something went wrong", f"{type(exc).__name__}: {exc}")
+        if self.state.closed:  # the tab closed while this action ran: what it started stops too
+            self.state.cancel_work()
 
     # ---- a pair of scans ---------------------------------------------------------------------------
     def load_pair(self, source: Scan, target: Scan, keep_pose: bool = False, scene: str | None = "-") -> None:

@@ -123,7 +123,7 @@ class PairsPanel:
                                      hint=f"Horn's closed form on >= {MIN_PAIRS} pairs; sets the initial pose"))
         self.pairs = PointPairs()
         self.markers: list = []
-        self.h.picking.on_update(tab.action(self._picking))
+        self.h.picking.on_update(lambda e: tab.guarded(self._picking))
         self.picking = False
         self.h.remove.on_click(tab.action(self._remove))
         self.h.clear.on_click(tab.action(self.forget))
@@ -134,7 +134,8 @@ class PairsPanel:
         scene = self.tab.client.scene
         self.picking = bool(self.h.picking.value)
         if self.picking and self._callback is None:
-            self._callback = scene.on_click()(self.tab.action(lambda e: self.clicked(e.ray_origin, e.ray_direction), event=True))
+            self._callback = scene.on_click()(self.tab.action(lambda o, d: self.clicked(o, d),  # (looked up at the click)
+                                                                event=lambda e: (e.ray_origin, e.ray_direction)))
         elif not self.picking and self._callback is not None:
             scene.remove_click_callback(self._callback)
             self._callback = None

@@ -92,12 +92,12 @@ class ReplayPanel:
         self.minima = np.zeros(0, int)
         self._playing: threading.Event | None = None
         self._drawn_at = 0.0
-        self.slider.on_update(tab.action(lambda: self.show(int(self.slider.value))))
+        self.slider.on_update(lambda e: tab.guarded(self.show, int(self.slider.value)))
         self.play.on_click(tab.action(self.start_play))
         self.pause.on_click(lambda e: self.stop_play())
         self.previous_min.on_click(tab.action(self.jump, -1))
         self.next_min.on_click(tab.action(self.jump, +1))
-        self.upload.on_upload(tab.action(lambda e: self.load_trace(e.target.value.name, e.target.value.content), event=True))
+        self.upload.on_upload(tab.action(self.load_trace, event=lambda e: (e.target.value.name, e.target.value.content)))
 
     def reset(self) -> None:
         """Take the events of the run that just ended (or were loaded); the timeline ends at the last one."""

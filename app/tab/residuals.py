@@ -121,7 +121,7 @@ class ResidualsPanel:
             self.summary = gui.add_markdown("")
         self.plot: viser.GuiPlotlyHandle | None = None
         self.current: Residuals | None = None
-        self.show.on_update(tab.action(self.refresh))
+        self.show.on_update(lambda e: tab.guarded(self.refresh))
 
     def refresh(self) -> None:
         """Recompute at the shown pose when asked for (and no run moves the scan), else drop the colours."""

@@ -174,8 +174,8 @@ class RunPanel:
         h.resume.on_click(lambda e: self.control(Run.resume))
         h.cancel.on_click(lambda e: self.control(Run.cancel))
         h.reset.on_click(action(self.reset))
-        h.settings.frustum.on_update(action(tab.reprepare))
-        h.settings.numbers["max_points"].on_update(action(self._sample_size_typed))
+        h.settings.frustum.on_update(lambda e: tab.guarded(tab.reprepare))
+        h.settings.numbers["max_points"].on_update(lambda e: self._sample_size_typed())
         for field_ in (h.settings.numbers["rotation_uncertainty"], h.settings.numbers["translation_uncertainty"],
                        h.settings.no_guess):  # the status names the stated region: said as it is typed
             field_.on_update(lambda e: tab.update_status())
@@ -186,7 +186,7 @@ class RunPanel:
             read_number(self.h.settings, "max_points")
         except InputError:
             return
-        self.tab.reprepare()
+        self.tab.guarded(self.tab.reprepare)
 
     def settings(self) -> Settings:
         """The settings as typed (InputError naming a bad field); each Run button adds its method."""

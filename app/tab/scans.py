@@ -159,15 +159,15 @@ class ScansPanel:
         h.open_scene.on_click(action(self.open_scene))
         if h.open_files is not None:
             h.open_files.on_click(action(self.open_files))
-        h.upload_source.on_upload(action(lambda e: self.uploaded("source", e.target.value), event=True))
-        h.upload_target.on_upload(action(lambda e: self.uploaded("target", e.target.value), event=True))
+        h.upload_source.on_upload(action(self.uploaded, "source", event=lambda e: (e.target.value,)))
+        h.upload_target.on_upload(action(self.uploaded, "target", event=lambda e: (e.target.value,)))
         h.apply_vp.on_click(action(self.apply_viewpoints))
         h.e57.open.on_click(action(self.open_e57_pair))
         self.e57_scans: list[Scan] = []  # the last uploaded E57's scans (under the tab's lock)
         self.vp_shown: dict[int, tuple[str, np.ndarray]] = {}  # per viewpoint field: (text shown, exact viewpoint)
         for box in (h.show.frustums, h.show.surfaces, h.show.path):
-            box.on_update(action(tab.apply_visibility))
-        h.show.overlap.on_update(action(tab.recolour))
+            box.on_update(lambda e: tab.guarded(tab.apply_visibility))
+        h.show.overlap.on_update(lambda e: tab.guarded(tab.recolour))
 
     def visibility(self, model: bool) -> Visibility:
         s = self.h.show

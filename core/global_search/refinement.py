@@ -18,7 +18,7 @@ from ..lock import LockFrame
 from ..problem import Problem, ProblemConfig, prepare, resample
 from ..region import offsets
 from ..result import Stop
-from ..scan import Scan
+from ..scan import Scan, ScanKind
 from ..search.budget import BudgetSpent
 from ..surface import Surface
 from ..threshold import ALONG_THE_FREE_MOTION, constraint
@@ -51,10 +51,14 @@ def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: C
     cut there already), then on the converged cut at the pose found (under ``frame``'s lock, when given:
     core.lock). Returns the pose and that last cut."""
     cc = config.candidates
-    # the first cut skips the visibility test (a ray per point): the candidate may be 15 deg off anyway
-    near = replace(config.problem, visibility=False)
     icp_config = _refine_icp(config)
     T = guess.T_target_source
+    # the first cut tests visibility from the target's sensor, as the guess's own cut does: a frustum alone holds the
+    # whole of an object seen from afar, and on two turntable stops 72 deg apart (a third of the source seen by both)
+    # the robust E over the whole source was lowest 22 deg from the truth, where KISS-Matcher's pose 1.5 deg off
+    # walked (the 10-scan campaign's scan03 -> scan05: 37.8k of 38.6k points cut; 26.1k with the test, refined to
+    # 0.14 deg). A fused cloud has no sensor: there the test would widen its closeness cut by the guess's reach.
+    near = config.problem if target.kind is not ScanKind.UNSTRUCTURED else replace(config.problem, visibility=False)
     p = at_T if at_T is not None else prepare(source, target, guess.narrowed(cc.refine_rotation_deg), near,
                                               surface=surface, seed=config.seed)
     T = icp(p.error, T, icp_config, on_step, frame=frame).T

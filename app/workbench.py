@@ -191,7 +191,7 @@ class Workbench:
             except InputError as exc:
                 tab.notify("Could not open the scans", str(exc))
 
-        tab.submit(first)  # the tab's first action: a click meanwhile waits for the pair, not beside its load
+        tab.actions.submit(first)  # the tab's first action: a click meanwhile waits for the pair, not beside its load
 
     def _disconnect(self, client) -> None:
         tab = self.tabs.pop(client.client_id, None)

@@ -455,16 +455,18 @@ def test_the_tabs_actions_run_one_at_a_time_in_the_order_of_the_clicks():
     # of 32 threads, where a Reset and the Run clicked after it started in either order); the action only queues
     import asyncio
     import inspect
-    from concurrent.futures import ThreadPoolExecutor
 
-    from rangereg.app.tab.page import Tab
+    from rangereg.app.tab.actions import Actions
 
-    seen, notes = [], []
-    tab = SimpleNamespace(_actions=ThreadPoolExecutor(1), _acting=threading.RLock(), state=TabState(),
-                          _waiting=set(), _waiting_lock=threading.Lock(),
-                          notify=lambda title, body, error=True: notes.append(body))
-    for name in ("guarded", "submit", "action"):
-        setattr(tab, name, getattr(Tab, name).__get__(tab))
+    seen, notes, closed = [], [], [False]
+
+    def guarded(fn, *args):  # as the tab's: bad input is said, not raised
+        try:
+            fn(*args)
+        except InputError as exc:
+            notes.append(str(exc))
+
+    actions = Actions(guarded, lambda: closed[0])
 
     def reset():
         time.sleep(0.3)  # a Reset that takes a while (cancelling a run, re-cutting the overlap)
@@ -473,8 +475,9 @@ def test_the_tabs_actions_run_one_at_a_time_in_the_order_of_the_clicks():
     def refused():
         raise InputError("a run holds the scans")
 
-    run = tab.action(seen.append, "run")
-    callbacks = [tab.action(reset), run, run, tab.action(refused), tab.action(seen.append, event=lambda e: (e,))]
+    run = actions.callback(seen.append, "run")
+    callbacks = [actions.callback(reset), run, run, actions.callback(refused),
+                 actions.callback(seen.append, event=lambda e: (e,))]
     assert all(inspect.iscoroutinefunction(cb) for cb in callbacks)
 
     async def clicks():
@@ -484,8 +487,8 @@ def test_the_tabs_actions_run_one_at_a_time_in_the_order_of_the_clicks():
         return time.monotonic() - t0
 
     assert asyncio.run(clicks()) < 0.1  # the event loop never waits for an action
-    tab.state.closed = True  # the browser tab went away (Tab.close): a late click is dropped, not an error
-    tab._actions.shutdown(wait=True)
+    actions.close(drain=True)
+    closed[0] = True  # the browser tab went away (Tab.close): a late click is dropped, not an error
     asyncio.run(run("a late click"))
     # in order; the second Run, clicked while the first still waited, was that one (a double click, a drag's burst)
     assert seen == ["reset", "run", "the event"] and notes == ["a run holds the scans"]

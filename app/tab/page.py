@@ -4,7 +4,7 @@ Everything the page does calls core: loading (core.io), the overlap (core.proble
 (core.register through app.runner), the slice (core.landscape), the model (core.fuse). The panels
 sit in viser tabs (Run, Lesson, Pose, Scans, Landscape, Model, Export), one module each, under the status, the
 colour legend, Fit view and the E chart; the tab's state and its threading contract are in app/tab/state.py; the
-refresher pushes a run's progress.
+refresher pushes a run's progress; the clicks' actions run in their order on one thread (app/tab/actions.py).
 """
 
 from __future__ import annotations
@@ -12,13 +12,13 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Coroutine
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 import viser
 from rangereg.app.figures import fmt, legend_html, squared_unit
 from rangereg.app.tab import scene3d, status
+from rangereg.app.tab.actions import Actions
 from rangereg.app.tab.export import ExportPanel
 from rangereg.app.tab.landscape import LandscapePanel
 from rangereg.app.tab.lesson import LessonPanel
@@ -43,12 +43,6 @@ from rangereg.core.transforms import check_rigid, invert
 log = logging.getLogger("rangereg.workbench")
 
 
-def _log_failure(done) -> None:
-    """A queued action's future: what escaped ``guarded`` (a notification to a client gone) goes to the log."""
-    if not done.cancelled() and done.exception() is not None:
-        log.error("workbench action failed", exc_info=done.exception())
-
-
 class Tab:
     def __init__(self, workbench, client: viser.ClientHandle):
         self.wb, self.client, self.gui = workbench, client, client.gui
@@ -59,9 +53,7 @@ class Tab:
         self.camera = scene3d.CameraKeeper(client)
         self.state = TabState()
         self._acting = threading.RLock()  # one GUI action at a time (guarded); re-entrant: an action may call another
-        self._actions = ThreadPoolExecutor(1, thread_name_prefix="rangereg-action")  # the tab's actions, in click order
-        self._waiting: set = set()  # the actions queued with once=True and not yet started (submit)
-        self._waiting_lock = threading.Lock()
+        self.actions = Actions(self.guarded, lambda: self.state.closed)  # clicks in their order (app/tab/actions.py)
         self.nodes: scene3d.SceneNodes | None = None
         self.run_drawing = False  # a run moves the scan: the light clouds are drawn
         self._trail: Trail | None = None
@@ -98,43 +90,9 @@ class Tab:
 
     def action(self, fn: Callable[..., None], *args, event: Callable[[Any], tuple] | None = None
                ) -> Callable[[Any], Coroutine]:
-        """A viser callback for a button, an upload, a scene click or the gizmo: it queues ``fn(*args)`` (guarded) for
-        the tab's one action thread, in the order the clicks came. viser hands each plain callback to a pool of 32
-        threads, where a Reset and the Run clicked just after it started in either order under load (the Reset then
-        cancelled the new run); a coroutine callback it awaits on its event loop in the order of the messages, and
-        this one only queues. ``event(e)``: what of viser's event ``fn`` takes after ``args``, read at the click (an
-        upload's file, a click's ray). An action with nothing of its event that is still waiting is not queued again
-        (a drag of the gizmo sends dozens; an action reads the tab's state when it runs). Fields keep viser's plain
-        callbacks: a value set in code calls them at once, as the code setting it expects. Pause, Resume and Cancel
-        are no actions: they never wait behind one."""
-
-        async def queue(e) -> None:
-            if event is None:
-                self.submit(fn, *args, once=True)
-            else:
-                self.submit(fn, *args, *event(e))
-
-        return queue
-
-    def submit(self, fn: Callable[..., None], *args, once: bool = False) -> None:
-        """Queue ``fn(*args)`` (guarded) for the tab's action thread; ``once``: not while the same is waiting there."""
-        key = (fn, args)
-        with self._waiting_lock:
-            if self.state.closed or (once and key in self._waiting):
-                return  # a closed tab has nothing left to act on
-            if once:
-                self._waiting.add(key)
-
-        def act() -> None:
-            if once:
-                with self._waiting_lock:
-                    self._waiting.discard(key)
-            self.guarded(fn, *args)
-
-        try:
-            self._actions.submit(act).add_done_callback(_log_failure)
-        except RuntimeError:  # the tab closed since the check (Tab.close shut its action thread)
-            pass
+        """The viser callback of a button, an upload, a scene click or the gizmo: ``fn(*args)`` queued in the order
+        of the clicks (app/tab/actions.py; ``event``: what of the event ``fn`` also takes)."""
+        return self.actions.callback(fn, *args, event=event)
 
     def guarded(self, fn, *args) -> None:
         """Run a GUI action; bad input becomes a notification and leaves the tab as it was. One action of the tab at a
@@ -323,4 +281,4 @@ class Tab:
         """The browser tab went away: its run and its slice stop."""
         self.state.closed = True
         self.state.cancel_work()
-        self._actions.shutdown(wait=False, cancel_futures=True)
+        self.actions.close()

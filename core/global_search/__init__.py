@@ -52,6 +52,7 @@ from ..candidates import for_search
 from ..config import Config
 from ..errors import InputError
 from ..events import Cancelled, Listener
+from ..frustum import frustum_of
 from ..guess import Guess
 from ..intrusion import intrusion
 from ..problem import Problem, prepare
@@ -81,7 +82,7 @@ def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None
     thinned = source is not whole[0] or target is not whole[1]
     if thinned and surface is None:  # the whole target's surface, made on a thread while the search runs
         pool = ThreadPoolExecutor(1, thread_name_prefix="whole-surface")
-        whole = (whole[0], whole[1], pool.submit(lambda target: Surface.from_scan(target).build(), whole[1]))
+        whole = (whole[0], whole[1], pool.submit(_whole_surface, *whole[:2], config.problem.frustum))
         pool.shutdown(wait=False)
     setup = prepare_setup(source, target, guess, config, surface if target is whole[1] else None)
     run = EventStream(listener, setup.frame, setup.budget())
@@ -107,6 +108,20 @@ def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None
     elif thinned and stop.reason is not StopReason.CANCELLED:
         best, last_cut, found_by = _on_the_whole(setup, run, whole, best, last_cut, found_by)
     return _result(setup, run, best, stop, last_cut, sources, found_by, local_minima)
+
+
+def _whole_surface(source: Scan, target: Scan, frustum: str) -> Surface:
+    """The whole target's surface, and both whole scans' views (each kept with its scan, core.frustum.frustum_of),
+    made on a thread while the thinned scans are searched: the whole scans' first overlap cut
+    (:func:`_whole_leg`) then only cuts (on the shared Kinect pair capture0002 -> 0001 the views took 0.12 s of
+    that cut's 0.27 s)."""
+    surface = Surface.from_scan(target).build()
+    for scan in (source, target):
+        try:
+            frustum_of(scan, frustum)
+        except InputError:  # the cut that asks for it says so, in the search's thread
+            pass
+    return surface
 
 
 def _whole_leg(setup: Setup, run: EventStream, whole: tuple, T: np.ndarray) -> np.ndarray | None:

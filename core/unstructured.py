@@ -346,7 +346,10 @@ class CloudView:
 def cloud_view(scan: Scan) -> CloudView:
     c = np.array(scan.centroid, dtype=np.float64)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", scan.points - c, scan.points - c))))
-    return CloudView(np.array(scan.viewpoint, dtype=np.float64), scan.tree, NEAR_SPACINGS * scan.spacing, c, radius)
+    view = CloudView(np.array(scan.viewpoint, dtype=np.float64), scan.tree, NEAR_SPACINGS * scan.spacing, c, radius)
+    if len(scan.points) > COARSE_MIN_POINTS:  # every overlap cut asks for it (its guessed margin): made with the view,
+        _ = view._coarse  # so that a view made ahead (core.global_search: the whole scans') has it too
+    return view
 
 
 SURFACE_OF_KIND[ScanKind.UNSTRUCTURED] = TangentPlanes.from_scan  # core.surface's table of kinds

@@ -93,22 +93,35 @@ def test_pause_says_paused_within_a_third_of_a_second_of_the_click_and_the_run_s
     page, tab = open_tab(bench, browser)
     st = tab.state
     seconds, clicks = [], []
-    for _ in range(3):
+
+    def seen(step: str, k: int) -> str:  # what a failure message shows: the step, the status and the tab's state
+        return (f"click {k + 1}, {step}: paused {st.paused}, events {len(st.events)}, "
+                f"status: {status_text(page)!r}")
+
+    def wait_until(predicate, timeout: float, step: str, k: int) -> None:
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise AssertionError(f"not within {timeout} s: " + seen(step, k))
+            time.sleep(0.05)
+
+    for k in range(3):
         page.get_by_role("button", name="Reset", exact=True).click()
         page.get_by_role("button", name="Run SA", exact=True).click()  # annealing alone: a long run
-        page.wait_for_function("() => document.body.innerText.includes('· running ·')", timeout=60_000)
+        wait_until(lambda: "· running ·" in status_text(page), 60, "waiting for the run", k)
         time.sleep(1.0)
         box = page.get_by_role("button", name="Pause", exact=True).bounding_box()
         page.evaluate(PAUSED_AT)
         t0 = time.time()
         page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-        page.wait_for_function("() => window._paused > 0", timeout=30_000)
+        wait_until(lambda: page.evaluate("() => window._paused > 0"), 30, f"Pause clicked at {box}", k)
         paused, down = page.evaluate("() => [window._paused, window._down]")
         seconds.append((paused - down) / 1000.0)
         clicks.append(paused / 1000.0 - t0)
         n = len(st.events)
         time.sleep(0.5)
-        assert st.paused and len(st.events) <= n + 1  # it stopped (at most the move under way when clicked)
+        # it stopped (at most the move under way when clicked)
+        assert st.paused and len(st.events) <= n + 1, seen(f"0.5 s after paused ({n} events then)", k)
         page.get_by_role("button", name="Cancel", exact=True).click()
         wait_cancelled(page)
     # the best of three: a loaded machine delays some clicks, not every one

@@ -71,18 +71,19 @@ def wait_finished(page, timeout=120.0) -> str:
         if m:
             return m.group(1)
         time.sleep(0.2)
-    raise AssertionError("the run did not finish")
+    raise AssertionError(f"the run did not finish in {timeout} s; the page: {text[-800:]!r}")
 
 
 def wait_cancelled(page, timeout=60.0) -> str:
     """The line a cancelled run ends with: where it was cancelled, E and the pose it left, then its steps."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        m = re.search(r"Cancelled at iteration ([^\n]+\n[^\n]+)", page.locator("body").inner_text())
+        text = page.locator("body").inner_text()
+        m = re.search(r"Cancelled at iteration ([^\n]+\n[^\n]+)", text)
         if m:
             return m.group(1)
         time.sleep(0.2)
-    raise AssertionError("the run did not end cancelled")
+    raise AssertionError(f"the run did not end cancelled in {timeout} s; the page: {text[-800:]!r}")
 
 
 def test_scene_renders_and_hybrid_finishes_below_threshold(server, browser):

@@ -98,15 +98,15 @@ class WholeLegs:
     # When a leg's walk stops: the descent's steps creep near E's minimum on noisy depth (the notes in core.icp).
     # Measured on the shared Kinect triple capture0002-0003-0004 (each pair's pose from five starts, legs on one cut
     # of 10000 source points): stopped where a step was under 0.002 deg, the walk took 9-44 steps and the five
-    # starts' ends lay within 0.08 deg of one another; these bounds (0.1 mm on the Kinect frames) end it in 2-38
+    # starts' ends lay within 0.08 deg of one another; 0.005 deg and 0.025 spacings (0.1 mm there) ended it in 2-38
     # steps, no farther from it than the sample's own noise (0.1-0.2 deg at 6000 points). The sensor sweep's Kinect
     # family: 41 of 42 chains close (38 with descent legs). Denser spinning LiDARs (64-128 rings, 114-131k points:
     # benchmarks/other_lidars.py) take this path too and land within 0.05 deg / 2 mm.
-    # step_spacings was 0.025 until 2026-12-07, when a trace of the legs on capture0002 -> 0001 showed each leg's
-    # last 8-12 steps moving the pose 0.06-0.16 mm a step all one way (a net 0.8-1.5 mm over a path of 0.9-1.6 mm): a
-    # steady creep, not a settling, ended where one step happened to fall under 0.1 mm (18-19 steps a leg), while the
-    # next leg's fresh sample moved the pose 0.6-1.0 mm at once. At 0.05 spacings (0.2 mm) the pose moved 1.7 mm and
-    # the pair took 2.12 s against 2.64 s; measured against 0.025 in one run each, the sensor sweep's Kinect family
+    # At 0.025 spacings (0.1 mm) a trace of the legs on capture0002 -> 0001 showed each leg's last 8-12 steps moving
+    # the pose 0.06-0.16 mm a step all one way (a net 0.8-1.5 mm over a path of 0.9-1.6 mm): a steady creep, not a
+    # settling, ended where one step happened to fall under 0.1 mm (18-19 steps a leg), while the next leg's fresh
+    # sample moved the pose 0.6-1.0 mm at once. At 0.05 spacings (0.2 mm) the pose moved 1.7 mm and the pair took
+    # 1.98 s against 2.42 s (2026-12-07); measured against 0.025 in one run each, the sensor sweep's Kinect family
     # (--runs 3) closed the same 41 of 42 chains (chain errors 0.18-0.86 deg either way, each within 0.17 deg of
     # before, the same 32 trusted, the same miss), its fragments family the same 38 of 42 with the same errors; the
     # denser LiDARs above 48 of 48 right, worst 0.050 deg / 2 mm.

@@ -347,7 +347,7 @@ def cloud_view(scan: Scan) -> CloudView:
     c = np.array(scan.centroid, dtype=np.float64)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", scan.points - c, scan.points - c))))
     view = CloudView(np.array(scan.viewpoint, dtype=np.float64), scan.tree, NEAR_SPACINGS * scan.spacing, c, radius)
-    if len(scan.points) > COARSE_MIN_POINTS:  # every overlap cut asks for it (its guessed margin): made with the view,
+    if len(scan.points) > COARSE_MIN_POINTS and view.near > 0:  # every cut asks for it (its margin): made with the view,
         _ = view._coarse  # so that a view made ahead (core.global_search: the whole scans') has it too
     return view
 

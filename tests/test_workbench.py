@@ -64,6 +64,7 @@ def canvas_pixels(page) -> np.ndarray:
 
 
 def wait_finished(page, timeout=120.0) -> str:
+    text = ""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         text = page.locator("body").inner_text()
@@ -76,6 +77,7 @@ def wait_finished(page, timeout=120.0) -> str:
 
 def wait_cancelled(page, timeout=60.0) -> str:
     """The line a cancelled run ends with: where it was cancelled, E and the pose it left, then its steps."""
+    text = ""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         text = page.locator("body").inner_text()

@@ -82,7 +82,8 @@ def register_global(source: Scan, target: Scan, guess: Guess | np.ndarray | None
     thinned = source is not whole[0] or target is not whole[1]
     if thinned and surface is None:  # the whole target's surface, made on a thread while the search runs
         pool = ThreadPoolExecutor(1, thread_name_prefix="whole-surface")
-        whole = (whole[0], whole[1], pool.submit(_whole_surface, *whole[:2], config.problem.frustum))
+        views = [w for w, searched in zip(whole[:2], (source, target)) if w is not searched]  # (the search makes its own)
+        whole = (whole[0], whole[1], pool.submit(_whole_surface, whole[1], views, config.problem.frustum))
         pool.shutdown(wait=False)
     setup = prepare_setup(source, target, guess, config, surface if target is whole[1] else None)
     run = EventStream(listener, setup.frame, setup.budget())
@@ -120,13 +121,14 @@ def _for_search(source: Scan, target: Scan) -> tuple[Scan, Scan]:
         return for_search(source), thinned.result()
 
 
-def _whole_surface(source: Scan, target: Scan, frustum: str) -> Surface:
-    """The whole target's surface, and both whole scans' views (each kept with its scan, core.frustum.frustum_of),
-    made on a thread while the thinned scans are searched: the whole scans' first overlap cut
-    (:func:`_whole_leg`) then only cuts (on the shared Kinect pair capture0002 -> 0001 the views took 0.12 s of
-    that cut's 0.27 s)."""
+def _whole_surface(target: Scan, views: list[Scan], frustum: str) -> Surface:
+    """The whole target's surface, and the views of ``views`` (the whole scans the search does not use itself; each
+    view kept with its scan, core.frustum.frustum_of), made on a thread while the thinned scans are searched: the whole
+    scans' first overlap cut (:func:`_whole_leg`) then only cuts (on the shared Kinect pair capture0002 -> 0001 the
+    views took 0.12 s of that cut's 0.27 s). Where the search ends without asking for it (cancelled, raised, trusted
+    on the thinned scans alone) the thread finishes its work unread."""
     surface = Surface.from_scan(target).build()
-    for scan in (source, target):
+    for scan in views:
         try:
             frustum_of(scan, frustum)
         except InputError:  # the cut that asks for it says so, in the search's thread

@@ -276,11 +276,14 @@ def _run(argv: list[str] | None, command: list) -> int:
     except SystemExit as exc:  # --help (0) or a parser error (2, one line written)
         return exc.code if isinstance(exc.code, int) else 2
     command[0] = args.command
+    module = importlib.import_module(f"rangereg.app.commands.{args.command}")
+    if hasattr(module, "start_early"):  # what overlaps the libraries' import (Open3D's: 1-2 s)
+        module.start_early(args)
     if args.command in LIBRARY_COMMANDS:
         from rangereg.core.quiet import quiet_open3d
 
         quiet_open3d()  # Open3D's warnings stay off the console (core.quiet)
-    status = importlib.import_module(f"rangereg.app.commands.{args.command}").run(args)
+    status = module.run(args)
     sys.stdout.flush()
     return status
 

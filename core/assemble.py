@@ -176,7 +176,7 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
     vp, vp_from, kind, kind_from, tree = placed
     if vp_from is not Origin.ESTIMATE and kind is not ScanKind.UNSTRUCTURED and parts.faces is None:
         parts = parts.without_points_at(vp)
-        if tree is not None and len(parts.points) != len(tree.data):
+        if tree is not None and not _holds(tree, parts.points):
             tree = None
     grid, faces_sensor = parts.grid, raw.grid_faces_sensor
     if grid is None and parts.faces is None and kind is ScanKind.SINGLE_VIEW and vp_from is not Origin.ESTIMATE:
@@ -266,7 +266,8 @@ class _Parts:
 # ---- where the sensor stood, and the kind ----
 
 def _place(parts: _Parts, stated, kind: ScanKind | None, kind_from: Origin, what: str, about_origin=None):
-    """(viewpoint (3,), its Origin, kind, the kind's Origin, a k-d tree of parts.points or None);
+    """(viewpoint (3,), its Origin, kind, the kind's Origin, a k-d tree of parts.points (or of those off the
+    origin: :func:`_holds` tells) or None);
     ``about_origin``: :func:`_about_origin` of the points when already asked."""
     points = parts.points
     if stated is not None:
@@ -287,7 +288,7 @@ def _place(parts: _Parts, stated, kind: ScanKind | None, kind_from: Origin, what
         if parts.grid is not None or parts.faces is not None:
             kind = ScanKind.SINGLE_VIEW
         else:
-            tree = tree if tree is not None else kd_tree(points)
+            tree = tree if _holds(tree, points) else kd_tree(points)
             kind = ScanKind.SINGLE_VIEW if _one_view(points, tree, vp) else ScanKind.UNSTRUCTURED
         kind_from = Origin.ESTIMATE
     return vp, Origin.NONE if kind is ScanKind.UNSTRUCTURED else Origin.ESTIMATE, kind, kind_from, tree
@@ -310,7 +311,8 @@ def _default_viewpoint(points: np.ndarray, origin: np.ndarray):
     0.39 deg, trusted).
     """
     about, tree = _about_origin(points)
-    if about is None and tree is not None and share_around(points, origin) == 0 and _one_view(points, tree, origin):
+    if (about is None and tree is not None and share_around(points, origin) == 0
+            and _one_view(points, tree if _holds(tree, points) else kd_tree(points), origin)):
         about = ScanKind.SINGLE_VIEW
     if about is None:
         return None, None, None, None, tree
@@ -332,7 +334,7 @@ def _elsewhere(points: np.ndarray, viewpoint: np.ndarray) -> tuple[bool, tuple[S
     if about[0] is None:
         return False, about
     idx = sample(points)
-    d = about[1].query(points[idx], k=2)[0][:, 1]
+    d = _spacings(about[1], points[idx])
     slope, spread = sensor_slope(points[idx], d, np.zeros(3))
     if not (spread >= RANGE_SPREAD and slope > SENSOR_SLOPE):
         return False, about  # the origin is no likelier than the viewpoint
@@ -343,7 +345,7 @@ def _elsewhere(points: np.ndarray, viewpoint: np.ndarray) -> tuple[bool, tuple[S
 def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
     """How the points lie about the frame's origin when a sensor there sampled them: PANORAMA (all
     around it), SINGLE_VIEW (in front of it), or None (no sensor there: too far, or spaced as no sensor
-    there would space them). Also the k-d tree of the points when one was built (None otherwise)."""
+    there would space them). Also the k-d tree of the points off the origin when one was built (None otherwise)."""
     r = norms(points)
     seen = points[r > 0]
     if len(seen) < 3:
@@ -355,15 +357,31 @@ def _about_origin(points: np.ndarray) -> tuple[ScanKind | None, cKDTree | None]:
     if 0 < share <= AROUND_SHARE:
         return None, None  # neither in front (a few behind) nor all around
     around = share > AROUND_SHARE
-    tree = kd_tree(points)
+    # the points on the origin (a scanner's missing returns) are nobody's neighbours; a scan keeps the
+    # others only (_Parts.without_points_at), so this tree serves it
+    tree = kd_tree(seen)
     idx = sample(points)
-    d, _ = tree.query(points[idx], k=2)
-    slope, spread = sensor_slope(points[idx], d[:, 1], np.zeros(3))
+    slope, spread = sensor_slope(points[idx], _spacings(tree, points[idx]), np.zeros(3))
     if spread >= RANGE_SPREAD and slope <= SENSOR_SLOPE:
         return None, tree  # the spacing does not grow with the range: not sampled from there
     if around and spread < RANGE_SPREAD:
         return None, tree  # all around at one range: nothing tells a sensor from a shell about its centre
     return (ScanKind.PANORAMA if around else ScanKind.SINGLE_VIEW), tree
+
+
+def _spacings(tree: cKDTree, points: np.ndarray) -> np.ndarray:
+    """Each of (n, 3) ``points``' distance (n,) to its nearest other point in ``tree`` (of the points off the
+    origin); 0 at the points on the origin, as among the duplicates there (no sample: sensor_slope leaves it out)."""
+    away = norms(points) > 0
+    d = np.zeros(len(points))
+    if away.any():
+        d[away] = tree.query(points[away], k=2)[0][:, 1]
+    return d
+
+
+def _holds(tree: cKDTree | None, points: np.ndarray) -> bool:
+    """Whether ``tree`` is a k-d tree of exactly (N, 3) ``points`` (its indices are theirs)."""
+    return tree is not None and tree.n == len(points) and np.array_equal(tree.data, points)
 
 
 def _one_view(points: np.ndarray, tree: cKDTree, viewpoint: np.ndarray) -> bool:

@@ -50,3 +50,24 @@ def test_the_entry_point_reports_a_full_disk_in_one_line():
                        cwd=ROOT, env=env, stdout=open("/dev/full", "w"), stderr=subprocess.PIPE, text=True, timeout=120)
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.returncode == 2
+
+
+_ORDER = """
+import sys
+from rangereg.core import kiss_matcher_candidates
+from rangereg.app.commands import register
+kiss_matcher_candidates.kiss_available = lambda: True
+kiss_matcher_candidates.start = lambda: print("kiss", "open3d" in sys.modules)
+register.run = lambda a: print("run", "open3d" in sys.modules) or 0
+from rangereg.app.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("flags, said", [((), "kiss False\nrun True\n"), (("--method", "hybrid"), "run True\n")])
+def test_register_starts_kiss_matchers_process_before_open3d_is_imported_and_only_when_it_may_ask_it(flags, said):
+    # its start-up (an interpreter, numpy, the library) then overlaps Open3D's import instead of the files' reading
+    scans = [str(ASSETS / "corner" / f"scan{i}.ply") for i in (1, 2)]
+    p = subprocess.run([sys.executable, "-c", _ORDER, "register", *scans, *flags], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert (p.returncode, p.stdout) == (0, said), p.stderr

@@ -83,7 +83,10 @@ class SphericalImage:
     def cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(N,) row, column and range of (N, 3) points (the image's frame) and (N,) bool: the point lies
         inside the image's rows (the scanner's vertical field of view) and not at the sensor."""
-        az, el, r = spherical(np.asarray(points, dtype=np.float64) - self.viewpoint)
+        return self._cells_of(*spherical(np.asarray(points, dtype=np.float64) - self.viewpoint))
+
+    def _cells_of(self, az: np.ndarray, el: np.ndarray, r: np.ndarray):
+        """:meth:`cells` of points at azimuths, elevations and ranges (N,) about the viewpoint."""
         ok = (r > 0) & (el >= self.row_edges[0]) & (el < self.row_edges[-1])
         row = np.clip(np.searchsorted(self.row_edges, np.where(ok, el, self.row_edges[0]), side="right") - 1,
                       0, len(self.row_elevation) - 1)
@@ -186,14 +189,17 @@ class SphericalImage:
         return out[0], out[1]
 
 
-def _rings(el: np.ndarray) -> np.ndarray | None:
+def _rings(s: np.ndarray) -> np.ndarray | None:
     """(R + 1,) elevation edges of the scanner's rings (midway between neighbouring rings, half a gap beyond
-    the outer ones), or None when the elevations do not fall in rings (module notes: RING_GAP_RATIO)."""
-    s = np.sort(el)
+    the outer ones) from sorted elevations ``s`` (N,), or None when they do not fall in rings (module notes:
+    RING_GAP_RATIO)."""
     gaps = np.diff(s)
     if len(gaps) < 2 * MIN_RING_POINTS:
         return None
-    order = np.argsort(gaps)[::-1][:MAX_RINGS]
+    # the MAX_RINGS largest gaps, largest first (which of equal gaps comes first does not matter: the split
+    # below takes a set of them only where a gap RING_GAP_RATIO times smaller follows)
+    order = np.argpartition(gaps, len(gaps) - MAX_RINGS)[-MAX_RINGS:] if len(gaps) > MAX_RINGS else np.arange(len(gaps))
+    order = order[np.argsort(gaps[order])[::-1]]
     top = gaps[order]
     # the split: the largest drop from one gap to the next smaller (the ring gaps, then the spread inside)
     top = np.maximum(top, 1e-9)  # differences of rounding (float32 files) are no gaps: ratios among them 1
@@ -228,16 +234,17 @@ def build_image(points: np.ndarray, viewpoint: np.ndarray, name: str = "scan") -
     valid = r > 0
     if valid.sum() < 3:
         raise InputError(f"{name}: fewer than 3 points away from the viewpoint; no spherical image")
-    edges = _rings(el[valid])
+    s = np.sort(el[valid])
+    edges = _rings(s)
     rings = edges is not None
     if rings:
-        s = np.sort(el[valid])
         centre = np.array([np.median(g) for g in np.split(s, np.searchsorted(s, edges[1:-1]))])
         # along a ring: the step between its firings (each ring's azimuths sorted, repeats aside)
         ring = np.clip(np.searchsorted(edges, el[valid], side="right") - 1, 0, len(centre) - 1)
-        order = np.lexsort((az[valid], ring))
-        d = np.diff(az[valid][order])
-        d = d[(np.diff(ring[order]) == 0) & (d > 1e-9)]
+        by_ring = np.split(az[valid][np.argsort(ring.astype(np.uint16), kind="stable")],
+                           np.cumsum(np.bincount(ring, minlength=len(centre)))[:-1])
+        d = np.concatenate([np.diff(np.sort(a)) for a in by_ring])
+        d = d[d > 1e-9]
         az_step = float(np.median(d)) if len(d) else 0.0
     else:
         # no rings: square cells at the sampling's own angular step (nearest neighbours in azimuth x elevation)
@@ -259,7 +266,7 @@ def build_image(points: np.ndarray, viewpoint: np.ndarray, name: str = "scan") -
     az0 = float(phase / (2 * np.pi) * az_step - 0.5 * az_step)
     image = SphericalImage(viewpoint, np.empty((0, 0), dtype=np.int64), np.empty((0, 0)), centre, edges,
                            az0, az_step, True)
-    row, col, rr, ok = image.cells(points)
+    row, col, rr, ok = image._cells_of(az, el, r)
     keep = np.flatnonzero(ok)
     R = len(centre)
     index = np.full(R * cols, -1, dtype=np.int64)

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass, field
-from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -29,6 +28,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from .errors import InputError
 from .rows import norms
 from .scan import Scan, ScanKind
+from .threads import cached_property
 from .transforms import apply, invert
 
 KINDS = ("convex", "nonconvex")

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 from scipy import ndimage
@@ -35,6 +34,7 @@ from scipy.spatial import cKDTree
 from .errors import InputError
 from .rows import norms
 from .scan import Scan
+from .threads import cached_property
 
 # Rings: the sorted elevations split at gaps at least RING_GAP_RATIO times every gap inside a group (the
 # shared HDL-32E frames: 32 groups 1.33 deg apart, no gap inside a group above 1e-6 deg; the ratio asks only that

@@ -8,15 +8,14 @@ assembled by core.assemble, one precedence rule for all formats).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from enum import StrEnum
-from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import InputError
+from .threads import cached_property
 
 # The largest coordinate (in the scan's units) a scan, a viewpoint or a span may have. At 1e12, float64
 # still resolves 2e-4 units (eps 2.2e-16 x 1e12), finer than any scanner's noise in the units we meet
@@ -29,27 +28,6 @@ MAX_COORDINATE = 1e12
 # 1e-9 they stay above 1e-60, far from float64's smallest normal number (2.2e-308); a scan spanning 1e-150
 # squares its spacing to 0 and every error and threshold to 0. No range scan is smaller than 1e-9 of its unit.
 MIN_EXTENT = 1e-9
-
-
-class cached_property:  # noqa: N801 - functools' name, as Python 3.12 has it
-    """A value worked out on first access and kept in the instance (functools.cached_property as Python 3.12 has
-    it). Python 3.11's holds one lock per property across every instance, so two threads building two scans'
-    k-d trees (the pair's files read side by side, the whole target's surface made beside the search) waited for
-    each other; here two threads asking for the same scan's value at once may both work it out (the same value)."""
-
-    def __init__(self, func: Callable[[Any], Any]) -> None:
-        self.func = func
-        self.__doc__ = func.__doc__
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = name
-
-    def __get__(self, instance: Any, owner: type | None = None) -> Any:
-        if instance is None:
-            return self
-        value = self.func(instance)
-        instance.__dict__[self.name] = value
-        return value
 
 
 def kd_tree(points: np.ndarray) -> cKDTree:

@@ -19,7 +19,6 @@ import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -27,7 +26,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .errors import InputError
 from .rows import cross, norms
 from .scan import Scan, ScanKind, kd_tree
-from .threads import usable_cores
+from .threads import cached_property, usable_cores
 
 EDGE_FACTOR = 4.0  # an edge may be at most this many times the local spacing of either endpoint
 SPACING_NEIGHBOURS = 4

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any
 
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -71,3 +72,24 @@ def open3d_one_thread() -> Iterator[None]:
         finally:
             o3d.utility.set_max_threads(before)
 
+
+class cached_property:  # noqa: N801 - functools' name, as Python 3.12 has it
+    """A value worked out on first access and kept in the instance (functools.cached_property as Python 3.12 has
+    it), for every class of the engine. Python 3.11's holds one lock per property across every instance, so two
+    threads building two scans' k-d trees (the pair's files read side by side, the whole target's surface made
+    beside the search) waited for each other, and so did two surfaces' vertex trees or two clouds' coarse trees;
+    here two threads asking for the same instance's value at once may both work it out (the same value)."""
+
+    def __init__(self, func: Callable[[Any], Any]) -> None:
+        self.func = func
+        self.__doc__ = func.__doc__
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, instance: Any, owner: type | None = None) -> Any:
+        if instance is None:
+            return self
+        value = self.func(instance)
+        instance.__dict__[self.name] = value
+        return value

@@ -15,7 +15,6 @@ uncertainty allows.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -24,6 +23,7 @@ from .errors import InputError
 from .rows import first_in_cells
 from .scan import Scan, ScanKind
 from .surface import PARALLEL_QUERY, SPACING_NEIGHBOURS, SURFACE_OF_KIND, Surface, local_spacing, spreads
+from .threads import cached_property
 
 # Open3D's recipe fits normals to at most 30 neighbours within 2 voxels of a downsampled cloud (its points ~1
 # voxel apart). A raw cloud's median nearest-neighbour distance (Scan.spacing) is half its mean spacing where the

@@ -1,4 +1,5 @@
-"""core.threads: BLAS on one thread once the engine is imported, unless the environment says otherwise."""
+"""core.threads: BLAS on one thread once the engine is imported, unless the environment says otherwise; cached values
+worked out without a lock across instances."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import json
 import os
 import subprocess
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -58,3 +61,38 @@ def test_open3d_gets_its_thread_count_back():
     with open3d_one_thread():
         assert o3d.utility.get_max_threads() == 1
     assert o3d.utility.get_max_threads() == before
+
+
+def test_two_instances_work_out_their_cached_values_at_once_and_keep_them():
+    # Python 3.11's functools.cached_property holds one lock per property across every instance: the second
+    # thread here would wait at the barrier for a first that waits for it (a BrokenBarrierError after 5 s)
+    from rangereg.core.threads import cached_property
+
+    barrier, calls = threading.Barrier(2, timeout=5), []
+
+    class Holder:
+        @cached_property
+        def value(self) -> int:
+            calls.append(self)
+            barrier.wait()
+            return id(self)
+
+    a, b = Holder(), Holder()
+    with ThreadPoolExecutor(2) as pool:
+        got = list(pool.map(lambda h: h.value, (a, b)))
+    assert got == [id(a), id(b)] and len(calls) == 2
+    barrier = threading.Barrier(1)
+    assert (a.value, b.value) == (id(a), id(b)) and len(calls) == 2  # kept: not worked out again
+
+
+def test_the_engines_cached_values_are_built_without_a_lock_across_instances():
+    from rangereg.core.frustum import Frustum
+    from rangereg.core.panorama import SphericalImage
+    from rangereg.core.scan import Scan
+    from rangereg.core.surface import Surface
+    from rangereg.core.threads import cached_property
+    from rangereg.core.unstructured import CloudView
+
+    for cls in (Scan, Surface, CloudView, SphericalImage, Frustum):
+        props = [v for v in vars(cls).values() if "cached_property" in type(v).__name__]
+        assert props and all(isinstance(v, cached_property) for v in props), cls

@@ -176,8 +176,8 @@ def assemble(raw: RawScan, given: Given = Given()) -> Scan:
     vp, vp_from, kind, kind_from, tree = placed
     if vp_from is not Origin.ESTIMATE and kind is not ScanKind.UNSTRUCTURED and parts.faces is None:
         parts = parts.without_points_at(vp)
-        if tree is not None and not _holds(tree, parts.points):
-            tree = None
+    if tree is not None and not _holds(tree, parts.points):  # (one of the points off the origin, which these keep)
+        tree = None
     grid, faces_sensor = parts.grid, raw.grid_faces_sensor
     if grid is None and parts.faces is None and kind is ScanKind.SINGLE_VIEW and vp_from is not Origin.ESTIMATE:
         grid, faces_sensor = pixel_grid(parts.points, vp), False  # an RGB-D frame as bare points (core.lattice)

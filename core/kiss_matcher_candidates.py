@@ -110,6 +110,7 @@ class _Child:
         self._lock = threading.Lock()
         self._proc: subprocess.Popen | None = None
         self._pid = 0
+        self._asked = False  # a request was sent to this child
 
     def estimate(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """T (4x4) for float32 clouds ``a`` (source) and ``b`` (target), or None when none is valid.
@@ -117,6 +118,7 @@ class _Child:
         start or answer otherwise (it is then dropped)."""
         with self._lock:
             proc = self._started()
+            self._asked = True
             try:
                 proc.stdin.write(HEAD.pack(len(a), len(b), KISS_VOXEL) + a.tobytes() + b.tobytes())
                 proc.stdin.flush()
@@ -137,6 +139,7 @@ class _Child:
             self._proc = subprocess.Popen([sys.executable, str(CHILD)], stdin=subprocess.PIPE,
                                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
             self._pid = os.getpid()
+            self._asked = False
         return self._proc
 
     def _drop(self) -> None:
@@ -146,13 +149,16 @@ class _Child:
         self._proc = None
 
     def close(self) -> None:
-        """End the child (at exit): end of its input ends it."""
+        """End the child (at exit): end of its input ends it; one never asked (a run that ended on bad input)
+        is killed, not waited for while it starts (0.15-0.3 s), and an interrupt while waiting kills it."""
         with self._lock:
             if self._proc is not None and self._pid == os.getpid():
                 try:
+                    if not self._asked:
+                        raise OSError
                     self._proc.stdin.close()
                     self._proc.wait(timeout=2)
-                except (OSError, subprocess.TimeoutExpired):
+                except (OSError, subprocess.TimeoutExpired, KeyboardInterrupt):
                     self._proc.kill()
             self._proc = None
 

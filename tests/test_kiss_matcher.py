@@ -96,3 +96,17 @@ def test_a_cloud_too_small_for_kiss_matcher_gives_no_hypothesis_and_a_crash_of_i
     monkeypatch.setattr(kmc, "_estimate_here", lambda a, b: pytest.fail("the crash was repeated in this process"))
     assert kmc.kiss_candidates(few, target, 1.0, 5.0) == []
     kmc._CHILD.close()
+
+
+def test_a_child_never_asked_is_killed_at_exit_not_waited_for_while_it_starts():
+    # a run that ends on bad input after the CLI started the child (app.commands.register.start_early) exits at
+    # once: closing its input would wait 0.15-0.3 s for the interpreter to start and read the end of it
+    import time
+
+    import rangereg.core.kiss_matcher_candidates as kmc
+
+    child = kmc._Child()
+    proc = child._started()
+    t0 = time.perf_counter()
+    child.close()
+    assert time.perf_counter() - t0 < 0.1 and proc.wait(timeout=5) < 0  # ended by a signal: killed

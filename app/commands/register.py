@@ -12,6 +12,7 @@ is written, so a write that fails late (a full disk) loses nothing but that file
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from argparse import Namespace
@@ -45,9 +46,11 @@ def start_early(a: Namespace) -> None:
     other core. Files to pose, started here against at the reading (2026-12-07, runs alternating, load 1.3-2.1,
     with the scans' one k-d tree each): the shared LiDAR pair 0.47 against 0.58 s (10 each), the Kinect pair
     capture0002 -> 0001 1.61 against 1.77 s (5 each), the same poses. Raises InputError for bad flags, as the
-    run would."""
+    run would; where a scan names no file the run stops at its first check, and no process is started."""
     cfg = pair.config(a)
-    if cfg.method == "global" and cfg.candidates.enabled and cfg.candidates.kiss_matcher:
+    scans_there = all(os.path.isfile(p) or os.path.isfile(p.rpartition("#")[0])  # (site.e57#3: one of its scans)
+                      for p in (str(a.source), str(a.target)))
+    if scans_there and cfg.method == "global" and cfg.candidates.enabled and cfg.candidates.kiss_matcher:
         from rangereg.core import kiss_matcher_candidates
 
         kiss_matcher_candidates.start()

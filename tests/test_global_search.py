@@ -375,6 +375,32 @@ def test_a_start_free_stage_skipped_after_a_trusted_pose_beyond_the_region_cance
     assert sources["rotation samples"] == "none in the region"  # a stage that heeds the guess still runs
 
 
+_EXIT_WHILE_AHEAD = """
+import time
+from rangereg.core.global_search.stages import Ahead, Hypotheses
+
+def make(wanted):
+    time.sleep(0.5)  # a RANSAC under way when the search has ended
+    print("made", flush=True)
+    return Hypotheses([], "none")
+
+Ahead(make).start()
+print("result", flush=True)
+"""
+
+
+def test_the_process_waits_at_exit_for_a_stage_made_ahead_to_end_its_step():
+    # left running on its daemon thread into the interpreter's end, Open3D's RANSAC wrote debug lines to standard
+    # output after `register --json`'s result (TSDF room 17 with no guess)
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    p = subprocess.run([sys.executable, "-c", _EXIT_WHILE_AHEAD], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert (p.returncode, p.stdout) == (0, "result\nmade\n"), p.stderr
+
+
 def test_a_stage_made_ahead_hands_over_its_hypotheses_or_its_error_and_stops_when_cancelled():
     import threading
 

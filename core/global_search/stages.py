@@ -3,6 +3,7 @@ core.kiss_matcher_candidates, Open3D's FPFH + RANSAC)."""
 
 from __future__ import annotations
 
+import atexit
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
@@ -127,17 +128,23 @@ def stages(setup: Setup) -> Iterator[Stage]:
     twins, doubted, from the identity, 60 deg and no guess), medians 1.5-2.3 -> 1.3-2.0 s about the sensor and with
     no guess. The other grids are
     made ahead (:class:`Ahead`, in KISS-Matcher's process) from when a pose of the stage holding KISS-Matcher's first
-    is doubted, and with no guess FPFH + RANSAC too (on a thread: only its RANSAC lets this one run meanwhile), from
-    when any pose of the first stage is; both stop when the search ends."""
+    is doubted, and FPFH + RANSAC too (on a thread: only its RANSAC lets this one run meanwhile): with no guess from
+    when any pose of the first stage is doubted, with a guess (a fused cloud of a scene) with the other grids; both
+    stop when the search ends. FPFH + RANSAC ahead with a guess, measured (2026-12-07) on the TSDF rooms of
+    benchmarks/tsdf_modes.py: the same 50 verdicts, errors and finders; from the identity, alternating with the code
+    before (3 runs each, load ~1.5), tsdf-13 (found by FPFH + RANSAC) 6.2 against 8.1 s, tsdf-14 and tsdf-17 (found by
+    the other grids, the RANSAC made for nothing) 4.0 against 4.2 s and 5.2 against 5.2 s."""
     cc = setup.config.candidates
     kiss = cc.enabled and cc.kiss_matcher
     guess = Hypotheses([setup.T_guess], labels=("guess",))
     fused = cc.enabled and ScanKind.UNSTRUCTURED in (setup.source.kind, setup.target.kind)
     # FPFH + RANSAC instead of the rotation samples
     unplaced = cc.enabled and setup.guess.is_none and (fused or scene(setup.source) or scene(setup.target))
+    fused_scene = fused and (scene(setup.source) or scene(setup.target))
     other = tuple(v for v in cc.kiss_grids if v != max(cc.fpfh_voxels))  # the first KISS-Matcher pose's grid
     grids = Ahead(lambda wanted: matched(setup, "kiss-matcher", other, wanted)) if fused and kiss and other else None
-    ahead = Ahead(lambda wanted: matched(setup, "fpfh-ransac", (max(cc.fpfh_voxels),), wanted)) if unplaced else None
+    ahead = (Ahead(lambda wanted: matched(setup, "fpfh-ransac", (max(cc.fpfh_voxels),), wanted))
+             if unplaced or fused_scene else None)
     doubted = _starting(grids, ahead) if fused else None
     try:
         if setup.region.stated_rotation_deg > cc.guess_first_deg and kiss:
@@ -155,8 +162,8 @@ def stages(setup: Setup) -> Iterator[Stage]:
             yield from fpfh_stages(setup, ahead)
             yield Stage("rotation samples", lambda: Hypotheses([], UNPLACED), 0)
             return
-        if fused and (scene(setup.source) or scene(setup.target)):
-            yield from fpfh_stages(setup)
+        if fused_scene:
+            yield from fpfh_stages(setup, ahead)
             yield Stage("rotation samples", lambda: Hypotheses([], FUSED), 0)
             return
         yield Stage("rotation samples", lambda: sampled(setup), cc.refine)
@@ -249,10 +256,16 @@ CANCELLED = "not made: the search had ended"
 def wait_ahead() -> None:
     """Wait for the stages made ahead that are still under way (of searches that have ended: cancelled, each ends
     with its current step). For a benchmark that times runs one after another in one process, or runs a peer that
-    uses Open3D's threads, after one of ours."""
+    uses Open3D's threads, after one of ours; and at the process's exit."""
     for t in threading.enumerate():
         if t.name == AHEAD_THREAD:
             t.join()
+
+
+# At exit, before Open3D's module is torn down: a RANSAC still under way on a daemon thread then wrote Open3D's debug
+# lines ("[Open3D DEBUG] Thread ...: registration fitness=...") to standard output after `register --json`'s result
+# (TSDF room 17 with no guess, 2 runs of 2), and may crash. Its step ends within ~1.2 s (one RANSAC).
+atexit.register(wait_ahead)
 
 
 def _starting(*aheads: Ahead | None) -> Callable[[], None]:

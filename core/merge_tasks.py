@@ -11,6 +11,7 @@ scans as arrays and the config), sent once per worker; each process builds a sca
 from __future__ import annotations
 
 import hashlib
+import threading
 import time
 from dataclasses import dataclass, field, replace
 
@@ -129,6 +130,26 @@ def token(scans: list[Scan], config: Config) -> str:
 
 
 _BUILT: dict[str, dict] = {}  # per process: token -> {scan index: (Scan, Surface)}, {("normals", k): FacingNormals}, ...
+# one lock per value being made, so that two threads (a task, the qualities made ahead for the model) make it once
+_MAKING: dict[tuple, threading.Lock] = {}
+_MAKING_LOCK = threading.Lock()
+
+
+def _once(shared: Shared, key, make):
+    """The value at ``key`` of this scan set's cache, made by ``make()`` by the first thread to ask for it."""
+    with _MAKING_LOCK:
+        if shared.token not in _BUILT:
+            _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
+            _MAKING.clear()
+            _BUILT[shared.token] = {}
+        cache = _BUILT[shared.token]
+        if key in cache:
+            return cache[key]
+        lock = _MAKING.setdefault((shared.token, key), threading.Lock())
+    with lock:
+        if key not in cache:
+            cache[key] = make()
+    return cache[key]
 
 
 def clear_geometry_cache() -> None:
@@ -140,34 +161,24 @@ def built(shared: Shared, k: int) -> tuple[Scan, Surface]:
     """Scan k rebuilt from its arrays, with its surface: built once per process, then reused. Every task
     starts here, so a worker's Open3D is quieted here too (core.quiet)."""
     quiet_open3d()
-    if shared.token not in _BUILT:
-        _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
-        _BUILT[shared.token] = {}
-    cache = _BUILT[shared.token]
-    if k not in cache:
+
+    def make() -> tuple[Scan, Surface]:
         scan = Scan.from_arrays(shared.scans[k])
-        cache[k] = (scan, Surface.from_scan(scan))
-    return cache[k]
+        return scan, Surface.from_scan(scan)
+
+    return _once(shared, k, make)
 
 
 def quality(shared: Shared, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Scan k's normals (N, 3) facing its sensor and sample quality (N,) (core.fuse.sample_quality), once per
     process, for the model (~0.3 s a 40k-point scan, 1.3 s a Kinect frame); the rest ask :func:`facing_normals`."""
-    built(shared, k)
-    cache = _BUILT[shared.token]
-    if ("quality", k) not in cache:
-        cache[("quality", k)] = sample_quality(built(shared, k)[0])
-    return cache[("quality", k)]
+    return _once(shared, ("quality", k), lambda: sample_quality(built(shared, k)[0]))
 
 
 def facing_normals(shared: Shared, k: int) -> FacingNormals:
     """Scan k's normals facing its sensor, each worked out once per process when first asked for (the polish, an
     overlap facing a sensor and a pair's information ask a few thousand of them; core.fuse.FacingNormals)."""
-    built(shared, k)
-    cache = _BUILT[shared.token]
-    if ("normals", k) not in cache:
-        cache[("normals", k)] = FacingNormals(built(shared, k)[0])
-    return cache[("normals", k)]
+    return _once(shared, ("normals", k), lambda: FacingNormals(built(shared, k)[0]))
 
 
 def pair_seed(seed: int, i: int, j: int, attempt: int = 0) -> int:

@@ -590,3 +590,46 @@ def test_progress_counts_every_round_and_estimates_from_the_median_task():
     assert (events[-1].round, events[-1].done, events[-1].total) == (2, 14, 14)
     assert str(events[-1]).startswith("pairs, round 2 14/14") and str(events[-1]).endswith("done")
     assert counter.forecasts and counter.forecasts[0].left < 10
+
+
+def test_a_scan_and_its_quality_are_made_once_when_two_threads_ask_at_once(camp, monkeypatch):
+    # a task and the qualities made ahead for the model (core.merge._Campaign._qualities_ahead) may ask together
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    c = _campaign(camp)
+    merge_tasks.clear_geometry_cache()
+    made, real = [], merge_tasks.Surface.from_scan
+    gate = threading.Barrier(2, timeout=10)
+
+    def slow(scan):
+        made.append(scan)
+        return real(scan)
+
+    monkeypatch.setattr(merge_tasks.Surface, "from_scan", staticmethod(slow))
+
+    def ask(_):
+        gate.wait()
+        return merge_tasks.built(c.shared, 0), merge_tasks.quality(c.shared, 0)
+
+    with ThreadPoolExecutor(2) as pool:
+        (a, qa), (b, qb) = pool.map(ask, range(2))
+    assert len(made) == 1 and a is b and qa is qb
+
+
+def test_a_merge_makes_its_qualities_ahead_only_for_a_model_and_they_are_the_scans_own(camp):
+    from rangereg.core.fuse import sample_quality
+    from rangereg.core.merge import merge
+
+    def made() -> dict:
+        cache = next(iter(merge_tasks._BUILT.values()))
+        return {k[1]: v for k, v in cache.items() if isinstance(k, tuple) and k[0] == "quality"}
+
+    scans = camp.scans[:3]
+    merge_tasks.clear_geometry_cache()
+    assert merge(scans, build_model=False).model is None and made() == {}
+    merge_tasks.clear_geometry_cache()
+    assert merge(scans, build_model=True).model is not None and sorted(made()) == [0, 1, 2]
+    for k, (n, q) in made().items():
+        n0, q0 = sample_quality(scans[k])
+        assert np.array_equal(n, n0) and np.array_equal(q, q0)

@@ -238,7 +238,11 @@ def build_image(points: np.ndarray, viewpoint: np.ndarray, name: str = "scan") -
     edges = _rings(s)
     rings = edges is not None
     if rings:
-        centre = np.array([np.median(g) for g in np.split(s, np.searchsorted(s, edges[1:-1]))])
+        # each ring's median elevation, read off the sorted elevations (np.median's values, without its copies)
+        start = np.r_[0, np.searchsorted(s, edges[1:-1])]
+        n = np.diff(np.r_[start, len(s)])
+        mid = start + n // 2
+        centre = np.where(n % 2 == 1, s[mid], (s[mid - 1] + s[mid]) / 2)
         # along a ring: the step between its firings (each ring's azimuths sorted, repeats aside)
         ring = np.clip(np.searchsorted(edges, el[valid], side="right") - 1, 0, len(centre) - 1)
         by_ring = np.split(az[valid][np.argsort(ring.astype(np.uint16), kind="stable")],

@@ -349,14 +349,17 @@ class _Campaign:
         """Every scan's sample quality for the model (normals and spacings: no pose needed), made on a thread while
         the pairs are registered, which leave a core free for part of the time (the plain loop keeps ~1.3 of 2
         busy; under a cluster this process waits); the model waits for it. Stops after its scan under way once the
-        event is set."""
+        event is set. A scan whose quality cannot be made is left to the model, which asks only for the placed."""
         stop = threading.Event()
 
         def make() -> None:
             for k in range(self.n):
                 if stop.is_set():
                     return
-                self.sample_quality(k)
+                try:
+                    self.sample_quality(k)
+                except Exception:  # noqa: BLE001 - made again where the model asks for it, and raised there
+                    pass  # (a scan the graph does not place is never asked: its failure is no merge's)
 
         pool = ThreadPoolExecutor(1, thread_name_prefix="qualities")
         made = pool.submit(make)

@@ -633,3 +633,25 @@ def test_a_merge_makes_its_qualities_ahead_only_for_a_model_and_they_are_the_sca
     for k, (n, q) in made().items():
         n0, q0 = sample_quality(scans[k])
         assert np.array_equal(n, n0) and np.array_equal(q, q0)
+
+
+def test_qualities_made_ahead_leave_a_scan_whose_quality_fails_to_the_model(camp, monkeypatch):
+    # made ahead for every scan, the quality of one the graph never places (its failure no merge's concern before)
+    # must not end the merge; where the model asks for it, the failure is raised there, as before
+    c = _campaign(camp)
+    merge_tasks.clear_geometry_cache()
+    real = merge_tasks.sample_quality
+    bad = c.scans[1].name
+
+    def failing(scan):
+        if scan.name == bad:
+            raise ValueError("no normals")
+        return real(scan)
+
+    monkeypatch.setattr(merge_tasks, "sample_quality", failing)
+    made, _ = c._qualities_ahead()
+    assert made.result(timeout=120) is None
+    cache = next(iter(merge_tasks._BUILT.values()))
+    assert ("quality", 1) not in cache and all(("quality", k) in cache for k in range(c.n) if k != 1)
+    with pytest.raises(ValueError, match="no normals"):
+        c.sample_quality(1)

@@ -41,7 +41,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
@@ -349,21 +349,24 @@ class _Campaign:
         """Every scan's sample quality for the model (normals and spacings: no pose needed), made on a thread while
         the pairs are registered, which leave a core free for part of the time (the plain loop keeps ~1.3 of 2
         busy; under a cluster this process waits); the model waits for it. Stops after its scan under way once the
-        event is set. A scan whose quality cannot be made is left to the model, which asks only for the placed."""
-        stop = threading.Event()
+        event is set. A scan whose quality cannot be made is left to the model, which asks only for the placed.
+        A daemon thread: a merge left running at the process's end (the page runs merges on daemon threads) does
+        not hold the exit while its qualities are made."""
+        stop, made = threading.Event(), Future()
 
         def make() -> None:
-            for k in range(self.n):
-                if stop.is_set():
-                    return
-                try:
-                    self.sample_quality(k)
-                except Exception:  # noqa: BLE001 - made again where the model asks for it, and raised there
-                    pass  # (a scan the graph does not place is never asked: its failure is no merge's)
+            try:
+                for k in range(self.n):
+                    if stop.is_set():
+                        break
+                    try:
+                        self.sample_quality(k)
+                    except Exception:  # noqa: BLE001 - made again where the model asks for it, and raised there
+                        pass  # (a scan the graph does not place is never asked: its failure is no merge's)
+            finally:
+                made.set_result(None)  # the model never waits for a thread that has ended
 
-        pool = ThreadPoolExecutor(1, thread_name_prefix="qualities")
-        made = pool.submit(make)
-        pool.shutdown(wait=False)
+        threading.Thread(target=make, name="qualities", daemon=True).start()
         return made, stop
 
     def _go(self, qualities: tuple[Future, threading.Event] | None) -> MergeResult:

@@ -382,6 +382,9 @@ from rangereg.core.global_search.stages import Ahead, Hypotheses
 def make(wanted):
     time.sleep(0.5)  # a RANSAC under way when the search has ended
     print("made", flush=True)
+    if wanted():  # the next step: not begun once the exit has cancelled the stage
+        time.sleep(5)
+        print("more", flush=True)
     return Hypotheses([], "none")
 
 Ahead(make).start()
@@ -389,9 +392,10 @@ print("result", flush=True)
 """
 
 
-def test_the_process_waits_at_exit_for_a_stage_made_ahead_to_end_its_step():
+def test_the_process_waits_at_exit_for_a_stage_made_ahead_to_end_its_step_and_no_more():
     # left running on its daemon thread into the interpreter's end, Open3D's RANSAC wrote debug lines to standard
-    # output after `register --json`'s result (TSDF room 17 with no guess)
+    # output after `register --json`'s result (TSDF room 17 with no guess); a search left running (the page's
+    # daemon threads) never cancels its stages, so the exit does
     import subprocess
     import sys
 

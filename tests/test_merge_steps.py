@@ -655,3 +655,37 @@ def test_qualities_made_ahead_leave_a_scan_whose_quality_fails_to_the_model(camp
     assert ("quality", 1) not in cache and all(("quality", k) in cache for k in range(c.n) if k != 1)
     with pytest.raises(ValueError, match="no normals"):
         c.sample_quality(1)
+
+
+_EXIT_WHILE_QUALITIES = """
+import time
+import numpy as np
+from rangereg.core import merge_tasks
+from rangereg.core.merge import MergeConfig, _Campaign, serial_map
+from rangereg.core.register import Config
+from rangereg.core.turntable import make_campaign
+from tests.test_campaign import SMALL
+
+camp = make_campaign(3, SMALL)
+c = _Campaign(camp.scans, [np.eye(4)] * len(camp.scans), False, Config(method="global"), MergeConfig(),
+              lambda e: None, serial_map)
+merge_tasks.sample_quality = lambda scan: time.sleep(2)  # 8 scans: 16 s of qualities
+c._qualities_ahead()
+time.sleep(0.3)
+print(time.time(), flush=True)
+"""
+
+
+def test_qualities_made_ahead_do_not_hold_the_exit_of_a_process_whose_merge_is_left_running():
+    # the page runs merges on daemon threads: a merge left running at the end must not keep the process alive
+    import subprocess
+    import sys
+    import time
+
+    from tests.conftest import ROOT
+
+    p = subprocess.run([sys.executable, "-c", _EXIT_WHILE_QUALITIES], capture_output=True, text=True, timeout=120,
+                       cwd=ROOT)
+    ended = time.time()
+    assert p.returncode == 0, p.stderr
+    assert ended - float(p.stdout.split()[-1]) < 1.5

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import atexit
 import threading
+import weakref
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -222,6 +223,7 @@ class Ahead:
             if self._future is not None:
                 return
             self._future = Future()
+        _STARTED.add(self)
         try:
             threading.Thread(target=self._run, name=AHEAD_THREAD, daemon=True).start()
         except RuntimeError:  # no thread to be had: made in turn, where the stage is reached
@@ -262,10 +264,19 @@ def wait_ahead() -> None:
             t.join()
 
 
-# At exit, before Open3D's module is torn down: a RANSAC still under way on a daemon thread then wrote Open3D's debug
-# lines ("[Open3D DEBUG] Thread ...: registration fitness=...") to standard output after `register --json`'s result
-# (TSDF room 17 with no guess, 2 runs of 2), and may crash. Its step ends within ~1.2 s (one RANSAC).
-atexit.register(wait_ahead)
+def _at_exit() -> None:
+    """Every stage made ahead cancelled (a search left running on a daemon thread never cancels its own), then
+    waited for: each ends with its step under way. Before Open3D's module is torn down: a RANSAC still under way
+    then wrote Open3D's debug lines ("[Open3D DEBUG] Thread ...: registration fitness=...") to standard output after
+    `register --json`'s result (TSDF room 17 with no guess, 2 runs of 2), and may crash. A step ends within ~1.2 s
+    (one RANSAC)."""
+    for a in list(_STARTED):
+        a.cancel()
+    wait_ahead()
+
+
+_STARTED: weakref.WeakSet = weakref.WeakSet()  # the stages made ahead that were started (:func:`_at_exit`)
+atexit.register(_at_exit)
 
 
 def _starting(*aheads: Ahead | None) -> Callable[[], None]:

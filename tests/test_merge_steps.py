@@ -688,4 +688,4 @@ def test_qualities_made_ahead_do_not_hold_the_exit_of_a_process_whose_merge_is_l
                        cwd=ROOT)
     ended = time.time()
     assert p.returncode == 0, p.stderr
-    assert ended - float(p.stdout.split()[-1]) < 1.5
+    assert ended - float(p.stdout.split()[-1]) < 5.0  # (16 s when the qualities held the exit)

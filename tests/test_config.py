@@ -48,7 +48,10 @@ def test_threshold_config_refuses_nonsense(bad):
                                           (dict(refine=0), "refine >= 1"), (dict(sample=5), "at least 10"),
                                           (dict(normal_neighbours=2), "at least 3 neighbours"),
                                           (dict(kiss_grids=(4.0, float("inf"))), "grids must be positive"),
-                                          (dict(kiss_grids=(-1.0,)), "grids must be positive")])
+                                          (dict(kiss_grids=(-1.0,)), "grids must be positive"),
+                                          (dict(settle_share=0.3), "settle_share"),
+                                          (dict(settle_share=-0.1), "settle_share"),
+                                          (dict(settle_share=float("nan")), "settle_share")])
 def test_candidate_config_refuses_nonsense(bad, message):
     from rangereg.core.candidates import CandidateConfig
 

@@ -492,19 +492,54 @@ def test_asked_to_end_at_a_weakly_pinned_pose_the_search_ends_there_with_the_sam
         assert rot < 1.0 and move < 2.0, (rot, move)
 
 
-def test_a_candidate_whose_refinement_leaves_the_overlap_is_given_up_not_the_run():
+@pytest.mark.parametrize("settle_share", [0.0, None])
+def test_a_candidate_whose_refinement_leaves_the_overlap_is_given_up_not_the_run(settle_share):
     # sim-fragments-1 from the truth turned 90 degrees about the source sensor's vertical axis (stated 15): one
     # candidate's ICP walks to where the fragments no longer overlap, and cutting the overlap there raised "do not
     # overlap under the initial guess" out of register itself. Now that candidate is skipped and the search goes on.
+    # (With the default settle_share its first leg, matching nothing, is given up before any cut at its pose: 0 asks
+    # for that cut.)
     from rangereg.app.sweep_sensors import SensorPair
     from rangereg.core.transforms import rotation_matrix
 
     s, t, T_true = SensorPair("sim-fragments", "sim-fragments-1", seed=1).load()
     turn = np.eye(4)
     turn[:3, :3] = rotation_matrix(s.pose[:3, :3].T @ np.array([0.0, 0.0, 1.0]) * np.radians(90.0))
-    res = register(s, t, Guess(T_true @ turn), Config(method="global", seed=0))
+    config = Config(method="global", seed=0)
+    if settle_share is not None:
+        config = replace(config, candidates=replace(config.candidates, settle_share=settle_share))
+    res = register(s, t, Guess(T_true @ turn), config)
     rot, move = pose_error(res.transform, T_true)
     assert (rot < 1.0 and move < 0.05) or not res.trusted, (rot, move)
+
+
+def test_a_candidate_that_settles_nowhere_gets_no_converged_legs_and_the_search_ends_at_the_same_pose(monkeypatch):
+    # small TSDF fragments of a room, the guess the truth turned upside down (half a turn about x), told 15 degrees:
+    # the guess's first leg ends matching 1 of the basis's 160 points, so its legs on the converged cut are not run
+    # (counted: converge's calls); a later stage's pose is then trusted, as when every candidate gets its legs
+    from rangereg.core import scenes_sensor as ss
+    from rangereg.core.global_search import refinement as rf
+
+    s, t = ss.tsdf_fragment_pair(13, frames=6, shared=2, cam=ss.DepthCamera(cols=80, rows=60), voxel=0.04)
+    T_true = invert(t.pose) @ s.pose
+    turn = np.eye(4)
+    turn[:3, :3] = rotation_matrix(np.array([np.pi, 0.0, 0.0]))
+    legs = []
+    converge = rf.converge
+    monkeypatch.setattr(rf, "converge", lambda *a, **k: legs.append(1) or converge(*a, **k))
+    runs = {}
+    for share in (0.0, Config().candidates.settle_share):
+        config = Config(method="global")
+        legs.clear()
+        runs[share] = register(s, t, Guess(T_true @ turn), replace(config, candidates=replace(config.candidates,
+                                                                                              settle_share=share)))
+        runs[share] = (runs[share], len(legs))
+    (every, every_legs), (settled, settled_legs) = runs.values()
+    assert every.trusted and settled.trusted
+    np.testing.assert_allclose(settled.transform, every.transform, atol=1e-9)
+    rot, move = pose_error(settled.transform, T_true)
+    assert rot < 1.0 and move < 0.05, (rot, move)
+    assert settled_legs < every_legs and settled.iterations.icp < every.iterations.icp
 
 
 def test_a_pose_is_undercut_only_by_a_distinct_pose_that_scores_lower(scene_start):

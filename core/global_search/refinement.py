@@ -45,11 +45,14 @@ def _refine_icp(config: Config) -> IcpConfig:
 
 
 def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: Config, on_step=None,
-           frame: LockFrame | None = None, at_T: Problem | None = None) -> tuple[np.ndarray, Problem]:
+           frame: LockFrame | None = None, at_T: Problem | None = None,
+           settled_somewhere: Callable[[np.ndarray], bool] = lambda T: True) -> tuple[np.ndarray, Problem | None]:
     """ICP (``config.candidates.refine_metric``) on the robust E from the pose of ``guess`` (its stated
     uncertainty, the rotation at most ``refine_rotation_deg``): on the overlap cut there (``at_T``, when one was
-    cut there already), then on the converged cut at the pose found (under ``frame``'s lock, when given:
-    core.lock). Returns the pose and that last cut."""
+    cut there already), then, where ``settled_somewhere(T)`` says the pose found has settled somewhere (a share of
+    the basis matched: :class:`core.candidates.CandidateConfig`'s ``settle_share``), on the converged cut at it (under
+    ``frame``'s lock, when given: core.lock). Returns the pose and that last cut; None for the cut where the pose
+    settled nowhere (no converged cut was made: the pose as the first leg left it, which trust cannot take)."""
     cc = config.candidates
     icp_config = _refine_icp(config)
     T = guess.T_target_source
@@ -62,6 +65,8 @@ def refine(source: Scan, target: Scan, surface: Surface, guess: Guess, config: C
     p = at_T if at_T is not None else prepare(source, target, guess.narrowed(cc.refine_rotation_deg), near,
                                               surface=surface, seed=config.seed)
     T = icp(p.error, T, icp_config, on_step, frame=frame).T
+    if not settled_somewhere(T):
+        return T, None
     return converge(source, target, surface, T, config, config.problem, on_step, frame)
 
 
@@ -163,10 +168,15 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
 
         def refine_from(T0, at=None):
             return refine(setup.source, setup.target, setup.surface, setup.guess.at(T0), setup.config,
-                          lambda T_, E_: run.emit("icp", T_, E_), setup.frame, at)
+                          lambda T_, E_: run.emit("icp", T_, E_), setup.frame, at, setup.settled_somewhere)
 
         try:
             T, last = refine_from(poses[k], at_guess)
+            if last is None:  # its first leg settled nowhere (core.candidates.CandidateConfig.settle_share): no legs,
+                found.note(T, hyp.label(k))  # no trust (it matches less than trust asks), and the search goes on
+                if doubted is not None:
+                    doubted()
+                continue
             T, last = along_the_free_motion(setup, run, T, last, refine_from)
         except BudgetSpent as spent:  # the budget ran out inside this refinement: it is given up, the search ends
             found.stopped = spent.stop

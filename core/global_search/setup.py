@@ -56,6 +56,12 @@ class Setup:
     def trusted(self, T: np.ndarray) -> bool:
         return self.threshold.holds(self.basis, T)
 
+    def settled_somewhere(self, T: np.ndarray) -> bool:
+        """Whether pose T (4, 4) matches at least ``settle_share`` of the basis (a refinement's first leg has
+        settled somewhere: core.candidates.CandidateConfig)."""
+        share = self.config.candidates.settle_share
+        return share <= 0 or float(self.basis.evaluate(np.asarray(T)[None]).inliers[0]) >= share
+
     def score(self, T: np.ndarray) -> float:
         return float(self.basis.evaluate(np.asarray(T)[None]).score[0])
 

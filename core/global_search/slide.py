@@ -64,7 +64,8 @@ def slides(setup: Setup, T: np.ndarray) -> np.ndarray:
 def along_the_free_motion(setup: Setup, run: EventStream, T: np.ndarray, last: Problem,
                           refine_from) -> tuple[np.ndarray, Problem]:
     """Pose T (4, 4), or the pose refined from its best slide where that scores lower (module notes), and its
-    last cut. ``refine_from(T0)`` -> (T, cut): the stage's refinement (its ICP steps charged as the stage's).
+    last cut. ``refine_from(T0)`` -> (T, cut): the stage's refinement (its ICP steps charged as the stage's; the cut
+    None where it settled nowhere).
     The slid poses are charged as candidates scored; a budget spent inside returns what was found so far."""
     for _ in range(ROUNDS):
         poses = slides(setup, T)
@@ -79,6 +80,8 @@ def along_the_free_motion(setup: Setup, run: EventStream, T: np.ndarray, last: P
         try:
             T2, last2 = refine_from(poses[k])
         except (BudgetSpent, InputError):  # spent, or the slide's refinement left the overlap: keep the pose
+            break
+        if last2 is None:  # the slide's refinement settled nowhere: keep the pose
             break
         if not setup.basis.evaluate(T2[None]).score[0] < scores[0]:
             break

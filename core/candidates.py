@@ -164,7 +164,8 @@ class CandidateConfig:
     refine_iterations: int = 40
     # A candidate whose first ICP leg (on the cut at the candidate) leaves less than this share of the fixed basis
     # matched has settled nowhere: the legs on the converged cut at its pose (core.global_search.refinement.converge,
-    # which assume the pose within 2 deg of where it settles) are not run, and it stays as that leg left it, doubted.
+    # which assume the pose within 2 deg of where it settles) are not run, and it stays as that leg left it, never
+    # trusted (a share at or above what trust asks, 0.3, would give up poses trust could take).
     # Measured (2026-12-07) on every refinement of the bunny sweep (100), its crop families (642), the sensor
     # sweep's LiDAR, Kinect, street, room and fragment families (78), benchmarks/other_lidars.py (112), the TSDF rooms
     # 11-20 from the identity, with no guess and 15 and 60 deg about the sensor (benchmarks/tsdf_modes.py's starts, 40),
@@ -172,8 +173,8 @@ class CandidateConfig:
     # first leg by a refinement that then ended trusted or weakly pinned were 7 (bunny crops bun000-crop0 ->
     # bun045-crop0, which the legs took to 118), 8 and 14 (more bunny crops), 13 (bun315 -> bun045); 19 on the
     # turntable's crops, 43 on the sensor sweep, 50 on the TSDF rooms, 51 on the RGB-D drives, 95 on the other LiDARs.
-    # Wrong candidates on the TSDF rooms leave 1-6, and their legs cost 0.3-0.8 s each. So below 0.02 (3 of 160 or
-    # fewer: next to nothing overlaps), which gives up as many of the TSDF rooms' candidates as 0.03 would (13 of 33)
+    # Wrong candidates on the TSDF rooms leave 0-19 (half 3 or fewer), their legs 0.3-0.8 s each. So below 0.02 (3 of 160 or
+    # fewer: next to nothing overlaps), which gives up as many of the TSDF rooms' wrong candidates as 0.03 would (13 of 26)
     # with a wider margin under the objects' crops (3 points against 7; the basis draws them, and a draw of 160 moves
     # a share of 7 by ~2.6). 0: every candidate gets its legs.
     settle_share: float = 0.02
@@ -229,11 +230,8 @@ class CandidateConfig:
                              f"not {self.refine_metric!r}")
         if self.refine_iterations < 1:
             raise InputError(f"the refinement needs at least 1 iteration a leg, got {self.refine_iterations}")
-        from .threshold import MIN_TRUST_OVERLAP  # (core.threshold imports this module)
-
-        if not 0 <= self.settle_share < MIN_TRUST_OVERLAP:
-            raise InputError(f"settle_share must be a share of the basis in [0, {MIN_TRUST_OVERLAP:g}) (below the share "
-                             f"a trusted pose matches), got {self.settle_share}")
+        if not 0 <= self.settle_share < 1:
+            raise InputError(f"settle_share must be a share of the basis in [0, 1), got {self.settle_share}")
         if self.refine_patience < 1:
             raise InputError(f"the refinement's patience must be at least 1 iteration, got {self.refine_patience}")
         self.whole.validate()

@@ -49,7 +49,7 @@ def test_threshold_config_refuses_nonsense(bad):
                                           (dict(normal_neighbours=2), "at least 3 neighbours"),
                                           (dict(kiss_grids=(4.0, float("inf"))), "grids must be positive"),
                                           (dict(kiss_grids=(-1.0,)), "grids must be positive"),
-                                          (dict(settle_share=0.3), "settle_share"),
+                                          (dict(settle_share=1.0), "settle_share"),
                                           (dict(settle_share=-0.1), "settle_share"),
                                           (dict(settle_share=float("nan")), "settle_share")])
 def test_candidate_config_refuses_nonsense(bad, message):

@@ -173,7 +173,7 @@ def run_stage(setup: Setup, run: EventStream, hyp: Hypotheses, n: int, found: Fo
         try:
             T, last = refine_from(poses[k], at_guess)
             if last is None:  # its first leg settled nowhere (core.candidates.CandidateConfig.settle_share): no legs,
-                found.note(T, hyp.label(k))  # no trust (it matches less than trust asks), and the search goes on
+                found.note(T, hyp.label(k))  # no trust (it has no converged cut), and the search goes on
                 if doubted is not None:
                     doubted()
                 continue

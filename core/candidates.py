@@ -167,7 +167,7 @@ class CandidateConfig:
     # which assume the pose within 2 deg of where it settles) are not run, and it stays as that leg left it, never
     # trusted (a share at or above what trust asks, 0.3, would give up poses trust could take).
     # Measured (2026-12-07) on every refinement of the bunny sweep (100), its crop families (642), the sensor
-    # sweep's LiDAR, Kinect, street, room and fragment families (78), benchmarks/other_lidars.py (112), the TSDF rooms
+    # sweep's LiDAR, Kinect, street, room and fragment families (156), benchmarks/other_lidars.py (112), the TSDF rooms
     # 11-20 from the identity, with no guess and 15 and 60 deg about the sensor (benchmarks/tsdf_modes.py's starts, 40),
     # the turntable's crop campaigns (3177) and the RGB-D drives (886): of the 160 points, the fewest matched after the
     # first leg by a refinement that then ended trusted or weakly pinned were 7 (bunny crops bun000-crop0 ->

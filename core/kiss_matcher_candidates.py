@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import select
 import subprocess
 import sys
 import threading
@@ -37,6 +38,12 @@ KISS_VOXEL = 0.3  # KISS-Matcher's default voxel size; it refuses small ones (it
 # (1.1-2.3k) or the 24-stop turntable's (246-277). A crash on a larger cloud is contained (ChildDied).
 KISS_MIN_POINTS = 200
 CHILD = Path(__file__).with_name("kiss_matcher_child.py")
+# A guard against a stuck estimate, not a bound on the search (that counts work: core.search.budget). Its maximum-clique
+# step can run for minutes on some inputs (upstream MIT-SPARK/KISS-Matcher issue 8, "Occasionally, pmc stuck", on
+# submaps); measured here an estimate takes 0.1-0.5 s (bunny pairs, the shared LiDAR and Kinect frames, 300k-point
+# TSDF fragments at every grid of CandidateConfig.kiss_grids), so a process silent this long is stuck: it is killed
+# and the search goes on without its hypothesis.
+ANSWER_SECONDS = 120.0
 
 
 @cache
@@ -88,7 +95,7 @@ def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) ->
         return []
     try:
         found = _CHILD.estimate(a, b)
-    except ChildDied:  # it died on this input: never repeated in this process, where it would end the run
+    except ChildDied:  # it died or stuck on this input: never repeated in this process, where it would end or hang the run
         return []
     except OSError:  # the child could not start: the same serial estimate here (the same bits)
         found = _estimate_here(a, b)
@@ -99,7 +106,8 @@ def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) ->
 
 
 class ChildDied(OSError):
-    """KISS-Matcher's process ended while it worked on a request (a crash on that input)."""
+    """KISS-Matcher's process ended while it worked on a request (a crash on that input), or was killed after
+    ANSWER_SECONDS without an answer (stuck on it)."""
 
 
 class _Child:
@@ -114,15 +122,16 @@ class _Child:
 
     def estimate(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
         """T (4x4) for float32 clouds ``a`` (source) and ``b`` (target), or None when none is valid.
-        Raises ChildDied when a signal ended the child on this input (a crash), OSError when it cannot
-        start or answer otherwise (it is then dropped)."""
+        Raises ChildDied when a signal ended the child on this input (a crash) or it gave no answer within
+        ANSWER_SECONDS (killed), OSError when it cannot start or answer otherwise (it is then dropped)."""
         with self._lock:
             proc = self._started()
             self._asked = True
             try:
                 proc.stdin.write(HEAD.pack(len(a), len(b), KISS_VOXEL) + a.tobytes() + b.tobytes())
                 proc.stdin.flush()
-                reply = _read(proc.stdout, 1 + 16 * 8)
+                answered = _answers_within(proc, ANSWER_SECONDS)
+                reply = _read(proc.stdout, 1 + 16 * 8) if answered else b""
             except (EOFError, OSError, ValueError) as exc:
                 try:
                     code = proc.wait(timeout=1)
@@ -132,6 +141,9 @@ class _Child:
                 if code is not None and code < 0:  # ended by a signal while on this input: a crash
                     raise ChildDied(f"KISS-Matcher's process ended by signal {-code}") from exc
                 raise OSError(f"KISS-Matcher's process did not answer: {exc}") from exc
+            if not answered:
+                self._drop()
+                raise ChildDied(f"KISS-Matcher's process gave no answer in {ANSWER_SECONDS:g} s: killed")
         return np.frombuffer(reply[1:], dtype="<f8").reshape(4, 4).astype(np.float64) if reply[0] else None
 
     def _started(self) -> subprocess.Popen:
@@ -161,6 +173,14 @@ class _Child:
                 except (OSError, subprocess.TimeoutExpired, KeyboardInterrupt):
                     self._proc.kill()
             self._proc = None
+
+
+def _answers_within(proc: subprocess.Popen, seconds: float) -> bool:
+    """Whether ``proc`` has written to its output (its reply, or the end of it) within ``seconds``. Where a pipe
+    cannot be waited on with a timeout (not POSIX) it is read as before, with no guard."""
+    if os.name != "posix":
+        return True
+    return bool(select.select([proc.stdout], [], [], seconds)[0])
 
 
 _CHILD = _Child()

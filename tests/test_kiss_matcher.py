@@ -98,6 +98,34 @@ def test_a_cloud_too_small_for_kiss_matcher_gives_no_hypothesis_and_a_crash_of_i
     kmc._CHILD.close()
 
 
+def test_a_kiss_matcher_process_stuck_on_an_input_is_killed_and_the_search_goes_on_without_it(tmp_path, monkeypatch):
+    # its maximum-clique step can run for minutes (upstream issue 8): a process silent for ANSWER_SECONDS is killed,
+    # the request gives no hypothesis and is not repeated in this process, where it would hang the run
+    import time
+
+    from rangereg.core import kiss_matcher_candidates as kmc
+    from rangereg.core.scan import Scan
+
+    stuck = tmp_path / "stuck_child.py"
+    stuck.write_text("import sys, time\nsys.stdin.buffer.read(1)\ntime.sleep(600)\n")
+    monkeypatch.setattr(kmc, "CHILD", stuck)
+    monkeypatch.setattr(kmc, "ANSWER_SECONDS", 0.5)
+    child = kmc._Child()
+    cloud = np.zeros((300, 3), dtype=np.float32)
+    t0 = time.perf_counter()
+    with pytest.raises(kmc.ChildDied, match="no answer"):
+        child.estimate(cloud, cloud)
+    assert time.perf_counter() - t0 < 30
+    assert child._proc is None  # killed and dropped: the next request starts a new process
+    if kmc.kiss_available():
+        monkeypatch.setattr(kmc, "_CHILD", child)
+        monkeypatch.setattr(kmc, "_estimate_here", lambda a, b: pytest.fail("the stuck input was repeated here"))
+        rng = np.random.default_rng(0)
+        scan = Scan(rng.random((3000, 3)), np.zeros(3), "cloud")
+        assert kmc.kiss_candidates(scan, scan, 0.01, 5.0) == []
+    child.close()
+
+
 def test_a_child_never_asked_is_killed_at_exit_not_waited_for_while_it_starts():
     # a run that ends on bad input after the CLI started the child (app.commands.register.start_early) exits at
     # once: closing its input would wait 0.15-0.3 s for the interpreter to start and read the end of it

@@ -129,7 +129,11 @@ def token(scans: list[Scan], config: Config) -> str:
     return h.hexdigest()
 
 
-_BUILT: dict[str, dict] = {}  # per process: token -> {scan index: (Scan, Surface)}, {("normals", k): FacingNormals}, ...
+# per process: token -> {scan index: (Scan, Surface)}, {("normals", k): FacingNormals}, ..., the last used last
+_BUILT: dict[str, dict] = {}
+# Scan sets kept at once: a new merge frees the geometry of the least recently used beyond this. Two, so that two
+# merges under way in one process (two of the workbench's tabs) do not free each other's scans at every task.
+SCAN_SETS = 2
 # one lock per value being made, so that two threads (a task, the qualities made ahead for the model) make it once
 _MAKING: dict[tuple, threading.Lock] = {}
 _MAKING_LOCK = threading.Lock()
@@ -138,11 +142,15 @@ _MAKING_LOCK = threading.Lock()
 def _once(shared: Shared, key, make):
     """The value at ``key`` of this scan set's cache, made by ``make()`` by the first thread to ask for it."""
     with _MAKING_LOCK:
-        if shared.token not in _BUILT:
-            _BUILT.clear()  # one scan set at a time: a new merge frees the last one's geometry
-            _MAKING.clear()
-            _BUILT[shared.token] = {}
-        cache = _BUILT[shared.token]
+        cache = _BUILT.pop(shared.token, None)
+        if cache is None:
+            cache = {}
+            while len(_BUILT) >= SCAN_SETS:
+                gone = next(iter(_BUILT))
+                del _BUILT[gone]
+                for k in [k for k in _MAKING if k[0] == gone]:
+                    del _MAKING[k]
+        _BUILT[shared.token] = cache  # the last used last
         if key in cache:
             return cache[key]
         lock = _MAKING.setdefault((shared.token, key), threading.Lock())
@@ -154,7 +162,9 @@ def _once(shared: Shared, key, make):
 
 def clear_geometry_cache() -> None:
     """Forget the scans built in this process (a benchmark's runs each start from none, as workers do)."""
-    _BUILT.clear()
+    with _MAKING_LOCK:
+        _BUILT.clear()
+        _MAKING.clear()
 
 
 def built(shared: Shared, k: int) -> tuple[Scan, Surface]:

@@ -617,6 +617,21 @@ def test_a_scan_and_its_quality_are_made_once_when_two_threads_ask_at_once(camp,
     assert len(made) == 1 and a is b and qa is qb
 
 
+def test_two_merges_under_way_in_one_process_keep_each_others_scans(camp):
+    # two of the workbench's tabs merging different scan sets: each set's scans built once, not freed by the other's
+    # tasks; a third set frees the one used least recently
+    from dataclasses import replace as with_
+
+    c = _campaign(camp)
+    merge_tasks.clear_geometry_cache()
+    a, b, third = c.shared, with_(c.shared, token="another set"), with_(c.shared, token="a third set")
+    first_a, first_b = merge_tasks.built(a, 0), merge_tasks.built(b, 0)
+    assert merge_tasks.built(a, 0) is first_a and merge_tasks.built(b, 0) is first_b
+    merge_tasks.built(third, 0)  # a was used least recently
+    assert merge_tasks.built(b, 0) is first_b and merge_tasks.built(a, 0) is not first_a
+    merge_tasks.clear_geometry_cache()
+
+
 def test_a_merge_makes_its_qualities_ahead_only_for_a_model_and_they_are_the_scans_own(camp):
     from rangereg.core.fuse import sample_quality
     from rangereg.core.merge import merge

@@ -115,7 +115,7 @@ PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries,
 # A query's nearest cloud point comes from Open3D's k-d tree (nanoflann, float64, core.nns.NearestNeighborSearch),
 # not scipy's: a query far from a 2-D manifold of points costs a k-d tree much more than one on it (the search visits
 # every leaf its ball reaches), and Open3D's costs about half of scipy's there on one core, and spreads a batch over
-# the cores. Measured (2026-12-08) on the thinned TSDF fragments of room 11 (104k points): 300 queries (an ICP step's
+# the cores. Measured (2026-12-07) on the thinned TSDF fragments of room 11 (104k points): 300 queries (an ICP step's
 # sample) 0.3-2 m off took 2-3 ms against scipy's 8-19 ms (4-5 ms against 9-24 on one core), 300 on the cloud 0.9
 # against 0.8 ms, 40k 0.1-2 m off 100-180 ms against 200-280 ms (scipy's tree for near ones, a BVH of tiny triangles
 # for far ones, as this module did before); over every query of one registration from the identity, 0.18 against

@@ -17,8 +17,9 @@ Two facts about the library, measured here, shape this module:
 from __future__ import annotations
 
 import atexit
+import hashlib
 import os
-import select
+import selectors
 import subprocess
 import sys
 import threading
@@ -76,13 +77,15 @@ def voxel_clouds(source: Scan, target: Scan, spacing: float, voxel: float) -> tu
 def start() -> None:
     """Start KISS-Matcher's process now, when it is installed, so that its start-up (~0.15-0.3 s: an
     interpreter, numpy, the library) overlaps other work (the CLI's imports and file reading); else
-    it starts on first use."""
-    if kiss_available():
-        with _CHILD._lock:
-            try:
-                _CHILD._started()
-            except OSError:
-                pass  # first use says it again and falls back to this process
+    it starts on first use. Where the process is busy with a request (another run of this process) it returns
+    at once: the process is started already."""
+    if kiss_available() and _CHILD._lock.acquire(blocking=False):
+        try:
+            _CHILD._started()
+        except OSError:
+            pass  # first use says it again and falls back to this process
+        finally:
+            _CHILD._lock.release()
 
 
 def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) -> list[np.ndarray]:
@@ -93,9 +96,13 @@ def kiss_candidates(source: Scan, target: Scan, spacing: float, voxel: float) ->
     a, b, k = voxel_clouds(source, target, spacing, voxel)
     if min(len(a), len(b)) < KISS_MIN_POINTS:
         return []
+    key = _digest(a, b)
+    if key in _FAILED:  # it died or stuck on this input before: not asked again (a merge's later round, a rerun)
+        return []
     try:
         found = _CHILD.estimate(a, b)
     except ChildDied:  # it died or stuck on this input: never repeated in this process, where it would end or hang the run
+        _FAILED.add(key)
         return []
     except OSError:  # the child could not start: the same serial estimate here (the same bits)
         found = _estimate_here(a, b)
@@ -177,10 +184,24 @@ class _Child:
 
 def _answers_within(proc: subprocess.Popen, seconds: float) -> bool:
     """Whether ``proc`` has written to its output (its reply, or the end of it) within ``seconds``. Where a pipe
-    cannot be waited on with a timeout (not POSIX) it is read as before, with no guard."""
+    cannot be waited on with a timeout (not POSIX) it is read as before, with no guard. (A selector, not
+    select.select, which refuses file numbers from 1024 on: a long-lived workbench or worker can reach them.)"""
     if os.name != "posix":
         return True
-    return bool(select.select([proc.stdout], [], [], seconds)[0])
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        return bool(sel.select(seconds))
+
+
+def _digest(a: np.ndarray, b: np.ndarray) -> bytes:
+    """A request's identity: the two clouds' bytes, hashed."""
+    h = hashlib.sha1(a.tobytes())
+    h.update(b"|")
+    h.update(b.tobytes())
+    return h.digest()
+
+
+_FAILED: set[bytes] = set()  # the requests the process died or stuck on (kiss_candidates)
 
 
 _CHILD = _Child()

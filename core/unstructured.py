@@ -112,7 +112,7 @@ def _plane(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries, 14 MB
-# A query's nearest cloud point comes from Open3D's k-d tree (nanoflann, float64, core.nns.NearestNeighborSearch),
+# A query's nearest cloud point comes from Open3D's k-d tree (nanoflann, float64, open3d.core.nns.NearestNeighborSearch),
 # not scipy's: a query far from a 2-D manifold of points costs a k-d tree much more than one on it (the search visits
 # every leaf its ball reaches), and Open3D's costs about half of scipy's there on one core, and spreads a batch over
 # the cores. Measured (2026-12-07) on the thinned TSDF fragments of room 11 (104k points): 300 queries (an ICP step's
@@ -120,7 +120,9 @@ PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries,
 # against 0.8 ms, 40k 0.1-2 m off 100-180 ms against 200-280 ms (scipy's tree for near ones, a BVH of tiny triangles
 # for far ones, as this module did before); over every query of one registration from the identity, 0.18 against
 # 0.57 s, the same points for all 84k queries. Its index costs ~30 ms per 100k points, made once (:meth:`build`).
-# Where two cloud points are equally near (1-2 in 10,000 queries far off), either may be the answer.
+# Where two cloud points are equally near (1-2 in 10,000 queries far off), either may be the answer. Unlike scipy's, the
+# call holds the GIL (2-3 ms for an ICP step; 0.1-0.2 s for the 40k of a batch of rotation samples): measured as a whole
+# run, with the search's other threads running, it is still the faster.
 
 
 @dataclass(eq=False)

@@ -3,6 +3,8 @@ the same bits every run, in its process or in this one."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from rangereg.core.candidates import CandidateConfig
@@ -98,6 +100,7 @@ def test_a_cloud_too_small_for_kiss_matcher_gives_no_hypothesis_and_a_crash_of_i
     kmc._CHILD.close()
 
 
+@pytest.mark.skipif(os.name != "posix", reason="the guard waits on the pipe where the system allows it (POSIX)")
 def test_a_kiss_matcher_process_stuck_on_an_input_is_killed_and_the_search_goes_on_without_it(tmp_path, monkeypatch):
     # its maximum-clique step can run for minutes (upstream issue 8): a process silent for ANSWER_SECONDS is killed,
     # the request gives no hypothesis and is not repeated in this process, where it would hang the run
@@ -119,10 +122,14 @@ def test_a_kiss_matcher_process_stuck_on_an_input_is_killed_and_the_search_goes_
     assert child._proc is None  # killed and dropped: the next request starts a new process
     if kmc.kiss_available():
         monkeypatch.setattr(kmc, "_CHILD", child)
+        monkeypatch.setattr(kmc, "_FAILED", set())
         monkeypatch.setattr(kmc, "_estimate_here", lambda a, b: pytest.fail("the stuck input was repeated here"))
         rng = np.random.default_rng(0)
         scan = Scan(rng.random((3000, 3)), np.zeros(3), "cloud")
         assert kmc.kiss_candidates(scan, scan, 0.01, 5.0) == []
+        asked = []
+        monkeypatch.setattr(child, "estimate", lambda a, b: asked.append(1))
+        assert kmc.kiss_candidates(scan, scan, 0.01, 5.0) == [] and not asked  # not sent again: no second wait
     child.close()
 
 

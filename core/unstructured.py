@@ -53,6 +53,7 @@ NEAR_SPACINGS = 3.0
 # identity (room 11, at load 3), every 64th point 2.5 s.
 COARSE_CELL_NEARS = 3.0
 COARSE_MIN_POINTS = 64
+COARSE_EVERY = 64  # the coarse subset of the surface's vertices (TangentPlanes._nearest): every 64th
 
 
 def fit_planes(points: np.ndarray, tree: cKDTree, spacing: float, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -112,17 +113,13 @@ def _plane(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 PLANE_CHUNK = 20_000  # planes fitted at once: (20k, 30, 3) float64 temporaries, 14 MB
-# A query's nearest cloud point comes from Open3D's k-d tree (nanoflann, float64, open3d.core.nns.NearestNeighborSearch),
-# not scipy's: a query far from a 2-D manifold of points costs a k-d tree much more than one on it (the search visits
-# every leaf its ball reaches), and Open3D's costs about half of scipy's there on one core, and spreads a batch over
-# the cores. Measured (2026-12-07) on the thinned TSDF fragments of room 11 (104k points): 300 queries (an ICP step's
-# sample) 0.3-2 m off took 2-3 ms against scipy's 8-19 ms (4-5 ms against 9-24 on one core), 300 on the cloud 0.9
-# against 0.8 ms, 40k 0.1-2 m off 100-180 ms against 200-280 ms (scipy's tree for near ones, a BVH of tiny triangles
-# for far ones, as this module did before); over every query of one registration from the identity, 0.18 against
-# 0.57 s, the same points for all 84k queries. Its index costs ~30 ms per 100k points, made once (:meth:`build`).
-# Where two cloud points are equally near (1-2 in 10,000 queries far off), either may be the answer. Unlike scipy's, the
-# call holds the GIL (2-3 ms for an ICP step; 0.1-0.2 s for the 40k of a batch of rotation samples): measured as a whole
-# run, with the search's other threads running, it is still the faster.
+# A query far from a cloud costs a k-d tree ~50 x more than one on it (the search visits every leaf the ball reaches
+# on a 2-D manifold): the 38,880 points of a TSDF fragment's 720 rotation samples (core.candidates.shift_to_fit),
+# median 0.68 m (45 spacings) off, took 1.33 s on one thread against 0.03 s for as many on the cloud. A BVH of one
+# tiny triangle per point (Open3D's RaycastingScene) finds their nearest points in 0.21 s (the same point for all but
+# 2 of them: float32 against float64, a near-tie). So a query farther than FAR_SPACINGS spacings from a coarse subset
+# of the cloud (every COARSE_EVERY-th point) asks the BVH; a nearer one, the tree (its answer as before, bit for bit).
+FAR_SPACINGS = 20.0
 
 
 @dataclass(eq=False)
@@ -184,14 +181,11 @@ class TangentPlanes(Surface):
         return float(PATCH_SPACINGS * local_spacing(self.vertices, self._vertex_tree).max())
 
     def warm(self) -> TangentPlanes:
-        """Nothing to start ahead: the nearest-point index is made by :meth:`build` or the first query, each plane
-        when a query first lands on it."""
+        """Nothing to build ahead: the k-d tree is made already, each plane when a query first lands on it."""
         return self
 
     def build(self) -> TangentPlanes:
-        """The nearest-point index (~30 ms per 100k points), made now, on this thread (the whole target's, made
-        while a thinned pair is searched); ray casting (:meth:`first_hit`) builds its patches when asked."""
-        _ = self._index
+        """Nothing to build ahead (:meth:`warm`); ray casting (:meth:`first_hit`) builds its patches when asked."""
         return self
 
     def closest_with_normals(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -211,22 +205,40 @@ class TangentPlanes(Surface):
         return c, np.einsum("ij,ij->i", d, d), n
 
     def _nearest(self, q: np.ndarray) -> np.ndarray:
-        """(N,) index of the vertex nearest each of (N, 3) queries (module notes: Open3D's k-d tree)."""
-        if not len(q):
-            return np.zeros(0, dtype=np.int64)
-        import open3d as o3d
+        """(N,) index of the vertex nearest each of (N, 3) queries (module notes: FAR_SPACINGS)."""
+        workers = -1 if len(q) > PARALLEL_QUERY else 1
+        if len(q) <= PARALLEL_QUERY or len(self.vertices) <= COARSE_EVERY:
+            return self._vertex_tree.query(q, workers=workers)[1]
+        d, _ = self._coarse_tree.query(q, workers=workers)
+        far = d > FAR_SPACINGS * self.spacing
+        j = np.empty(len(q), dtype=np.int64)
+        j[~far] = self._vertex_tree.query(q[~far], workers=workers)[1]
+        if far.any():
+            import open3d as o3d
 
-        found, _ = self._index.knn_search(o3d.core.Tensor(np.ascontiguousarray(q, dtype=np.float64)), 1)
-        return found.numpy().reshape(len(q)).astype(np.int64)
+            hits = self._point_scene.compute_closest_points(o3d.core.Tensor((q[far] - self.offset).astype(np.float32)))
+            j[far] = hits["primitive_ids"].numpy()
+        return j
 
     @cached_property
-    def _index(self):
-        """Open3D's k-d tree of the vertices (float64), for :meth:`_nearest`."""
+    def _coarse_tree(self) -> cKDTree:
+        """A k-d tree of every COARSE_EVERY-th vertex (:meth:`_nearest`)."""
+        return cKDTree(self.vertices[::COARSE_EVERY])
+
+    @cached_property
+    def _point_scene(self):
+        """Open3D's RaycastingScene of one tiny triangle at each vertex, triangle k at vertex k (:meth:`_nearest`)."""
         import open3d as o3d
 
-        index = o3d.core.nns.NearestNeighborSearch(o3d.core.Tensor(np.ascontiguousarray(self.vertices, dtype=np.float64)))
-        index.knn_index()
-        return index
+        v = self.vertices - self.offset
+        e = 1e-3 * self.spacing
+        corners = np.stack([v, v + [e, 0.0, 0.0], v + [0.0, e, 0.0]], axis=1).reshape(-1, 3)
+        scene = o3d.t.geometry.RaycastingScene()
+        mesh = o3d.t.geometry.TriangleMesh()
+        mesh.vertex.positions = o3d.core.Tensor(corners.astype(np.float32))
+        mesh.triangle.indices = o3d.core.Tensor(np.arange(len(corners), dtype=np.int32).reshape(-1, 3))
+        scene.add_triangles(mesh)
+        return scene
 
     def _build_scene(self):
         """For ray casting only (:meth:`first_hit`): each patch as a square of two triangles inscribed in its disc."""

@@ -33,8 +33,8 @@ def read_sidecar(path: Path) -> dict:
     text = _read_text(side, "a JSON sidecar", SIDECAR_LIMIT)
     try:
         data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{side}: the sidecar is not valid JSON ({exc})") from None
+    except (ValueError, RecursionError) as exc:  # (also a number past int's digit limit, arrays nested past the stack)
+        raise InputError(f"{side}: the sidecar is not valid JSON ({str(exc)[:120]})") from None
     if not isinstance(data, dict):
         raise InputError(f"{side}: the sidecar should hold a JSON object, found {type(data).__name__}")
     return check_sidecar(data, str(side))
@@ -204,8 +204,8 @@ def transform_from_text(text: str, what: str) -> np.ndarray:
         try:
             data = json.loads(text)
             values = np.asarray(data["transform"], dtype=np.float64)
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{what}: expected JSON with a 'transform' 4 x 4 list ({exc})") from None
+        except (KeyError, TypeError, ValueError, RecursionError) as exc:
+            raise InputError(f"{what}: expected JSON with a 'transform' 4 x 4 list ({str(exc)[:120]})") from None
     else:
         try:
             values = np.array([float(t) for t in re.split(r"[,;\s\[\]]+", text) if t], dtype=np.float64)

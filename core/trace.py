@@ -250,7 +250,7 @@ def read_trace(text: str, name: str = "trace") -> Trace:
             check_rigid(e.T, "its transform")
             if e.phase not in PHASES or not np.isfinite(float(e.error)):
                 raise ValueError(f"a phase ({'/'.join(PHASES)}) and a finite error expected")
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):  # (arrays nested past the stack: not a trace either)
             raise InputError(f"{name}: line {lineno} is not JSON: not a rangereg trace (JSON lines from "
                              "register --trace)") from None
         except InputError as exc:

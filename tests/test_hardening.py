@@ -306,3 +306,20 @@ def test_malformed_page_frames_are_one_log_line_each_and_the_server_keeps_servin
     assert "Traceback" not in capfd.readouterr().err
     with socket.create_connection(("127.0.0.1", page.wb.options.port), timeout=5):
         pass
+
+
+@pytest.mark.parametrize("text", ["[" * 100_000 + "]" * 100_000, '{"viewpoint": [' + "9" * 5000 + ", 0, 0]}"])
+def test_a_sidecar_nested_past_the_stack_or_holding_a_number_of_thousands_of_digits_is_one_message(tmp_path, text):
+    # json raises RecursionError for the one and ValueError (int's digit limit) for the other, neither a JSONDecodeError
+    import shutil
+
+    from rangereg.core.io import load_scan
+    from rangereg.core.sidefiles import transform_from_text
+
+    scan = tmp_path / "scan2.ply"
+    shutil.copy(ASSETS / "corner" / "scan2.ply", scan)
+    scan.with_suffix(".json").write_text(text)
+    with pytest.raises(InputError, match="the sidecar is not valid JSON"):
+        load_scan(scan)
+    with pytest.raises(InputError, match="expected JSON with a 'transform'"):
+        transform_from_text('{"transform": ' + text + "}", "--init")

@@ -131,6 +131,7 @@ def test_a_real_process_refuses_a_mismatched_trace_with_one_line_and_no_tracebac
     ('{"header": {"format": "something-else"}}\n', "not a rangereg-trace header"),
     ('{"header": {"format": "rangereg-trace", "format_version": 1}}\n', "a header without 'source'"),
     ("[1, 2, 3]\n", "a JSON object expected"),
+    ("[" * 100_000 + "]" * 100_000 + "\n", "line 1 is not JSON"),  # nested past Python's stack
 ])
 def test_a_file_that_is_not_a_trace_is_one_message_naming_its_line(text, said):
     with pytest.raises(InputError, match=said):

@@ -266,16 +266,10 @@ def _load_pcd(path: Path) -> RawScan:
         header[key.upper()] = vals
         if key.upper() == "DATA":
             break
-    fields = header.get("FIELDS")
-    if not fields or not all(f in fields for f in "xyz"):
-        raise InputError(f"{path}: the PCD file has no x y z fields")
-    n = int(header.get("POINTS", [0])[0]) or int(header["WIDTH"][0]) * int(header.get("HEIGHT", ["1"])[0])
-    sizes = [int(s) for s in header.get("SIZE", ["4"] * len(fields))]
-    types = header.get("TYPE", ["F"] * len(fields))
-    counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
-    mode = header["DATA"][0].lower()
+    mode = header["DATA"][0].lower() if header["DATA"] else ""
+    fields, sizes, types, counts, n = _pcd_layout(header, path, mode)
     row = sum(s * c for s, c in zip(sizes, counts))
-    if mode == "binary" and pos + n * row > len(raw):
+    if mode == "binary" and pos + n * row != len(raw):
         raise InputError(f"{path}: the header says {n} points of {row} bytes ({n * row} bytes) but "
                          f"{len(raw) - pos} bytes follow it")
     if mode == "ascii":
@@ -310,6 +304,51 @@ def _load_pcd(path: Path) -> RawScan:
     return RawScan(pts, str(path), path.stem, grid=grid_idx, viewpoint=vp, viewpoint_label="VIEWPOINT",
                    viewpoint_default=default, viewpoint_pose=vp is not None, sensor_rotation=rotation,
                    intensity=intensity, sidecar=path)
+
+
+def _pcd_layout(header: dict, path: Path, mode: str) -> tuple[list[str], list[int], list[str], list[int], int]:
+    """A PCD header's fields, sizes, types and counts (one each a field) and its number of points, checked:
+    InputError naming what is wrong, where the file's own numbers disagree or name no type PCD has."""
+    fields = header.get("FIELDS")
+    if not fields or not all(f in fields for f in "xyz"):
+        raise InputError(f"{path}: the PCD file has no x y z fields")
+    twice = sorted({f for f in fields if fields.count(f) > 1})
+    if twice:
+        raise InputError(f"{path}: the PCD header names the field {twice[0]!r} more than once")
+    k = len(fields)
+
+    def whole(key: str, default: list[str]) -> list[int]:
+        values = header.get(key, default)
+        try:
+            return [int(v) for v in values]
+        except ValueError:
+            raise InputError(f"{path}: the PCD header's {key} should hold whole numbers, found "
+                             f"{' '.join(values)[:40]!r}") from None
+
+    sizes, counts = whole("SIZE", ["4"] * k), whole("COUNT", ["1"] * k)
+    types = [t.upper() for t in header.get("TYPE", ["F"] * k)]
+    if not len(sizes) == len(types) == len(counts) == k:
+        raise InputError(f"{path}: the PCD header names {k} FIELDS but gives {len(sizes)} SIZE, {len(types)} TYPE "
+                         f"and {len(counts)} COUNT values")
+    for f, t, size in zip(fields, types, sizes):
+        if (t, size) not in _PCD_TYPES:
+            raise InputError(f"{path}: the PCD field {f!r} has TYPE {t} and SIZE {size}, no number type of PCD's "
+                             "(F of 4 or 8 bytes, I or U of 1, 2, 4 or 8)")
+    if any(c < 1 for c in counts):
+        raise InputError(f"{path}: the PCD header's COUNT values must be at least 1, found {counts}")
+    if mode == "binary_compressed" and any((types[fields.index(a)], sizes[fields.index(a)]) != ("F", 4) for a in "xyz"):
+        raise InputError(f"{path}: a compressed PCD is read (by Open3D) with x, y and z as 4-byte floats (TYPE F, "
+                         "SIZE 4) only; save it uncompressed (DATA binary) or as float32")
+    points = whole("POINTS", []) if "POINTS" in header else []
+    width, height = whole("WIDTH", []) if "WIDTH" in header else [], whole("HEIGHT", ["1"])
+    if not points and not width:
+        raise InputError(f"{path}: the PCD header gives neither POINTS nor WIDTH: no number of points")
+    n = points[0] if points else width[0] * height[0]
+    if n < 0 or (width and (width[0] < 0 or height[0] < 0)):
+        raise InputError(f"{path}: the PCD header gives a negative number of points")
+    if points and width and points[0] != width[0] * height[0]:
+        raise InputError(f"{path}: the PCD header says POINTS {points[0]} but WIDTH x HEIGHT {width[0]} x {height[0]}")
+    return fields, sizes, types, counts, n
 
 
 def _pcd_viewpoint(values: list[str] | None, path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:

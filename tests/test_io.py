@@ -278,6 +278,42 @@ def test_a_bad_viewpoint_argument_is_refused(tmp_path, viewpoint, match):
         load_scan(tmp_path / "s.ply", viewpoint=viewpoint)
 
 
+@pytest.mark.parametrize("change, said", [
+    (("FIELDS x y z", "FIELDS x y z x"), "names the field 'x' more than once"),
+    (("TYPE F F F", "TYPE f f f"), None),  # lower case: the same types
+    (("TYPE F F F", "TYPE F F Q"), "TYPE Q and SIZE 4, no number type"),
+    (("SIZE 4 4 4", "SIZE 2 2 2"), "TYPE F and SIZE 2, no number type"),
+    (("SIZE 4 4 4", "SIZE 4 4 four"), "SIZE should hold whole numbers"),
+    (("COUNT 1 1 1", "COUNT 1 1"), "3 FIELDS but gives 3 SIZE, 3 TYPE and 2 COUNT"),
+    (("COUNT 1 1 1", "COUNT 1 1 0"), "COUNT values must be at least 1"),
+    (("POINTS 50", "POINTS many"), "POINTS should hold whole numbers"),
+    (("POINTS 50", "POINTS -5"), "a negative number of points"),
+    (("POINTS 50", "POINTS 49"), "POINTS 49 but WIDTH x HEIGHT 50 x 1"),
+    (("WIDTH 50\nHEIGHT 1\n", ""), None),  # POINTS alone is enough
+    (("POINTS 50\n", ""), None),  # and WIDTH x HEIGHT alone
+    (("WIDTH 50\nHEIGHT 1\nPOINTS 50\n", ""), "neither POINTS nor WIDTH"),
+])
+def test_a_pcd_header_whose_numbers_disagree_or_name_no_type_is_one_message(tmp_path, change, said):
+    pts = _cube_points(50).astype(np.float32)
+    head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 50\nHEIGHT 1\nPOINTS 50\n"
+    head = head.replace(*change)
+    extra = np.zeros((50, 1), np.float32) if "x y z x" in head else np.zeros((50, 0), np.float32)
+    (tmp_path / "b.pcd").write_bytes((head + "DATA binary\n").encode() + np.c_[pts, extra].tobytes())
+    if said is None:
+        np.testing.assert_allclose(load_scan(tmp_path / "b.pcd").points, pts, atol=1e-6)
+        return
+    with pytest.raises(InputError, match=said):
+        load_scan(tmp_path / "b.pcd")
+
+
+def test_a_binary_pcd_with_more_bytes_than_its_points_is_refused(tmp_path):
+    pts = _cube_points(50).astype(np.float32)
+    head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 40\nHEIGHT 1\nPOINTS 40\nDATA binary\n"
+    (tmp_path / "b.pcd").write_bytes(head.encode() + pts.tobytes())
+    with pytest.raises(InputError, match="40 points of 12 bytes .* but 600 bytes follow"):
+        load_scan(tmp_path / "b.pcd")
+
+
 def test_a_pcd_viewpoint_that_is_not_finite_is_refused(tmp_path):
     pts = _cube_points(50)
     head = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 50\nHEIGHT 1\n"

@@ -256,6 +256,7 @@ CASES: list[Case] = [
     C("merge out folder", "merge src.ply tgt.ply --out folder.ply", "folder"),
     C("merge out missing folder", "merge src.ply tgt.ply --out nowhere/m.ply", "does not exist"),
     C("merge same names", "merge a/s.ply b/s.ply", "share a name"),
+    C("merge one file twice", "merge src.ply src.ply", "the same file"),
     # no poses: no guess, so no overlap can be refused up front; the far scan is registered over every pose,
     # nothing is trusted, and it is reported not placed (status 3; the model holds the placed scan)
     C("merge no overlap", "merge src.ply far.xyz --json", "not placed", stdout_ok=True, status=3,

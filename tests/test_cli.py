@@ -269,3 +269,15 @@ def test_register_says_when_a_viewpoint_was_estimated(rangereg, tmp_path):
     assert code == 0 and "viewpoint   estimated for scan2" in out, out
     code, out, _ = rangereg("register", xyz, ASSETS / "corner" / "scan1.ply", "--method", "icp", "--json")
     assert json.loads(out)["viewpoint_estimated"] == ["scan2"]
+
+
+def test_merge_refuses_one_file_given_twice_by_name_or_through_a_link(tmp_path):
+    # merged with itself, the scan would be placed twice (and "2 of 2 scans placed" said of one scan)
+    from tests.conftest import run_cli
+
+    link = tmp_path / "again.ply"
+    link.symlink_to(CORNER_SRC)
+    for other in (CORNER_SRC, link):
+        r = run_cli("merge", CORNER_SRC, other, "--out", tmp_path / "m.ply", timeout=120)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "are the same file: give each scan once" in r.stderr and not (tmp_path / "m.ply").exists()

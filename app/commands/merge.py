@@ -16,6 +16,7 @@ caps the threads of each task stream.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -96,6 +97,7 @@ def run(a) -> int:
     say = DelayedLines() if not a.json or sys.stderr.isatty() else None
     # the runner's flags (and a --scheduler's reach) are checked before any scan is read
     runner = TaskRunner(workers, scheduler, progress=say, threads=threads)
+    _each_once(a.scans)
     scans = load_scans(a.scans, kind=getattr(a, "scan_kind", None))
     names = [s.name for s in scans]
     if len(set(names)) != len(names):
@@ -263,3 +265,21 @@ def print_report(report: dict, res, scans) -> None:
         return
     print(f"model of the {sum(report['placed'])} placed scans: {m['vertices']} vertices, {m['triangles']} triangles, "
           f"double layer on {m['double_layer_fraction']:.2%} of triangles -> {m['path']}")
+
+
+def _each_once(paths: list[str]) -> None:
+    """InputError where one file (the same scan of it) is given twice, by its name or through a link: merged with
+    itself, it would be placed twice."""
+    from rangereg.core.e57 import split_selection
+
+    seen: dict[tuple, str] = {}
+    for p in paths:
+        path, selection = split_selection(p)
+        try:
+            st = os.stat(path)
+            key = (st.st_dev, st.st_ino, selection)
+        except OSError:  # missing or unreadable: the reading says so
+            continue
+        if key in seen:
+            raise InputError(f"{seen[key]} and {p} are the same file: give each scan once")
+        seen[key] = p

@@ -158,7 +158,7 @@ def crop_pairs(a) -> int:
                 continue
             rot, move = pose_error(res.transform, rel(truth, i, j), scans[j].centroid)
             ok = rot < RIGHT_DEG and move < RIGHT_MM
-            d = res.details
+            d = res.verdict
             right += [(i, j)] if ok else []
             (trusted_right if ok else trusted_wrong).extend([(i, j)] if res.below_threshold else [])
             c = d.constraint

@@ -126,14 +126,14 @@ def main() -> int:
                 print(f"  {source.name} -> {target.name}: refused ({exc})", flush=True)
                 continue
             sec = time.perf_counter() - t0
-            d, c = res.details, res.details.constraint
+            c = res.verdict.constraint
             rot, move = pose_error(res.transform, invert(P_i) @ P_j, source.centroid)
             rows.append((family, res.trusted, sec))
             if res.trusted:
                 pinned = "unmeasured" if c is None else (
                     f"ratio {c.ratio:.4f}, rise {c.rise if c.rise is None else round(c.rise, 3)}")
                 print(f"  DEFECT {source.name} -> {target.name}: trusted, {rot:.1f} deg / {move:.3g} {source.units} from "
-                      f"the truth (found by {d.found_by}; misfit {d.misfit:.2f}, {pinned}, {sec:.1f} s)", flush=True)
+                      f"the truth (found by {res.found_by}; misfit {res.verdict.misfit:.2f}, {pinned}, {sec:.1f} s)", flush=True)
     print(f"\nload {os.getloadavg()[0]:.1f}\n")
     print("| family | pairs | trusted (defects) | median s |")
     print("|---|---|---|---|")

@@ -90,7 +90,7 @@ def main() -> int:
                     ok = rot < OK_ROT and move < OK_TRANS and family != "corridor"
                     runs, right = runs + 1, right + ok
                     defects += bool(res.trusted and not ok)
-                    c = res.details.constraint
+                    c = res.verdict.constraint
                     print(f"{name} slid {sign * share * t.size:+.2f} {s.units}: {'right' if ok else 'WRONG'} "
                           f"{rot:.3f} deg / {move:.3f} {s.units}, {'trusted' if res.trusted else 'not trusted'}, ratio "
                           f"{'-' if c is None else f'{c.ratio:.4f}'}, {res.seconds:.1f} s"

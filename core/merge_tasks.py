@@ -107,13 +107,13 @@ class PairOutcome:
     failure: str = ""
     free: Constraint | None = None  # not trusted and its overlap leaves a motion free at T: what it pins (core.threshold)
     found_by: str = ""  # the search's stage whose pose T is (core.result.GlobalDetails.found_by; "" when refused)
-    twin: bool = False  # T puts points where the other's sensor looked through (GlobalDetails.looked_through)
+    twin: bool = False  # T puts points where the other's sensor looked through (core.result.Verdict.looked_through)
 
 
 def verdict(res) -> tuple[bool, float | None, bool | None]:
     """(trusted, misfit, within_region) of a core Result: the one place a merge reads them."""
-    d = res.details
-    return bool(res.below_threshold), None if d is None else d.misfit, None if d is None else d.within_region
+    v = res.verdict
+    return bool(res.below_threshold), None if v is None else v.misfit, res.within_region
 
 
 def scan_arrays(scan: Scan) -> dict:
@@ -280,13 +280,13 @@ def pair_task(shared: Shared, task: PairTask) -> PairOutcome:
                            failure=str(exc))
     trusted, misfit, within = verdict(res)
     T = polished(shared, task, res.transform) if trusted else res.transform
-    d = res.details
-    # free along a motion: weakly pinned, or slid along it through the other's seen space (GlobalDetails.slid_through)
-    free = (d.constraint if d is not None and not trusted and (not d.pinned or d.slid_through) and d.constraint.matched
+    v = res.verdict
+    # free along a motion: weakly pinned, or slid along it through the other's seen space (Verdict.slid_through)
+    free = (v.constraint if v is not None and not trusted and (not v.pinned or v.slid_through) and v.constraint.matched
             else None)
     return PairOutcome(T, float(res.error), trusted, misfit, within, share_at(shared, task.i, task.j, T),
-                       res.stop, time.perf_counter() - t0, free=free, found_by=d.found_by if d is not None else "",
-                       twin=d is not None and d.looked_through)
+                       res.stop, time.perf_counter() - t0, free=free, found_by=res.found_by,
+                       twin=v is not None and v.looked_through)
 
 
 def polished(shared: Shared, task: PairTask, T: np.ndarray) -> np.ndarray:

@@ -55,27 +55,19 @@ class Iterations:
 
 
 @dataclass(frozen=True, eq=False)
-class GlobalDetails:
-    """What the ``global`` method (core.global_search) found out beside the pose.
+class Verdict:
+    """The pair threshold's verdict on a pose (core.verdict), whichever method found it.
 
-    threshold: the pair threshold (core.threshold.PairThreshold); misfit: its misfit at the pose (None
-    when too little matches to judge); region: the stated region (core.region.Region); within_region:
-    the pose lies inside it; beyond: where it lies otherwise, in words ('' inside); score: the pose's
-    score on the pair's fixed basis (squared units); candidates: poses scored; candidate_sources: per
-    stage, how many poses it gave or why it gave none; found_by: the stage whose refined pose this is
-    ("guess", "kiss-matcher", "rotation samples", "fpfh-ransac 5 spacings", ..., "hybrid")."""
+    threshold: the pair threshold (core.threshold.PairThreshold); misfit: its misfit at the pose (None when too
+    little matches to judge); constraint: core.threshold.Constraint at the pose, what the matched overlap pins (None:
+    not measured); intrusion: core.intrusion.intrusion at the pose (None: not measured); holds: the threshold's
+    test held."""
 
     threshold: object
     misfit: float | None
-    region: object
-    within_region: bool
-    beyond: str
-    score: float
-    candidates: int
-    candidate_sources: dict
-    found_by: str = ""
-    constraint: object = None  # core.threshold.Constraint at the pose: what the matched overlap pins
-    intrusion: float | None = None  # core.intrusion.intrusion at the pose (None: not measured)
+    constraint: object = None
+    intrusion: float | None = None
+    holds: bool = False
 
     @property
     def pinned(self) -> bool:
@@ -98,11 +90,69 @@ class GlobalDetails:
         return (c is not None and c.rise is not None and self.pinned and self.intrusion is not None
                 and self.intrusion >= self.threshold.slide_bound)
 
+    @property
+    def text(self) -> str:
+        """Why the test held or not, in words."""
+        factor = self.threshold.factor
+        if self.holds:
+            return (f"where the scans overlap they agree at the noise level in distance and normals (misfit "
+                    f"{self.misfit:.3g} < {factor:g})")
+        if self.misfit is None:
+            return "too little of the scans overlaps at this pose to judge it"
+        if self.misfit < factor and self.looked_through:
+            return (f"where the scans overlap they agree at the noise level, but {100 * self.intrusion:.1f} % of one "
+                    "scan's points lie where the other's sensor looked through empty space (trusted below "
+                    f"{100 * self.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a room's corner "
+                    "fits itself turned about its diagonal, or a room itself turned a quarter turn")
+        if self.misfit < factor and self.slid_through:
+            return (f"where the scans overlap they agree at the noise level, but the overlap pins the pose weakly (it "
+                    f"may slide by {self.constraint.free_motion}) and {100 * self.intrusion:.1f} % of one scan's points "
+                    "lie where the other's sensor looked through empty space (a weakly pinned pose is trusted below "
+                    f"{100 * self.threshold.slide_bound:g} %): slid along that motion, one scan's walls pass where the "
+                    "other saw them end")
+        if not self.pinned and self.misfit < factor:
+            c, t = self.constraint, self.threshold
+            if not c.matched:
+                return "too little of the scans overlaps at this pose to judge what it pins"
+            if c.ratio < t.min_constraint:
+                return ("where the scans overlap they agree at the noise level, but the overlap does not pin all six "
+                        f"degrees of freedom: it lets the pose slide by {c.free_motion} (the matched point-to-plane "
+                        f"system's weakest / strongest eigenvalue {c.ratio:.3g} < {t.min_constraint:g})")
+            return ("where the scans overlap they agree at the noise level, but the overlap pins the pose weakly "
+                    f"and it slides freely by {c.free_motion}: slid that way by 3-8 match distances it scores "
+                    f"only {c.rise:.3g} x as high (pinned from {t.min_rise:g} x)"
+                    + ("" if c.stable_rise is None else
+                       f", the points facing that motion {c.stable_rise:.3g} x (pinned from "
+                       f"{t.min_stable_rise:g} x)"))
+        return (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
+                f"{self.misfit:.3g}, trusted below {factor:g})")
+
     def to_json(self) -> dict:
         return {"threshold_derivation": self.threshold.to_json(), "misfit": self.misfit,
                 **({} if self.constraint is None else {"constraint": self.constraint.to_json()}),
-                **({} if self.intrusion is None else {"intrusion": self.intrusion}),
-                "within_region": self.within_region, "region": self.region.to_json(), "beyond": self.beyond,
+                **({} if self.intrusion is None else {"intrusion": self.intrusion})}
+
+
+@dataclass(frozen=True, eq=False)
+class GlobalDetails:
+    """What the ``global`` method (core.global_search) found out beside the pose.
+
+    region: the stated region (core.region.Region); within_region: the pose lies inside it; beyond: where it lies
+    otherwise, in words ('' inside); score: the pose's score on the pair's fixed basis (squared units); candidates:
+    poses scored; candidate_sources: per stage, how many poses it gave or why it gave none; found_by: the stage
+    whose refined pose this is ("guess", "kiss-matcher", "rotation samples", "fpfh-ransac 5 spacings", ...,
+    "hybrid"). The pair threshold's verdict is the Result's (:class:`Verdict`)."""
+
+    region: object
+    within_region: bool
+    beyond: str
+    score: float
+    candidates: int
+    candidate_sources: dict
+    found_by: str = ""
+
+    def to_json(self) -> dict:
+        return {"within_region": self.within_region, "region": self.region.to_json(), "beyond": self.beyond,
                 "score": self.score, "candidates": self.candidates, "candidate_sources": dict(self.candidate_sources),
                 "found_by": self.found_by}
 
@@ -112,8 +162,10 @@ class Result:
     """transform: (4, 4) T_target_source; error: final robust E (squared units); threshold: the E
     below which the pose is trusted (squared units; method "global": the pair threshold's bound on the
     median matched d^2 where the normals agree at their floor, core.threshold); iterations: steps per
-    phase; evaluations: of E over the run; seconds: wall time from the call to the result; trusted and
-    details: method "global"'s verdict and what it found (None for the paper's methods)."""
+    phase; evaluations: of E over the run; seconds: wall time from the call to the result; trusted: whether to
+    trust the pose (None: E below the threshold decides); verdict: the pair threshold's test at the pose
+    (core.verdict; the paper's methods ask it only when E ends below the threshold: None otherwise); details:
+    what method "global" found beside the pose (None for the paper's methods)."""
 
     transform: np.ndarray
     error: float
@@ -125,7 +177,8 @@ class Result:
     threshold: float
     stop: Stop
     cut: str = "frustum"  # the overlap cut under the guess (core.cut.CUTS: widened when the frustum's was empty)
-    trusted: bool | None = None  # method "global": the pair threshold's verdict (core.threshold.PairThreshold)
+    trusted: bool | None = None  # global: the verdict held; a paper method: E below the threshold and the verdict held
+    verdict: Verdict | None = None
     details: GlobalDetails | None = None
 
     @property
@@ -149,8 +202,8 @@ class Result:
 
     @property
     def below_threshold(self) -> bool:
-        """Trust this pose: E ended below the threshold (method "global": the pair threshold's test on
-        the candidates' fixed basis held)."""
+        """Trust this pose: the pair threshold's test held at it (core.verdict) and, for the paper's methods, E ended
+        below the threshold as well; E below the threshold alone where no verdict was asked."""
         return bool(self.trusted) if self.trusted is not None else bool(self.error < self.threshold)
 
     @property
@@ -161,45 +214,14 @@ class Result:
     @property
     def trust_text(self) -> str:
         """Why to trust this pose or not, in words (and, for a pose beyond the stated region, where it lies)."""
-        d = self.details
-        if self.trusted is None or d is None:
-            return f"E is {'below' if self.below_threshold else 'above'} the threshold ({self.threshold:.4g})"
-        factor = d.threshold.factor
-        if self.trusted:
-            text = (f"where the scans overlap they agree at the noise level in distance and normals (misfit "
-                    f"{d.misfit:.3g} < {factor:g})")
-        elif d.misfit is None:
-            text = "too little of the scans overlaps at this pose to judge it"
-        elif d.misfit < factor and d.looked_through:
-            text = (f"where the scans overlap they agree at the noise level, but {100 * d.intrusion:.1f} % of one "
-                    "scan's points lie where the other's sensor looked through empty space (trusted below "
-                    f"{100 * d.threshold.max_intrusion:g} %): the overlap fits a twin of itself, as a room's corner fits "
-                    "itself turned about its diagonal, or a room itself turned a quarter turn")
-        elif d.misfit < factor and d.slid_through:
-            text = (f"where the scans overlap they agree at the noise level, but the overlap pins the pose weakly (it "
-                    f"may slide by {d.constraint.free_motion}) and {100 * d.intrusion:.1f} % of one scan's points lie "
-                    "where the other's sensor looked through empty space (a weakly pinned pose is trusted below "
-                    f"{100 * d.threshold.slide_bound:g} %): slid along that motion, one scan's walls pass where the "
-                    "other saw them end")
-        elif not d.pinned and d.misfit < factor:
-            c = d.constraint
-            if not c.matched:
-                text = "too little of the scans overlaps at this pose to judge what it pins"
-            elif c.ratio < d.threshold.min_constraint:
-                text = ("where the scans overlap they agree at the noise level, but the overlap does not pin all six "
-                        f"degrees of freedom: it lets the pose slide by {c.free_motion} (the matched point-to-plane "
-                        f"system's weakest / strongest eigenvalue {c.ratio:.3g} < {d.threshold.min_constraint:g})")
-            else:
-                text = ("where the scans overlap they agree at the noise level, but the overlap pins the pose weakly "
-                        f"and it slides freely by {c.free_motion}: slid that way by 3-8 match distances it scores "
-                        f"only {c.rise:.3g} x as high (pinned from {d.threshold.min_rise:g} x)"
-                        + ("" if c.stable_rise is None else
-                           f", the points facing that motion {c.stable_rise:.3g} x (pinned from "
-                           f"{d.threshold.min_stable_rise:g} x)"))
-        else:
-            text = (f"the scans do not agree at the noise level where they overlap, or overlap too little (misfit "
-                    f"{d.misfit:.3g}, trusted below {factor:g})")
-        return f"{text}; {d.beyond}" if d.beyond else text
+        v, d = self.verdict, self.details
+        if v is None:
+            return f"E is {'below' if self.error < self.threshold else 'above'} the threshold ({self.threshold:.4g})"
+        if d is None:  # a paper method whose E ended below the threshold: the pair threshold's test decides
+            return (f"E is below the threshold ({self.threshold:.4g}), and {v.text}" if v.holds else
+                    f"E is below the threshold ({self.threshold:.4g}) on the sample it was minimised on, but the pair "
+                    f"threshold's test does not hold: {v.text}")
+        return f"{v.text}; {d.beyond}" if d.beyond else v.text
 
     def __repr__(self) -> str:
         it = self.iterations
@@ -216,4 +238,5 @@ class Result:
                 "local_minima": self.local_minima, "evaluations": self.evaluations, "seconds": self.seconds,
                 "method": self.method, "threshold": self.threshold, "stop_reason": self.stop_text,
                 "below_threshold": self.below_threshold, "cut": self.cut,
-                **({} if self.details is None else {"trusted": self.trusted, **self.details.to_json()})}
+                **({} if self.verdict is None else {"trusted": self.trusted, **self.verdict.to_json()}),
+                **({} if self.details is None else self.details.to_json())}

@@ -63,7 +63,7 @@ def test_a_pose_slid_along_a_fold_of_two_planes_is_not_trusted_and_the_reason_is
     res, T, source = _slid("fold")
     assert not res.trusted
     assert "does not pin all six degrees of freedom" in res.trust_text and "translation along" in res.trust_text
-    assert res.details.constraint.ratio < MIN_CONSTRAINT
+    assert res.verdict.constraint.ratio < MIN_CONSTRAINT
     assert res.to_json()["constraint"]["free_motion"].startswith("a translation")
 
 
@@ -71,7 +71,7 @@ def test_a_corner_pins_every_motion_and_is_trusted():
     res, T, source = _slid("corner")
     rot, trans = pose_error(res.transform, T, source.centroid)
     assert res.trusted and rot < 1.0 and trans < 5.0
-    assert res.details.constraint.pins()
+    assert res.verdict.constraint.pins()
 
 
 def test_a_slide_along_the_weakest_motion_moves_the_matched_points_by_the_distance_asked():
@@ -148,7 +148,7 @@ def test_fused_fragments_slid_along_the_room_or_turned_onto_its_planes_are_never
         res = register(s, t, told(mode, rot, trans, _starts(task, T_true)), Config(method="global", seed=start))
         ok, rot_err, trans_err = _judge(res.transform, T_true)
         assert ok or not res.trusted, (seed, mode, rot_err, trans_err, res.trust_text)
-        if not res.trusted and res.details.constraint.rise is not None:
+        if not res.trusted and res.verdict.constraint.rise is not None:
             assert "slides freely" in res.trust_text
         assert ok and res.trusted, (seed, rot_err, trans_err, res.trust_text)  # seed 1: found by a later stage
 
@@ -184,7 +184,7 @@ def test_a_spinning_lidar_in_a_corridor_of_plain_walls_is_never_trusted():
         T0[0, 3] += shift
         res = register(s, t, Guess(T0), Config(method="global", seed=0))
         assert not res.trusted, (seed, pose_error(res.transform, invert(t.pose) @ s.pose), res.trust_text)
-        assert res.details.threshold.min_constraint == MIN_CONSTRAINT_PANORAMA
+        assert res.verdict.threshold.min_constraint == MIN_CONSTRAINT_PANORAMA
         assert "does not pin all six degrees of freedom" in res.trust_text
 
 

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 from rangereg.core.intrusion import MAX_INTRUSION
-from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason, Verdict
 from rangereg.core.threshold import pair_threshold
 
 
@@ -45,9 +45,10 @@ def test_the_trust_text_says_why_in_the_terms_of_the_test_that_decided(scene):
     region = Guess.identity().region(source, target)
 
     def global_(trusted, misfit, beyond=""):
-        details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), misfit, region, not beyond, beyond, 0.1, 4, {"guess": 1})
+        verdict = Verdict(pair_threshold(1.0, 2.0, 0.1), misfit, holds=trusted)
+        details = GlobalDetails(region, not beyond, beyond, 0.1, 4, {"guess": 1})
         return Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
-                      trusted=trusted, details=details)
+                      trusted=trusted, verdict=verdict, details=details)
 
     assert "agree at the noise level in distance and normals (misfit 2.1 < 4.5)" in global_(True, 2.1).trust_text
     assert "(misfit 7.3, trusted below 4.5)" in global_(False, 7.3).trust_text
@@ -65,15 +66,14 @@ def test_a_pose_whose_scans_cut_through_each_others_rooms_is_doubted_in_those_wo
 
     source, target = scene("corner")
     region = Guess.identity().region(source, target)
-    details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 1.7, region, True, "", 0.1, 4, {"guess": 1}, "guess",
-                            None, 0.24)
+    verdict = Verdict(pair_threshold(1.0, 2.0, 0.1), 1.7, None, 0.24)
     r = Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
-               trusted=False, details=details)
+               trusted=False, verdict=verdict, details=GlobalDetails(region, True, "", 0.1, 4, {"guess": 1}, "guess"))
     assert "24.0 % of one scan's points lie where the other's sensor looked through" in r.trust_text
     assert f"trusted below {100 * MAX_INTRUSION:g} %" in r.trust_text and r.to_json()["intrusion"] == 0.24
-    assert details.looked_through  # what a campaign reads: a twin, never corroborated (core.merge_graph)
-    assert not replace(details, intrusion=0.5 * MAX_INTRUSION).looked_through
-    assert not replace(details, intrusion=None).looked_through
+    assert verdict.looked_through  # what a campaign reads: a twin, never corroborated (core.merge_graph)
+    assert not replace(verdict, intrusion=0.5 * MAX_INTRUSION).looked_through
+    assert not replace(verdict, intrusion=None).looked_through
 
 
 def test_a_weakly_pinned_pose_whose_walls_pass_where_the_other_saw_them_end_is_doubted_in_those_words(scene):
@@ -88,19 +88,18 @@ def test_a_weakly_pinned_pose_whose_walls_pass_where_the_other_saw_them_end_is_d
     region = Guess.identity().region(source, target)
     weak = SimpleNamespace(rise=1.23, stable_rise=None, ratio=0.008, matched=900, stably_pinned=False,
                            free_motion="a translation along (-0.81, +0.18, -0.56)", pins=lambda bound: True)
-    details = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 0.95, region, True, "", 0.1, 4, {"guess": 1}, "guess",
-                            weak, 0.066)
+    verdict = Verdict(pair_threshold(1.0, 2.0, 0.1), 0.95, weak, 0.066)
     r = Result(np.eye(4), 0.5, Iterations(3, 0, 4), 0, 9, 0.1, "global", 20.0, Stop(StopReason.TRUSTED),
-               trusted=False, details=details)
-    assert details.threshold.slide_bound == MAX_LOOKED_THROUGH < 0.066 < MAX_INTRUSION
-    assert details.slid_through and not details.looked_through  # a slide, not a twin: the campaign's rules stand
+               trusted=False, verdict=verdict, details=GlobalDetails(region, True, "", 0.1, 4, {"guess": 1}, "guess"))
+    assert verdict.threshold.slide_bound == MAX_LOOKED_THROUGH < 0.066 < MAX_INTRUSION
+    assert verdict.slid_through and not verdict.looked_through  # a slide, not a twin: the campaign's rules stand
     assert "pins the pose weakly (it may slide by a translation along (-0.81" in r.trust_text
     assert "6.6 % of one scan's points" in r.trust_text and f"trusted below {100 * MAX_LOOKED_THROUGH:g} %" in r.trust_text
-    assert not replace(details, constraint=_with_rise(weak, None)).slid_through  # pinned well: the fused bound
-    assert not replace(details, intrusion=0.5 * MAX_LOOKED_THROUGH).slid_through
+    assert not replace(verdict, constraint=_with_rise(weak, None)).slid_through  # pinned well: the fused bound
+    assert not replace(verdict, intrusion=0.5 * MAX_LOOKED_THROUGH).slid_through
     doubted = _with_rise(weak, 1.05)  # the rise falls short: "pins weakly ... only 1.05 x", as before
     doubted.pins = lambda bound: False
-    assert "scores only 1.05 x as high" in replace(r, details=replace(details, constraint=doubted)).trust_text
+    assert "scores only 1.05 x as high" in replace(r, verdict=replace(verdict, constraint=doubted)).trust_text
 
 
 def _with_rise(c, rise):

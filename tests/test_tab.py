@@ -265,16 +265,16 @@ def test_the_finished_line_leads_with_trust_and_advises_only_when_not_trusted(sc
     import numpy as np
     from rangereg.app.tab.run import page_advice, result_line
     from rangereg.core.guess import Guess
-    from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+    from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason, Verdict
     from rangereg.core.threshold import pair_threshold
 
     source, target = scene("corner")
     region = Guess.identity().region(source, target)
 
     def result(trusted, beyond=""):
-        d = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), 1.0, region, not beyond, beyond, 0.1, 3, {}, "guess")
+        d = GlobalDetails(region, not beyond, beyond, 0.1, 3, {}, "guess")
         return Result(np.eye(4), 0.1, Iterations(3), 0, 3, 0.1, "global", 1.0, Stop(StopReason.TRUSTED),
-                      trusted=trusted, details=d)
+                      trusted=trusted, verdict=Verdict(pair_threshold(1.0, 2.0, 0.1), 1.0, holds=trusted), details=d)
 
     # trusted, even beyond the stated region (the trust text says so): no advice
     assert page_advice(result(True)) == "" and page_advice(result(True, "found 40 deg beyond")) == ""
@@ -293,7 +293,7 @@ def test_the_finished_line_leads_with_trust_and_advises_only_when_not_trusted(sc
 def test_a_cancelled_runs_line_leads_with_the_cancel_not_a_verdict():
     import numpy as np
     from rangereg.app.tab.run import result_line
-    from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason
+    from rangereg.core.result import GlobalDetails, Iterations, Result, Stop, StopReason, Verdict
     from rangereg.core.threshold import pair_threshold
 
     cancel = Stop(StopReason.CANCELLED)
@@ -305,8 +305,9 @@ def test_a_cancelled_runs_line_leads_with_the_cancel_not_a_verdict():
     low = Result(np.eye(4), 0.5, Iterations(3), 0, 3, 0.1, "icp", 1.0, cancel)  # below the threshold, still cancelled
     assert result_line(low).startswith("<b>Cancelled at iteration 3</b>")
     # the global method gives back its initial pose when cancelled: the line says so
-    d = GlobalDetails(pair_threshold(1.0, 2.0, 0.1), None, None, True, "", 0.1, 0, {"guess": 1}, "guess")
-    glob = Result(np.eye(4), 9.0, Iterations(4, 0, 7), 0, 20, 0.3, "global", 1.0, cancel, trusted=False, details=d)
+    d = GlobalDetails(None, True, "", 0.1, 0, {"guess": 1}, "guess")
+    glob = Result(np.eye(4), 9.0, Iterations(4, 0, 7), 0, 20, 0.3, "global", 1.0, cancel, trusted=False,
+                  verdict=Verdict(pair_threshold(1.0, 2.0, 0.1), None), details=d)
     line = result_line(glob, "m")
     assert line.startswith("<b>Cancelled at iteration 11</b>: E = 9 m², the initial pose kept (not trusted)<br>"), line
     assert "candidates 7" in line

@@ -186,6 +186,11 @@ def advice(res, guess) -> str:
                 "guess may be (--rotation-uncertainty, --translation-uncertainty; no --init and neither flag: no "
                 "guess at all), or search on from this pose (--full-search; or --out pose.json, then --method "
                 "hybrid --init pose.json).")
+    if res.verdict is not None:  # a paper method: E below the threshold on its sample, the pair threshold doubts
+        return ("E fits the sample it was minimised on, but the pair threshold's test (above) doubts the pose, so it "
+                "may not be the registration. Try --method global (the same test decides, over the whole stated "
+                "region)" + (", or a larger --max-points (a small sample fits wrong poses)" if res.verdict.pinned
+                             else "") + ".")
     return ("E stayed above the threshold, so this is probably not the registration. The search covers about "
             f"twice the guess's stated uncertainty ({guess.rotation_deg:g} deg); if the guess may "
             "be farther off, give a better --init or a larger --rotation-uncertainty / --translation-uncertainty, "

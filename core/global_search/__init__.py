@@ -54,12 +54,10 @@ from ..errors import InputError
 from ..events import Cancelled, Listener
 from ..frustum import frustum_of
 from ..guess import Guess
-from ..intrusion import intrusion
 from ..problem import Problem, prepare
 from ..result import GlobalDetails, Result, Stop, StopReason
 from ..scan import Scan
 from ..surface import Surface
-from ..threshold import constraint
 from .fallback import fallback as bounded_hybrid  # (the module's name stays the module's)
 from .refinement import Found, best_refined, converge, refine, search_stages
 from .setup import Setup, kiss_ahead, prepare_setup
@@ -179,11 +177,9 @@ def _result(setup: Setup, run: EventStream, T: np.ndarray, stop: Stop, last_cut:
         converged = Guess.converged(T, cfg.search, setup.target.size)
         last_cut = prepare(setup.source, setup.target, converged, cfg.problem, surface=setup.surface, seed=cfg.seed)
     s = setup.basis.evaluate(T[None])
-    misfit = setup.threshold.misfit(setup.basis, T, s)
-    trusted = setup.threshold.holds(setup.basis, T, s, misfit)
-    details = GlobalDetails(setup.threshold, misfit if np.isfinite(misfit) else None, setup.region,
-                            setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]),
-                            run.n["candidates"], sources, found_by, constraint(setup.basis, T),
-                            intrusion(setup.basis, T))
+    verdict = setup.judge.verdict(T, s)
+    details = GlobalDetails(setup.region, setup.region.inside(T), setup.region.beyond_text(T), float(s.score[0]),
+                            run.n["candidates"], sources, found_by)
     return Result(T, last_cut.error(T), run.iterations(), local_minima, run.total(), time.perf_counter() - setup.t0,
-                  "global", setup.threshold.value, stop, cut=setup.problem.cut, trusted=trusted, details=details)
+                  "global", setup.threshold.value, stop, cut=setup.problem.cut, trusted=verdict.holds, verdict=verdict,
+                  details=details)

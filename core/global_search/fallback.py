@@ -35,7 +35,7 @@ def fallback(setup: Setup, run: EventStream, found: Found) -> tuple[np.ndarray, 
     where = "the hybrid from the best candidate"
     share = run.budget.share(cc.fallback_steps, where)
     res = run_method(setup.source, setup.target, local, hybrid, run.forward, problem=problem, frame=setup.frame,
-                     budget=share)
+                     budget=share, judged=False)
     if setup.score(res.transform) < best_s:
         best = res.transform
         found.note(best, "hybrid")

@@ -10,10 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..candidates import Basis, CandidateConfig, feature_spacing, make_basis
+from ..candidates import Basis, CandidateConfig, feature_spacing
 from ..config import Config
 from ..guess import Guess
-from ..intrusion import max_intrusion_of
 from ..kiss_matcher_candidates import kiss_available, kiss_candidates
 from ..lock import LockFrame
 from ..noise import noise_floors_ahead
@@ -22,7 +21,8 @@ from ..region import Region
 from ..scan import Scan
 from ..search.budget import Budget
 from ..surface import Surface
-from ..threshold import PairThreshold, min_constraint_of, pair_threshold
+from ..threshold import PairThreshold
+from ..verdict import Judge, judge
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,6 +40,10 @@ class Setup:
     frame: LockFrame | None
     ahead: Future | None
     t0: float
+
+    @property
+    def judge(self) -> Judge:
+        return Judge(self.basis, self.threshold)
 
     @property
     def surface(self) -> Surface:
@@ -111,11 +115,8 @@ def prepare_setup(source: Scan, target: Scan, guess: Guess | np.ndarray | None, 
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
-    floor = float(np.mean(floors()))
-    basis = make_basis(source, target, problem.surface, floor, rng, cc, pc.frustum)
-    threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap, min_constraint=min_constraint_of(target),
-                               max_intrusion=max_intrusion_of(source, target))
+    pair = judge(source, target, problem.surface, float(np.mean(floors())), rng, config)
     region = guess.region(source, target)
-    return Setup(source, target, config, problem, basis, threshold, region, frame, ahead, t0)
+    return Setup(source, target, config, problem, pair.basis, pair.threshold, region, frame, ahead, t0)
 
 

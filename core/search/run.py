@@ -5,6 +5,7 @@
     search     the method per overlap cut (methods), refined on a cut at the pose found, in rounds
     polish     optional: a last unweighted ICP leg (section 4)
     result     the round with the lowest E on the cut at its own pose
+    verdict    E ended below the threshold: trusted only where the pair threshold's test holds too (core.verdict)
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ from ..events import Cancelled, Listener
 from ..guess import Guess
 from ..lock import LockFrame
 from ..problem import Problem, prepare
-from ..result import Iterations, Result
+from ..result import Iterations, Result, StopReason
 from ..scan import Scan
 from ..threshold import threshold_for
+from ..verdict import judge_pair
 from .budget import Budget, BudgetSpent
 from .rounds import Round, best_round, cancelled, polish, search_rounds
 from .state import SearchState
@@ -28,11 +30,12 @@ from .state import SearchState
 
 def run_method(source: Scan, target: Scan, guess: Guess | np.ndarray | None, config: Config,
                listener: Listener | None = None, problem: Problem | None = None, frame: LockFrame | None = None,
-               budget: Budget | None = None) -> Result:
+               budget: Budget | None = None, judged: bool = True) -> Result:
     """``config.method`` (a paper method) from ``guess`` (core.guess; a (4, 4) T_target_source: the default
     uncertainty); see core.register.
     ``budget``: a bound on its steps (core.search.budget); when it is spent the run returns its best pose so far,
-    stopped by the budget's reason."""
+    stopped by the budget's reason. ``judged``: a pose whose E ends below the threshold is judged by the pair
+    threshold's test (core.verdict; the global method, which judges its own poses, runs the hybrid unjudged)."""
     t0 = time.perf_counter()
     problem = problem or prepare(source, target, guess, config.problem, seed=config.seed)
     threshold = threshold_for(problem, config)
@@ -49,5 +52,9 @@ def run_method(source: Scan, target: Scan, guess: Guess | np.ndarray | None, con
     except BudgetSpent as spent:
         rounds.append(Round(state.error(state.best_T), state.best_T, spent.stop))
     best = best_round(rounds)
+    verdict = None
+    if judged and best.error < threshold and best.stop.reason is not StopReason.CANCELLED:
+        verdict = judge_pair(problem.source, problem.target, problem.surface, config, len(problem.points)).verdict(best.T)
     return Result(best.T, best.error, Iterations(state.n["icp"], state.n["sa"]), state.local_minima,
-                  state.evaluations, time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut)
+                  state.evaluations, time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut,
+                  trusted=None if verdict is None else verdict.holds, verdict=verdict)

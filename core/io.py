@@ -481,8 +481,13 @@ def _load_text(path: Path) -> np.ndarray:
 def _load_mesh(path: Path) -> RawScan:
     import trimesh
 
+    # an OBJ's vertices all, in the file's order, faces or none: trimesh's OBJ reader otherwise keeps only the
+    # vertices faces use (one face of 1600 vertices read as 3 points; a file of vertices alone as none)
+    keep = {"maintain_order": True} if path.suffix.lower() == ".obj" else {}
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)  # a regular file: load_scan checked it
+        mesh = trimesh.load(str(path), process=False, **keep)  # a regular file: load_scan checked it
+        if isinstance(mesh, trimesh.Scene):  # several objects: one mesh of them all
+            mesh = trimesh.load(str(path), force="mesh", process=False, **keep)
     except Exception as exc:  # trimesh raises many kinds on corrupt files
         raise InputError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
     verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import InputError
+from .scan import check_coordinates
 from .transforms import PARAM_NAMES, apply, delta_between, invert, perturb, rotation_matrix
 
 GROUPS = {"translation": ("tx", "ty", "tz"), "rotation": ("rx", "ry", "rz")}
@@ -67,8 +68,11 @@ class Lock:
             for what, v in (("point", self.axis_point), ("direction", self.axis_direction)):
                 if v is None or len(v) != 3 or not np.all(np.isfinite(np.asarray(v, dtype=float))):
                     raise InputError(f"the turntable axis needs a {what} of 3 finite numbers, got {v}")
-            if not np.linalg.norm(np.asarray(self.axis_direction, dtype=float)) > 0:
+            if not np.abs(np.asarray(self.axis_direction, dtype=float)).max() > 0:
                 raise InputError("the turntable axis direction must not be zero")
+            beyond = check_coordinates(self.axis_point)
+            if beyond:
+                raise InputError(f"the turntable axis point: {beyond}")
             return
         unknown = [n for n in self.locked if n not in PARAM_NAMES]
         if unknown:
@@ -144,6 +148,7 @@ class LockFrame:
         if lock.turntable:
             self.pivot = np.asarray(lock.axis_point, dtype=np.float64)
             d = np.asarray(lock.axis_direction, dtype=np.float64)
+            d = d / np.abs(d).max()  # first: the norm of (1e300, 0, 0) or (1e-300, 0, 0) is inf or 0
             self.axis = d / np.linalg.norm(d)
             free = [3, 0, 1, 2] if lock.translation else [3]
             A = np.zeros((3, len(free)))

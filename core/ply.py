@@ -148,7 +148,8 @@ def _read_body(raw: bytes, fmt: str, elements, start: int) -> dict:
                     raise PlyError(f"the file ends inside element {name!r}: the header says {count} {name} rows "
                                    f"(element {name} {count}) but the file holds only {held}")
                 block = values[pos:pos + n].reshape(count, len(props))
-                out[name] = {p[0]: block[:, i].astype(p[1]) for i, p in enumerate(props)}
+                with np.errstate(over="ignore"):  # a value past a float32 property's range reads as inf, dropped
+                    out[name] = {p[0]: block[:, i].astype(p[1]) for i, p in enumerate(props)}  # as any non-finite
                 pos += n
             else:
                 out[name], pos = _ascii_rows(values, pos, count, props, name)

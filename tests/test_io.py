@@ -81,6 +81,32 @@ def test_mesh_formats_keep_faces(tmp_path, fmt):
     assert s.faces is not None and len(s.faces) == len(mesh.faces)
 
 
+def test_an_obj_keeps_every_vertex_in_its_order_whether_faces_use_them_or_not(tmp_path):
+    # trimesh's OBJ reader keeps only the vertices faces use: one face over 1600 vertices was read as 3 points,
+    # and a file of vertices alone as "no vertices"
+    pts = _cube_points(1600)
+    rows = "".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in pts)
+    (tmp_path / "v.obj").write_text(rows)
+    (tmp_path / "f.obj").write_text(rows + "f 1 2 3\nf 1600 1599 1598\n")
+    alone, partial = load_scan(tmp_path / "v.obj"), load_scan(tmp_path / "f.obj")
+    np.testing.assert_allclose(alone.points, pts)
+    np.testing.assert_allclose(partial.points, pts)
+    assert alone.faces is None and partial.faces.tolist() == [[0, 1, 2], [1599, 1598, 1597]]
+
+
+def test_an_ascii_float_past_float32s_range_is_dropped_as_non_finite_without_a_numpy_warning(tmp_path):
+    import warnings
+
+    pts = _cube_points(40)
+    pts[3, 2] = 1e39  # a float property: past float32's range
+    head = "ply\nformat ascii 1.0\nelement vertex 40\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    (tmp_path / "o.ply").write_text(head + "".join(f"{x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in pts))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = load_scan(tmp_path / "o.ply")
+    assert len(s.points) == 39 and np.isfinite(s.points).all()
+
+
 def test_save_and_reload_keeps_grid_viewpoint_and_truth(tmp_path, scene):
     a, _ = scene("corner")
     save_scan(tmp_path / "c.ply", a)

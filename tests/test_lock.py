@@ -72,11 +72,17 @@ def test_a_turntable_lock_reads_its_axis_from_text():
     ("rx,qq", "cannot lock qq"), ("rx,rx", "locked twice"), ("rotation,translation", "nothing is left"),
     ("turntable:1,2,3", "6 numbers"), ("turntable:1,2,3,0,0,0", "must not be zero"),
     ("turntable:1,2,3,0,0,nan", "3 finite numbers"), ("turntables:1,2,3,0,0,1", "turntable:px"),
-    ("turntable:a,b,c,d,e,f", "6 numbers"),
+    ("turntable:a,b,c,d,e,f", "6 numbers"), ("turntable:1e300,0,0,0,1,0", "axis point: 1e\\+300 is beyond"),
 ])
 def test_a_nonsense_lock_is_refused_with_a_clear_message(text, message):
     with pytest.raises(InputError, match=message):
         Lock.parse(text)
+
+
+@pytest.mark.parametrize("size", [1e300, 1e-300])
+def test_a_turntable_direction_of_any_finite_length_is_its_unit_axis(size):
+    frame = Lock.parse(f"turntable:0,0,0,0,{size},0").bind(np.eye(4), np.zeros(3), 1.0)
+    np.testing.assert_allclose(frame.axis, [0, 1, 0])
 
 
 def test_the_config_checks_its_lock():

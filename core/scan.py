@@ -275,6 +275,8 @@ def units_name(value: object, what: str) -> str:
     """The short name ("mm", "m", ...) of a length unit however it is spelled ("Millimeters", " m "); InputError
     naming ``what`` for anything else."""
     name = UNIT_NAMES.get(value.strip().casefold()) if isinstance(value, str) else None  # µ folds to Greek mu
+    if isinstance(value, str) and value.strip() == "Mm":  # the one symbol whose case is its meaning: megametres
+        raise InputError(f"{what}: \"Mm\" is megametres, not a unit scans are in; write \"mm\" for millimetres")
     if name is None:
         known = ", ".join(f'"{u}"' for u in METRES)
         shown = repr(value) if isinstance(value, str) else type(value).__name__

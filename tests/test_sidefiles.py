@@ -129,6 +129,15 @@ def test_units_spelled_out_are_read_as_their_short_name(tmp_path, spelled, name)
         load_scan(tmp_path / "s.ply", units="parsecs")
 
 
+def test_megametres_are_not_folded_to_millimetres(tmp_path):
+    write_ply(tmp_path / "s.ply", _cube_points())
+    (tmp_path / "s.json").write_text(json.dumps({"units": "Mm"}))
+    with pytest.raises(InputError, match='"Mm" is megametres'):
+        load_scan(tmp_path / "s.ply")
+    (tmp_path / "s.json").write_text(json.dumps({"units": "MM"}))
+    assert load_scan(tmp_path / "s.ply").units == "mm"  # upper case, as CAD files write it
+
+
 def test_a_good_sidecar_still_sets_viewpoint_pose_and_units(tmp_path):
     write_ply(tmp_path / "s.ply", _cube_points())
     T = np.eye(4)

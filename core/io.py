@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import threading
+import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -485,16 +486,34 @@ def _load_mesh(path: Path) -> RawScan:
     # vertices faces use (one face of 1600 vertices read as 3 points; a file of vertices alone as none)
     keep = {"maintain_order": True} if path.suffix.lower() == ".obj" else {}
     try:
-        mesh = trimesh.load(str(path), process=False, **keep)  # a regular file: load_scan checked it
-        if isinstance(mesh, trimesh.Scene):  # several objects: one mesh of them all
-            mesh = trimesh.load(str(path), force="mesh", process=False, **keep)
+        with warnings.catch_warnings(), np.errstate(all="ignore"):  # trimesh's texture code warns on odd UVs
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(str(path), process=False, **keep)  # a regular file: load_scan checked it
+            verts, faces = _mesh_arrays(mesh)
+            if verts is None:  # materials that do not share one vertex list: trimesh's one mesh of them
+                verts, faces = _mesh_arrays(trimesh.load(str(path), force="mesh", process=False))
     except Exception as exc:  # trimesh raises many kinds on corrupt files
         raise InputError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
-    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     if len(verts) == 0:
         raise InputError(f"{path}: the mesh has no vertices")
     return RawScan(verts, str(path), path.stem, faces=faces if len(faces) else None, sidecar=path)
+
+
+def _mesh_arrays(mesh) -> tuple[np.ndarray | None, np.ndarray]:
+    """(V, 3) vertices and (F, 3) faces of what trimesh loaded; (None, _) for a Scene (one part per material) whose
+    parts do not all hold the same vertices (kept in order, each part holds the whole list: faces are joined)."""
+    import trimesh
+
+    if isinstance(mesh, trimesh.Scene):
+        parts = list(mesh.geometry.values())
+        first = np.asarray(getattr(parts[0], "vertices", np.zeros((0, 3))), dtype=np.float64) if parts else None
+        if first is None or any(np.asarray(getattr(g, "vertices", ())).shape != first.shape
+                                or not np.array_equal(np.asarray(g.vertices), first) for g in parts[1:]):
+            return None, np.zeros((0, 3), dtype=np.int64)
+        faces = [np.asarray(getattr(g, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3) for g in parts]
+        return first, np.concatenate(faces) if faces else np.zeros((0, 3), dtype=np.int64)
+    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    return verts, np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
 
 
 def save_scan(path: str | Path, scan: Scan) -> None:

@@ -148,6 +148,7 @@ def _read_body(raw: bytes, fmt: str, elements, start: int) -> dict:
                     raise PlyError(f"the file ends inside element {name!r}: the header says {count} {name} rows "
                                    f"(element {name} {count}) but the file holds only {held}")
                 block = values[pos:pos + n].reshape(count, len(props))
+                _check_int_range(block, props, name)
                 with np.errstate(over="ignore"):  # a value past a float32 property's range reads as inf, dropped
                     out[name] = {p[0]: block[:, i].astype(p[1]) for i, p in enumerate(props)}  # as any non-finite
                 pos += n
@@ -175,6 +176,19 @@ def _read_body(raw: bytes, fmt: str, elements, start: int) -> dict:
     if len(buf) > pos and bytes(buf[pos:]).strip():  # a trailing newline is harmless; more rows are not
         raise PlyError(_leftover(elements, len(buf) - pos, "bytes"))
     return out
+
+
+def _check_int_range(block: np.ndarray, props: list, element: str) -> None:
+    """PlyError where a column of ``block`` (rows of ASCII values) holds a value its integer property's type cannot
+    (a cast would wrap it into another number without a word)."""
+    for i, (prop, kind) in enumerate(props):
+        if np.dtype(kind).kind not in "iu" or not len(block):
+            continue
+        info, col = np.iinfo(kind), block[:, i]
+        bad = ~((col >= info.min) & (col <= info.max))
+        if bad.any():
+            raise PlyError(f"property {prop!r} of element {element!r} holds {col[bad][0]:g}, beyond its type's range "
+                           f"({info.min} to {info.max})")
 
 
 def _ascii_values(tokens: list[bytes], elements) -> np.ndarray:

@@ -115,9 +115,13 @@ class Verdict:
             if not c.matched:
                 return "too little of the scans overlaps at this pose to judge what it pins"
             if c.ratio < t.min_constraint:
-                return ("where the scans overlap they agree at the noise level, but the overlap does not pin all six "
-                        f"degrees of freedom: it lets the pose slide by {c.free_motion} (the matched point-to-plane "
-                        f"system's weakest / strongest eigenvalue {c.ratio:.3g} < {t.min_constraint:g})")
+                free = getattr(t, "free", None)
+                which = ("all six degrees of freedom" if free is None else
+                         f"the {free.count} degrees of freedom the lock leaves free")
+                return (f"where the scans overlap they agree at the noise level, but the overlap does not pin {which}: "
+                        f"it lets the pose slide by {c.free_motion} (the matched point-to-plane "
+                        f"system's weakest{'' if free is None else ' free'} / strongest eigenvalue {c.ratio:.3g} < "
+                        f"{t.min_constraint:g})")
             return ("where the scans overlap they agree at the noise level, but the overlap pins the pose weakly "
                     f"and it slides freely by {c.free_motion}: slid that way by 3-8 match distances it scores "
                     f"only {c.rise:.3g} x as high (pinned from {t.min_rise:g} x)"

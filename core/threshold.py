@@ -205,10 +205,45 @@ def weak_below_of(target: Scan) -> float:
 ALONG_THE_FREE_MOTION = 0.95
 
 
+@dataclass(frozen=True, eq=False)
+class FreeMotions:
+    """The motions a lock leaves free (core.lock.LockFrame), in the target's frame: column j of ``rotations`` (3, k)
+    and ``translations`` (3, k) is free coordinate j's rotation-vector direction (about ``pivot`` (3,)) and
+    translation. The constraint of a locked pose asks only about these: a motion the lock forbids cannot slide."""
+
+    rotations: np.ndarray
+    translations: np.ndarray
+    pivot: np.ndarray
+
+    @classmethod
+    def of(cls, frame) -> FreeMotions | None:
+        """Those of a bound lock (core.lock.LockFrame), or None (no lock: all six free)."""
+        if frame is None:
+            return None
+        return cls(np.array(frame.A, dtype=np.float64), np.array(frame.B, dtype=np.float64),
+                   np.array(frame.pivot, dtype=np.float64))
+
+    @property
+    def count(self) -> int:
+        return self.rotations.shape[1]
+
+    @property
+    def key(self) -> bytes:
+        return self.rotations.tobytes() + self.translations.tobytes() + self.pivot.tobytes()
+
+    def basis(self, center: np.ndarray, radius: float) -> np.ndarray:
+        """(6, r) an orthonormal basis of the free motions in the point-to-plane system's units (translation at
+        ``center``, then rotation in units of ``radius``; :func:`point_to_plane_system`)."""
+        M = np.vstack([self.translations + np.cross(self.rotations.T, center - self.pivot).T, self.rotations * radius])
+        U, sv, _ = np.linalg.svd(M, full_matrices=False)
+        return U[:, sv > 1e-12 * max(sv.max(initial=0.0), 1e-300)]
+
+
 @dataclass(frozen=True)
 class Constraint:
     """What the matched overlap pins at a pose: eigenvalues (6,) of the unit-free point-to-plane system, smallest
-    first; weakest (6,) the eigenvector of the smallest (translation part first, then rotation about the
+    first (under a lock: the free motions' (k,), ``strongest`` the whole system's largest); weakest (6,) the
+    eigenvector of the smallest (translation part first, then rotation about the
     overlap's centroid, in units of ``radius``); ratio: smallest / largest; matched: points it was built on (0: too
     few to judge); rise: the score's rise when slid along the weakest motion (tried only below WEAK_BELOW)."""
 
@@ -222,14 +257,18 @@ class Constraint:
     stable_rise: float | None = None  # the same, weighted by what each point pins of it (notes above); None: not tried
     # (6, 6) every eigenvector, a column each beside ``eigenvalues`` (the first is ``weakest``); None: not kept
     vectors: np.ndarray | None = field(default=None, repr=False)
+    # under a lock (FreeMotions): ``eigenvalues`` and ``vectors`` are the free motions' only, ``ratio`` their smallest
+    # over this, the largest of the whole system (the unlocked test's scale); None: no lock
+    strongest: float | None = None
 
     def weak(self, below: float = MIN_CONSTRAINT) -> np.ndarray:
         """(k, 6) the motions the overlap leaves free: the weakest (the one the rise tests ask of), and any other
         whose eigenvalue is under ``below`` x the largest (free by the ratio alone: a plane leaves three). Those
         between ``below`` and WEAK_BELOW are not counted: the pair threshold asks a rise of the weakest only."""
-        if self.vectors is None or not self.eigenvalues[-1] > 0:
+        top = self.eigenvalues[-1] if self.strongest is None else self.strongest
+        if self.vectors is None or not top > 0:
             return self.weakest[None]
-        keep = self.eigenvalues < below * self.eigenvalues[-1]
+        keep = self.eigenvalues < below * top
         keep[0] = True
         return self.vectors[:, keep].T
 
@@ -285,14 +324,16 @@ class Constraint:
                 "stable_rise": self.stable_rise}
 
 
-def constraint(basis: Basis, T: np.ndarray) -> Constraint:
+def constraint(basis: Basis, T: np.ndarray, free: FreeMotions | None = None) -> Constraint:
     """:class:`Constraint` of pose T (4, 4) over the points of ``basis.constraint_points`` that match (inside the
-    target's frustum, within the cap), with the target's normals fitted at their closest points."""
+    target's frustum, within the cap), with the target's normals fitted at their closest points; ``free``: the
+    motions a lock leaves free (None: all six)."""
     T = np.asarray(T, dtype=np.float64).reshape(4, 4)
-    return basis._remembered("constraint", T, lambda: _constraint(basis, T))
+    what = "constraint" if free is None else b"constraint" + free.key
+    return basis._remembered(what, T, lambda: _constraint(basis, T, free))
 
 
-def _constraint(basis: Basis, T: np.ndarray) -> Constraint:
+def _constraint(basis: Basis, T: np.ndarray, free: FreeMotions | None = None) -> Constraint:
     pts = basis.constraint_points if basis.constraint_points is not None else basis.points
     moved = pts @ T[:3, :3].T + T[:3, 3]
     closest, d2 = basis.surface.closest(moved)
@@ -302,7 +343,7 @@ def _constraint(basis: Basis, T: np.ndarray) -> Constraint:
         return Constraint(np.zeros(6), np.r_[1.0, 0, 0, 0, 0, 0], 0.0, 0)
     q = closest[close]
     _, idx = basis.target.tree.query(q, k)
-    c = point_to_plane_system(q, pca_normals(basis.target.points, idx.reshape(len(q), k)))
+    c = point_to_plane_system(q, pca_normals(basis.target.points, idx.reshape(len(q), k)), free)
     if c.matched and MIN_CONSTRAINT <= c.ratio < weak_below_of(basis.target):
         c = replace(c, rise=score_rise(basis, T, c))
         if c.rise < MIN_RISE and basis.constraint_normals is not None:
@@ -355,17 +396,28 @@ def _rise(basis: Basis, T: np.ndarray, c: Constraint, score) -> float:
     return float(min(np.median(scores[1:1 + n]), np.median(scores[1 + n:])) / scores[0])
 
 
-def point_to_plane_system(q: np.ndarray, n: np.ndarray) -> Constraint:
-    """:class:`Constraint` of matched points q (m, 3) with unit normals n (m, 3), both in one frame (notes above)."""
+def point_to_plane_system(q: np.ndarray, n: np.ndarray, free: FreeMotions | None = None) -> Constraint:
+    """:class:`Constraint` of matched points q (m, 3) with unit normals n (m, 3), both in one frame (notes above);
+    ``free``: only the motions a lock leaves free are asked about (their weakest against the whole system's
+    strongest)."""
     if len(q) < 6:
         return Constraint(np.zeros(6), np.r_[1.0, 0, 0, 0, 0, 0], 0.0, 0)
     c = q.mean(0)
     L = float(np.sqrt(np.mean(np.sum((q - c) ** 2, axis=1)))) or 1.0
     J = np.hstack([n, cross(q - c, n) / L])
-    vals, vecs = np.linalg.eigh(J.T @ J / len(q))
+    H = J.T @ J / len(q)
+    vals, vecs = np.linalg.eigh(H)
     vals = np.clip(vals, 0.0, None)
-    ratio = float(vals[0] / vals[-1]) if vals[-1] > 0 else 0.0
-    return Constraint(vals, vecs[:, 0], ratio, len(q), c, L, vectors=vecs)
+    if free is None:
+        ratio = float(vals[0] / vals[-1]) if vals[-1] > 0 else 0.0
+        return Constraint(vals, vecs[:, 0], ratio, len(q), c, L, vectors=vecs)
+    Q = free.basis(c, L)
+    if not Q.shape[1]:  # nothing free: nothing can slide
+        return Constraint(vals, vecs[:, 0], 1.0, len(q), c, L, vectors=vecs, strongest=float(vals[-1]))
+    f_vals, f_vecs = np.linalg.eigh(Q.T @ H @ Q)
+    f_vals, f_vecs = np.clip(f_vals, 0.0, None), Q @ f_vecs
+    ratio = float(f_vals[0] / vals[-1]) if vals[-1] > 0 else 0.0
+    return Constraint(f_vals, f_vecs[:, 0], ratio, len(q), c, L, vectors=f_vecs, strongest=float(vals[-1]))
 
 
 @dataclass(frozen=True)
@@ -386,6 +438,7 @@ class PairThreshold:
     # the free-space bound where the rise is asked (notes above MIN_STABLE_RISE's); None: core.intrusion's
     # MAX_LOOKED_THROUGH, read when asked (an evidence script that lifts that bound lifts this one with it)
     slide_intrusion: float | None = None
+    free: FreeMotions | None = None  # the motions a lock leaves free (None: all six): the constraint asks only of them
     derivation: str = ("sqrt(median matched d^2 / noise floor) x (median normal angle / angle floor) < factor on "
                        "the fixed basis; >= 30 % of the source sample matched; overlap both ways; the matched "
                        "point-to-plane system's smallest / largest eigenvalue >= min_constraint and, below "
@@ -402,7 +455,7 @@ class PairThreshold:
                 "min_overlap": self.min_overlap, "min_constraint": self.min_constraint, "min_rise": self.min_rise,
                 "min_stable_rise": self.min_stable_rise, "max_intrusion": self.max_intrusion,
                 "max_intrusion_weakly_pinned": self.slide_bound,
-                "derivation": self.derivation}
+                "free_motions": 6 if self.free is None else self.free.count, "derivation": self.derivation}
 
     def misfit(self, basis: Basis, T: np.ndarray, scores: Scores | None = None) -> float:
         """sqrt(median matched d^2 / floor) x (median normal angle / angle floor) at pose T (4, 4), whatever
@@ -427,7 +480,7 @@ class PairThreshold:
             return False
         if not clear(basis, T, self.max_intrusion):
             return False
-        c = constraint(basis, T)
+        c = constraint(basis, T, self.free)
         return c.pins(self.min_constraint) and (c.rise is None or clear(basis, T, self.slide_bound))
 
     @property
@@ -447,12 +500,13 @@ class PairThreshold:
         if not (basis.valid(s)[0] and s.inliers[0] >= MIN_TRUST_OVERLAP and self.misfit(basis, T, s) < self.factor
                 and clear(basis, T, self.max_intrusion)):
             return False
-        c = constraint(basis, T)
+        c = constraint(basis, T, self.free)
         return (c.matched > 0 and c.ratio >= self.min_constraint and c.rise is not None and c.rise < MIN_RISE
                 and not c.stably_pinned)
 
 
 def pair_threshold(floor: float, angle_floor: float, min_overlap: float, factor: float = FACTOR,
-                   min_constraint: float = MIN_CONSTRAINT, max_intrusion: float = MAX_INTRUSION) -> PairThreshold:
+                   min_constraint: float = MIN_CONSTRAINT, max_intrusion: float = MAX_INTRUSION,
+                   free: FreeMotions | None = None) -> PairThreshold:
     return PairThreshold(float(factor ** 2 * floor), float(floor), float(factor), float(min_overlap), float(angle_floor),
-                         float(min_constraint), max_intrusion=float(max_intrusion))
+                         float(min_constraint), max_intrusion=float(max_intrusion), free=free)

@@ -25,11 +25,18 @@ import numpy as np
 from .candidates import Basis, Scores, make_basis
 from .config import Config
 from .intrusion import intrusion, max_intrusion_of
+from .lock import LockFrame
 from .noise import noise_floors_ahead
 from .result import Verdict
 from .scan import Scan
 from .surface import Surface
-from .threshold import PairThreshold, constraint, min_constraint_of, pair_threshold
+from .threshold import FreeMotions, PairThreshold, constraint, min_constraint_of, pair_threshold
+
+# The noise floor behind the pair threshold is measured with at least this many queries (the default sample's size,
+# core.problem.ProblemConfig.max_points), or the overlap cut's points where it holds fewer: measured with a
+# ``--max-points`` sample of 5-20 points it spread 2.6-8 x across seeds (1.4 x at 300), least calibrated where a
+# small sample most needs the test (2026-12-08, on the generated corner).
+FLOOR_QUERIES = 300
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,24 +53,37 @@ class Judge:
         s = self.basis.evaluate(T[None]) if scores is None else scores
         misfit = self.threshold.misfit(self.basis, T, s)
         holds = self.threshold.holds(self.basis, T, s, misfit)
-        return Verdict(self.threshold, misfit if np.isfinite(misfit) else None, constraint(self.basis, T),
-                       intrusion(self.basis, T), holds)
+        return Verdict(self.threshold, misfit if np.isfinite(misfit) else None,
+                       constraint(self.basis, T, self.threshold.free), intrusion(self.basis, T), holds)
+
+
+def floor_queries(max_points: int, cut_points: int | None = None) -> int:
+    """How many queries measure the pair's noise floor: ``max_points`` (the sample's size), at least FLOOR_QUERIES,
+    at most ``cut_points`` (the overlap cut's points; None: not cut yet)."""
+    n = max(int(max_points), FLOOR_QUERIES)
+    return n if cut_points is None else min(n, int(cut_points))
 
 
 def judge(source: Scan, target: Scan, surface: Surface, floor: float, rng: np.random.Generator,
-          config: Config) -> Judge:
+          config: Config, frame: LockFrame | None = None) -> Judge:
     """The Judge of a pair whose noise floor (squared units, core.noise) is measured: the basis drawn with ``rng``
-    (after the floor's draws), the target's ``surface``."""
+    (after the floor's draws), the target's ``surface``; ``frame``: the lock bound for the search (its free motions
+    are all the constraint asks about), or None."""
     cc = config.candidates
     basis = make_basis(source, target, surface, floor, rng, cc, config.problem.frustum)
     threshold = pair_threshold(floor, basis.angle_floor, cc.min_overlap, min_constraint=min_constraint_of(target),
-                               max_intrusion=max_intrusion_of(source, target))
+                               max_intrusion=max_intrusion_of(source, target), free=FreeMotions.of(frame))
     return Judge(basis, threshold)
 
 
-def judge_pair(source: Scan, target: Scan, surface: Surface, config: Config, n_points: int) -> Judge:
-    """The Judge the global method's setup makes for this pair (the floor's ``n_points`` queries and the basis
-    drawn from ``config.seed``'s generator, in its order): ``n_points`` is the overlap sample's size."""
+def judge_pair(source: Scan, target: Scan, surface: Surface, config: Config, cut_points: int,
+               frame: LockFrame | None = None) -> Judge:
+    """The Judge the global method's setup makes for this pair, with its seeded draws in its order (the floor's
+    :func:`floor_queries`, then the basis, from ``config.seed``'s generator): ``cut_points`` the overlap cut's
+    points; ``frame`` the lock bound for the search. The same as the setup's where the global method searches these
+    scans themselves, not copies thinned above core.candidates.SEARCH_POINTS (the paper's methods judge the whole
+    scans)."""
     rng = np.random.default_rng(config.seed)
-    floor = float(np.mean(noise_floors_ahead([source, target], rng, n_points)()))
-    return judge(source, target, surface, floor, rng, config)
+    n = floor_queries(config.problem.max_points, cut_points)
+    floor = float(np.mean(noise_floors_ahead([source, target], rng, n)()))
+    return judge(source, target, surface, floor, rng, config, frame)

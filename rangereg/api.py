@@ -116,8 +116,10 @@ def register(source, target, init=None, *, rotation_uncertainty: float | None = 
     t_start, t_min_ratio, cooling, icp_max_iterations, sa_max_evaluations, hops, restarts, recut_rounds,
     polish, coarse_to_fine, candidates, rotation_samples, full_search, time_limit, lock, no_guess).
 
-    Returns a :class:`rangereg.core.result.Result`: ``T_target_source``, ``trusted`` (whether to trust it),
-    ``error`` and ``threshold`` (squared units), ``found_by``, ``within_region``, ``stop_text``,
+    Returns a :class:`rangereg.core.result.Result`: ``T_target_source``, ``below_threshold`` (whether to trust it,
+    every method: the CLI's "trust yes"), ``trust_text`` (why), ``verdict`` (the pair threshold's test at the pose;
+    None where a paper method's E ended above its threshold), ``error`` and ``threshold`` (squared units),
+    ``found_by``, ``within_region``, ``stop_text``,
     ``seconds`` (the search, from the scans in memory to the pose). Raises InputError for bad input."""
     from rangereg.core.register import register as core_register
 

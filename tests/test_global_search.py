@@ -100,11 +100,10 @@ WARNS = """
 import sys
 import numpy as np
 import open3d as o3d
-import rangereg.core.global_search.setup  # noqa: F401
-import rangereg.core.global_search as gs
+import rangereg.core.verdict as verdict
 from rangereg.app.cli import main
 
-real = gs.setup.make_basis
+real = verdict.make_basis
 
 
 def warns_then_makes_the_basis(*args, **kw):  # every global run makes its basis once
@@ -122,7 +121,7 @@ def warns_then_makes_the_basis(*args, **kw):  # every global run makes its basis
     return real(*args, **kw)
 
 
-gs.setup.make_basis = warns_then_makes_the_basis
+verdict.make_basis = warns_then_makes_the_basis
 sys.exit(main(sys.argv[1:]))
 """
 

@@ -92,6 +92,11 @@ def test_an_obj_keeps_every_vertex_in_its_order_whether_faces_use_them_or_not(tm
     np.testing.assert_allclose(alone.points, pts)
     np.testing.assert_allclose(partial.points, pts)
     assert alone.faces is None and partial.faces.tolist() == [[0, 1, 2], [1599, 1598, 1597]]
+    # one part per material, each holding the whole vertex list: the vertices once, the faces of every part
+    (tmp_path / "m.obj").write_text(rows + "usemtl a\nf 1 2 3\nusemtl b\nf 4 5 6\nusemtl c\nf 7 8 9\n")
+    materials = load_scan(tmp_path / "m.obj")
+    np.testing.assert_allclose(materials.points, pts)
+    assert sorted(materials.faces.tolist()) == [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
 
 
 def test_an_ascii_float_past_float32s_range_is_dropped_as_non_finite_without_a_numpy_warning(tmp_path):
@@ -105,6 +110,12 @@ def test_an_ascii_float_past_float32s_range_is_dropped_as_non_finite_without_a_n
         warnings.simplefilter("error")
         s = load_scan(tmp_path / "o.ply")
     assert len(s.points) == 39 and np.isfinite(s.points).all()
+    # an integer property past its type's range would wrap into another number: refused, named
+    colour = head.replace("end_header", "property uchar red\nend_header")
+    (tmp_path / "c.ply").write_text(colour + "".join(f"{x:.9g} {y:.9g} 1 {300 if k == 3 else 7}\n"
+                                                     for k, (x, y, _) in enumerate(pts)))
+    with pytest.raises(InputError, match="property 'red' of element 'vertex' holds 300, beyond its type's range"):
+        load_scan(tmp_path / "c.ply")
 
 
 def test_save_and_reload_keeps_grid_viewpoint_and_truth(tmp_path, scene):

@@ -8,8 +8,10 @@ import pytest
 from rangereg.core.config import Config
 from rangereg.core.global_search.setup import prepare_setup
 from rangereg.core.io import load_scan
+from rangereg.core.lock import Lock
 from rangereg.core.problem import ProblemConfig, relative_guess
 from rangereg.core.register import register
+from rangereg.core.threshold import FreeMotions, point_to_plane_system
 from rangereg.core.transforms import invert, pose_error
 
 from tests.conftest import ASSETS
@@ -61,3 +63,26 @@ def test_a_pose_above_the_threshold_is_not_judged_and_says_so():
     res = register(source, target, guess, Config(method="icp", threshold=1e-9))
     assert res.verdict is None and res.trusted is None and not res.below_threshold
     assert res.trust_text.startswith("E is above the threshold")
+
+
+def test_under_a_lock_the_constraint_asks_only_about_the_motions_it_leaves_free():
+    # a plane (z = 0) leaves tx, ty and rz free; locked, the free ones (tz, rx, ry) are all pinned
+    rng = np.random.default_rng(0)
+    q = np.c_[rng.uniform(-1, 1, (400, 2)), np.zeros(400)]
+    n = np.tile([0.0, 0.0, 1.0], (400, 1))
+    assert point_to_plane_system(q, n).ratio < 1e-12
+    frame = Lock.parse("tx,ty,rz").bind(np.eye(4), np.zeros(3), 1.0)
+    locked = point_to_plane_system(q, n, FreeMotions.of(frame))
+    assert locked.ratio > 0.1 and len(locked.eigenvalues) == 3 and locked.strongest >= locked.eigenvalues[-1]
+    turn = point_to_plane_system(q, n, FreeMotions.of(Lock.parse("turntable:0,0,0,0,0,1").bind(np.eye(4), np.zeros(3), 1.0)))
+    assert turn.ratio < 1e-12 and abs(turn.weakest[5]) > 0.99  # spinning a plane about its normal: free
+
+
+@pytest.mark.parametrize("method", ["hybrid", "global"])
+def test_a_lock_that_forbids_the_motion_the_overlap_leaves_free_lets_the_pose_be_trusted(method):
+    # the wing slides along its panel (free: tx, ty, rz in its frame, nearly); locked there, the rest is pinned
+    source, target, _, T_true = _asset("wing")
+    assert not register(source, target, T_true, Config(method=method)).below_threshold
+    locked = register(source, target, T_true, Config(method=method, lock=Lock.parse("tx,ty,rz")))
+    assert locked.below_threshold and locked.verdict.threshold.free.count == 3
+    assert max(_off(locked, source, T_true)) < 1.0

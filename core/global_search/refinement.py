@@ -225,7 +225,7 @@ def undercut(setup: Setup, refined: list[np.ndarray], T: np.ndarray) -> bool:
     lower = [R for R, ok, score in zip(others, setup.basis.valid(s)[:-1], s.score[:-1]) if ok and score < s.score[-1]]
     if not lower:
         return False
-    c = constraint(setup.basis, T)
+    c = constraint(setup.basis, T, setup.threshold.free)
     return c.rise is None or any(c.alignment(T, R) < ALONG_THE_FREE_MOTION for R in lower)
 
 

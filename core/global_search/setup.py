@@ -22,7 +22,7 @@ from ..scan import Scan
 from ..search.budget import Budget
 from ..surface import Surface
 from ..threshold import PairThreshold
-from ..verdict import Judge, judge
+from ..verdict import Judge, floor_queries, judge
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,16 +106,17 @@ def prepare_setup(source: Scan, target: Scan, guess: Guess | np.ndarray | None, 
     # overlap (the surface's query structure built on a third meanwhile); they are measured with as many
     # queries as the cut's sample holds, which is the most a sample holds unless the cut is small
     rng = np.random.default_rng(config.seed)
-    floors = noise_floors_ahead([source, target], rng, pc.max_points)
+    n_floor = floor_queries(pc.max_points)
+    floors = noise_floors_ahead([source, target], rng, n_floor)
     surface = (surface if surface is not None else Surface.from_scan(target)).warm()
     problem = prepare(source, target, guess, pc, surface=surface, seed=config.seed)
-    if len(problem.points) != pc.max_points:
+    if floor_queries(pc.max_points, int(problem.used.sum())) != n_floor:
         rng = np.random.default_rng(config.seed)
-        floors = noise_floors_ahead([source, target], rng, len(problem.points))
+        floors = noise_floors_ahead([source, target], rng, floor_queries(pc.max_points, int(problem.used.sum())))
     # A lock (core.lock) is bound once, at the guess: every candidate is moved onto the allowed set
     # before it is scored, and every refinement and the hybrid walk the same free coordinates.
     frame = config.lock.bind(problem.T_init, problem.center, problem.scale) if config.lock.active else None
-    pair = judge(source, target, problem.surface, float(np.mean(floors())), rng, config)
+    pair = judge(source, target, problem.surface, float(np.mean(floors())), rng, config, frame)
     region = guess.region(source, target)
     return Setup(source, target, config, problem, pair.basis, pair.threshold, region, frame, ahead, t0)
 

@@ -45,7 +45,7 @@ def slides(setup: Setup, T: np.ndarray) -> np.ndarray:
     """(S, 4, 4) pose T translated along its weakest matched motion (target frame), both ways, one cap width
     apart up to the region's translation bound (MAX_SLIDE_SHARE of the target's size at most); (0, 4, 4) when
     the overlap pins T (WALK_BELOW), the weakest motion is a rotation or too few points match to say."""
-    c = constraint(setup.basis, T)
+    c = constraint(setup.basis, T, setup.threshold.free)
     t, r = c.weakest[:3], c.weakest[3:]
     if not c.matched or c.ratio >= WALK_BELOW or np.linalg.norm(t) < np.linalg.norm(r):
         return np.zeros((0, 4, 4))

@@ -54,7 +54,8 @@ def run_method(source: Scan, target: Scan, guess: Guess | np.ndarray | None, con
     best = best_round(rounds)
     verdict = None
     if judged and best.error < threshold and best.stop.reason is not StopReason.CANCELLED:
-        verdict = judge_pair(problem.source, problem.target, problem.surface, config, len(problem.points)).verdict(best.T)
+        verdict = judge_pair(problem.source, problem.target, problem.surface, config, int(problem.used.sum()),
+                             state.frame).verdict(best.T)
     return Result(best.T, best.error, Iterations(state.n["icp"], state.n["sa"]), state.local_minima,
                   state.evaluations, time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut,
                   trusted=None if verdict is None else verdict.holds, verdict=verdict)

@@ -55,3 +55,32 @@ def test_at_the_truth_the_pose_comes_back_unchanged_and_nothing_is_refined():
     run = EventStream(None, None, setup.budget())
     T, last = along_the_free_motion(setup, run, T_true, None, lambda T0: pytest.fail("refined from a slide"))
     assert T is T_true and last is None and run.total() == 0
+
+
+def test_where_the_whole_score_is_flat_along_a_fused_room_the_points_facing_the_slide_walk_it_home():
+    # sim-fragments-0: slid along the room the whole score is as low as at the truth (86 % of the source matches
+    # both ways); the end walls and furniture facing the slide are what pin it (core.global_search.slide: facing)
+    from rangereg.app.sweep_sensors import SensorPair
+    from rangereg.core.candidates import for_search
+    from rangereg.core.global_search.refinement import refine
+    from rangereg.core.global_search.slide import along_the_free_motion
+    from rangereg.core.global_search.stream import EventStream
+    from rangereg.core.guess import Guess
+    from rangereg.core.transforms import pose_error
+
+    source, target, T_true = SensorPair("sim-fragments", "sim-fragments-0", seed=0).load()
+    source, target = for_search(source), for_search(target)
+    setup = prepare_setup(source, target, Guess(T_true, 30.0, 0.5), Config(method="global", seed=1))
+    d = constraint(setup.basis, T_true).weakest[:3]
+    T_slid = T_true.copy()
+    T_slid[:3, 3] += 0.216 * d / np.linalg.norm(d)  # where KISS-Matcher's pose refined ended from a 30-degree start
+    assert not setup.trusted(T_slid) and setup.score(T_slid) < 1.05 * setup.score(T_true)  # the score cannot tell
+    run = EventStream(None, None, setup.budget())
+
+    def refine_from(T0, at=None):
+        return refine(source, target, setup.surface, setup.guess.at(T0), setup.config, lambda *a: None, setup.frame,
+                      at, setup.settled_somewhere)
+
+    T, last = along_the_free_motion(setup, run, T_slid, None, refine_from)
+    rot, move = pose_error(T, T_true)
+    assert setup.trusted(T) and rot < 1.0 and move < 0.05 and last is not None

@@ -369,11 +369,13 @@ def facing_weights(basis: Basis, T: np.ndarray, c: Constraint) -> np.ndarray:
     return (np.hstack([n, cross(q - c.center, n) / c.radius]) @ (c.weakest / np.linalg.norm(c.weakest))) ** 2
 
 
-def facing_scores(basis: Basis, weights: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def facing_scores(basis: Basis, weights: np.ndarray, poses: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
     """(P,) the capped score of (P, 4, 4) poses on ``basis.constraint_points``, each weighted by ``weights`` ((C,),
-    :func:`facing_weights`), as the basis scores: a point outside the target's frustum or beyond the cap pays it."""
-    d2, inside = basis.matches(np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4), basis.constraint_points)
-    return np.where(inside, np.minimum(d2, basis.cap), basis.cap) @ weights / weights.sum()
+    :func:`facing_weights`), as the basis scores: a point outside the target's frustum or beyond the cap pays it;
+    ``keep``: indices of the points scored (None: all)."""
+    points, w = (basis.constraint_points, weights) if keep is None else (basis.constraint_points[keep], weights[keep])
+    d2, inside = basis.matches(np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4), points)
+    return np.where(inside, np.minimum(d2, basis.cap), basis.cap) @ w / w.sum()
 
 
 def stable_rise(basis: Basis, T: np.ndarray, c: Constraint) -> float:

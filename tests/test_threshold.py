@@ -104,15 +104,15 @@ def test_a_weakly_pinned_pose_is_held_to_the_known_sensors_free_space_bound(monk
     for rise, trusted in ((None, True), (1.3, False)):
         c = SimpleNamespace(rise=rise, pins=lambda bound: True, matched=900, ratio=0.1 if rise is None else 0.01,
                             stably_pinned=False)
-        monkeypatch.setattr(th, "constraint", lambda basis, T, c=c: c)
+        monkeypatch.setattr(th, "constraint", lambda basis, T, free=None, c=c: c)
         assert thr.holds(basis, np.eye(4), scores, misfit=1.0) is trusted
     weak = SimpleNamespace(rise=1.1, pins=lambda bound: False, matched=900, ratio=0.01, stably_pinned=False)
-    monkeypatch.setattr(th, "constraint", lambda basis, T: weak)
+    monkeypatch.setattr(th, "constraint", lambda basis, T, free=None: weak)
     monkeypatch.setattr(th.PairThreshold, "misfit", lambda self, basis, T, s=None: 1.0)
     monkeypatch.setattr(basis, "evaluate", lambda Ts: scores, raising=False)
     assert thr.weakly_pinned(basis, np.eye(4))  # a rise that falls short stays weakly pinned, for a campaign's loops
     from dataclasses import replace
 
     lifted = replace(thr, slide_intrusion=np.inf)  # an evidence script's "before the test": the fused bound alone
-    monkeypatch.setattr(th, "constraint", lambda basis, T: SimpleNamespace(rise=1.3, pins=lambda bound: True))
+    monkeypatch.setattr(th, "constraint", lambda basis, T, free=None: SimpleNamespace(rise=1.3, pins=lambda bound: True))
     assert lifted.holds(basis, np.eye(4), scores, misfit=1.0) and lifted.slide_bound == MAX_INTRUSION

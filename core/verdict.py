@@ -18,6 +18,8 @@ of 4 seeds from their stored guesses), and an overlap that lets the pose slide f
 
 from __future__ import annotations
 
+import threading
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +29,7 @@ from .config import Config
 from .intrusion import intrusion, max_intrusion_of
 from .lock import LockFrame
 from .noise import noise_floors_ahead
+from .problem import Problem
 from .result import Verdict
 from .scan import Scan
 from .surface import Surface
@@ -87,3 +90,25 @@ def judge_pair(source: Scan, target: Scan, surface: Surface, config: Config, cut
     n = floor_queries(config.problem.max_points, cut_points)
     floor = float(np.mean(noise_floors_ahead([source, target], rng, n)()))
     return judge(source, target, surface, floor, rng, config, frame)
+
+
+# The Judge of a prepared problem, kept while the problem lives: the workbench shares one problem across the runs of
+# a pair (core.register's ``problem=``), and the judge, drawn from the seed alone, is the same for each of them
+# (0.1-0.5 s a run on the scenes and the bunny; a run with another seed, lock or sample size makes its own).
+_JUDGES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_JUDGES_LOCK = threading.Lock()
+
+
+def judge_of(problem: Problem, config: Config, frame: LockFrame | None = None) -> Judge:
+    """:func:`judge_pair` of ``problem``'s pair, its surface and its overlap cut, made once per problem for each
+    seed, candidate config, sample size, frustum and lock."""
+    free = FreeMotions.of(frame)
+    key = (config.seed, repr(config.candidates), config.problem.max_points, config.problem.frustum,
+           None if free is None else free.key)
+    with _JUDGES_LOCK:
+        made = _JUDGES.setdefault(problem, {}).get(key)
+    if made is None:
+        made = judge_pair(problem.source, problem.target, problem.surface, config, int(problem.used.sum()), frame)
+        with _JUDGES_LOCK:
+            _JUDGES.setdefault(problem, {})[key] = made
+    return made

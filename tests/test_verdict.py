@@ -86,3 +86,16 @@ def test_a_lock_that_forbids_the_motion_the_overlap_leaves_free_lets_the_pose_be
     locked = register(source, target, T_true, Config(method=method, lock=Lock.parse("tx,ty,rz")))
     assert locked.below_threshold and locked.verdict.threshold.free.count == 3
     assert max(_off(locked, source, T_true)) < 1.0
+
+
+def test_runs_on_one_prepared_problem_share_its_judge_and_another_seed_makes_its_own():
+    # the workbench shares one problem across a pair's runs: the judge (its basis, its threshold) is made once
+    from rangereg.core.problem import prepare
+    from rangereg.core.verdict import judge_of
+
+    source, target, guess, _ = _asset("corner")
+    problem = prepare(source, target, guess)
+    first = register(source, target, guess, Config(method="icp"), problem=problem)
+    again = register(source, target, guess, Config(method="icp"), problem=problem)
+    assert first.verdict.threshold is again.verdict.threshold and first.trusted and again.trusted
+    assert judge_of(problem, Config(seed=1)) is not judge_of(problem, Config(seed=0))

@@ -22,7 +22,7 @@ from ..problem import Problem, prepare
 from ..result import Iterations, Result, StopReason
 from ..scan import Scan
 from ..threshold import threshold_for
-from ..verdict import judge_pair
+from ..verdict import judge_of
 from .budget import Budget, BudgetSpent
 from .rounds import Round, best_round, cancelled, polish, search_rounds
 from .state import SearchState
@@ -54,8 +54,7 @@ def run_method(source: Scan, target: Scan, guess: Guess | np.ndarray | None, con
     best = best_round(rounds)
     verdict = None
     if judged and best.error < threshold and best.stop.reason is not StopReason.CANCELLED:
-        verdict = judge_pair(problem.source, problem.target, problem.surface, config, int(problem.used.sum()),
-                             state.frame).verdict(best.T)
+        verdict = judge_of(problem, config, state.frame).verdict(best.T)
     return Result(best.T, best.error, Iterations(state.n["icp"], state.n["sa"]), state.local_minima,
                   state.evaluations, time.perf_counter() - t0, config.method, threshold, best.stop, cut=problem.cut,
                   trusted=None if verdict is None else verdict.holds, verdict=verdict)

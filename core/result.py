@@ -115,7 +115,7 @@ class Verdict:
             if not c.matched:
                 return "too little of the scans overlaps at this pose to judge what it pins"
             if c.ratio < t.min_constraint:
-                free = getattr(t, "free", None)
+                free = t.free
                 which = ("all six degrees of freedom" if free is None else
                          f"the {free.count} degrees of freedom the lock leaves free")
                 return (f"where the scans overlap they agree at the noise level, but the overlap does not pin {which}: "

@@ -99,7 +99,9 @@ def along_the_free_motion(setup: Setup, run: EventStream, T: np.ndarray, last: P
         run.leg("icp")
         try:
             T2, last2 = refine_from(poses[k])
-        except (BudgetSpent, InputError):  # spent, or the slide's refinement left the overlap: keep the pose
+        except BudgetSpent:  # spent: what was found so far, nothing more scored
+            return T, last
+        except InputError:  # the slide's refinement left the overlap: keep the pose
             break
         if last2 is None:  # the slide's refinement settled nowhere: keep the pose
             break
